@@ -1,0 +1,1 @@
+"""PolyC2BF safety filter for ROS 2: a numpy core plus a thin rclpy shell."""

@@ -1,0 +1,33 @@
+"""ament_python package definition for polyc2bf_ros."""
+from glob import glob
+
+from setuptools import setup
+
+PACKAGE = 'polyc2bf_ros'
+
+# Console scripts, installed to lib/polyc2bf_ros so that `ros2 run` finds them.
+# Names follow DESIGN.md section 5; each is added only once it does real work.
+CONSOLE_SCRIPTS = [
+    'safety_filter = polyc2bf_ros.safety_filter_node:main',
+    'bench = polyc2bf_ros.bench_cli:main',
+]
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=[PACKAGE, f'{PACKAGE}.core', 'sim_bridge'],
+    data_files=[
+        ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
+        (f'share/{PACKAGE}', ['package.xml']),
+        (f'share/{PACKAGE}/config', glob('config/*.yaml')),
+        (f'share/{PACKAGE}/launch', glob('launch/*.py')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='polyc2bf_ros maintainers',
+    maintainer_email='maintainers@polyc2bf-ros.invalid',
+    description='PolyC2BF control-barrier-function safety filter for ROS 2 Jazzy.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={'console_scripts': CONSOLE_SCRIPTS},
+)

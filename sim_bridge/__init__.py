@@ -1,0 +1,1 @@
+"""PyBullet simulation bridge, nominal controllers, MCAP recording and replay."""
