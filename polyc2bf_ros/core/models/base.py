@@ -1,0 +1,83 @@
+"""Robot model interface shared by every model the filter supports.
+
+A model is a control-affine system x_dot = f(x) + g(x) u (paper eq. 1) plus
+the kinematics of the *reference point* whose collision cones are guarded
+(paper eq. 11-12 for the unicycle, eq. 17 for the quadrotor).  The barrier
+only needs, at the current state, the reference point's position r, its
+velocity r_dot and its acceleration split into drift and input parts::
+
+    r_ddot = a_drift(x) + B(x) u
+
+Relative quantities follow (obstacles translate at constant velocity c_dot)::
+
+    p_rel = c - r,   v_rel = c_dot - r_dot,   v_rel_dot = -a_drift - B u
+"""
+import abc
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+MODELS: dict[str, type['RobotModel']] = {}
+
+
+def register_model(cls):
+    """Class decorator: make a model available to ``make_model`` by its ``name``."""
+    MODELS[cls.name] = cls
+    return cls
+
+
+@dataclass(frozen=True)
+class ReferenceKinematics:
+    """Position, velocity and acceleration r_ddot = drift + input_matrix @ u of the point."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    drift: np.ndarray
+    input_matrix: np.ndarray
+
+
+class RobotModel(abc.ABC):
+    """Control-affine robot model with bounded inputs and a guarded reference point."""
+
+    name: ClassVar[str]
+    state_dim: ClassVar[int]
+    input_dim: ClassVar[int]
+    position_dim: ClassVar[int]
+
+    input_lower: np.ndarray
+    input_upper: np.ndarray
+
+    @abc.abstractmethod
+    def f(self, x):
+        """Return the drift f(x) of x_dot = f(x) + g(x) u."""
+
+    @abc.abstractmethod
+    def g(self, x):
+        """Return the input matrix g(x) (state_dim x input_dim)."""
+
+    @abc.abstractmethod
+    def reference(self, x) -> ReferenceKinematics:
+        """Return the reference point's kinematics at state x."""
+
+    @abc.abstractmethod
+    def braking_input(self, x):
+        """Return the input that brings the robot to rest fastest (defined for any x)."""
+
+    def state_derivative(self, x, u):
+        """Return x_dot = f(x) + g(x) u."""
+        return self.f(x) + self.g(x) @ np.asarray(u, dtype=float)
+
+    def clip_input(self, u):
+        """Clip u to the input box."""
+        return np.clip(u, self.input_lower, self.input_upper)
+
+
+def damped_brake(rates, limit, time_constant):
+    """Return -rates / time_constant clipped to +-limit, zero where rates are not finite.
+
+    Used by models whose brake drives velocities to zero as fast as the input
+    bounds allow without overshooting within one time constant.
+    """
+    rates = np.where(np.isfinite(rates), rates, 0.0)
+    return np.clip(-rates / time_constant, -limit, limit)

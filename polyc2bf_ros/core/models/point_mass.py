@@ -1,0 +1,64 @@
+"""Point mass with acceleration input, in 2-D and 3-D (paper eq. 20).
+
+State x = [p, v] with p, v in R^d, input u = a in R^d::
+
+    x_dot = [v, 0] + [0; I] u,   r = p,  r_dot = v,  r_ddot = 0 + I u
+"""
+import numpy as np
+
+from polyc2bf_ros.core.models.base import (
+    damped_brake, ReferenceKinematics, register_model, RobotModel)
+
+
+class PointMass(RobotModel):
+    """Double integrator in ``position_dim`` dimensions with a per-axis acceleration box."""
+
+    def __init__(self, max_accel=3.0, brake_time_constant=0.05):
+        """Set the per-axis bound |a_i| <= max_accel [m/s^2]."""
+        d = self.position_dim
+        self.input_upper = np.full(d, float(max_accel))
+        self.input_lower = -self.input_upper
+        self.brake_time_constant = float(brake_time_constant)
+        self._g = np.vstack([np.zeros((d, d)), np.eye(d)])
+
+    def f(self, x):
+        """Return [v, 0]."""
+        d = self.position_dim
+        return np.concatenate([x[d:], np.zeros(d)])
+
+    def g(self, x):
+        """Return [0; I]."""
+        return self._g
+
+    def reference(self, x):
+        """Return the point's own position and velocity, r_ddot = u."""
+        d = self.position_dim
+        return ReferenceKinematics(position=np.asarray(x[:d], dtype=float),
+                                   velocity=np.asarray(x[d:], dtype=float),
+                                   drift=np.zeros(d), input_matrix=np.eye(d))
+
+    def braking_input(self, x):
+        """Decelerate each axis to rest at the acceleration limit."""
+        d = self.position_dim
+        return damped_brake(np.asarray(x, dtype=float)[d:], self.input_upper,
+                            self.brake_time_constant)
+
+
+@register_model
+class PointMass2D(PointMass):
+    """Holonomic ground robot: x = [x, y, vx, vy], u = [ax, ay]."""
+
+    name = 'point_mass_2d'
+    state_dim = 4
+    input_dim = 2
+    position_dim = 2
+
+
+@register_model
+class PointMass3D(PointMass):
+    """Holonomic aerial robot: x = [x, y, z, vx, vy, vz], u = [ax, ay, az]."""
+
+    name = 'point_mass_3d'
+    state_dim = 6
+    input_dim = 3
+    position_dim = 3

@@ -1,0 +1,69 @@
+"""Acceleration-controlled unicycle (paper eq. 10-13), the quadruped's model.
+
+State x = [x_p, y_p, theta, v, omega], input u = [a, alpha]::
+
+    x_dot = [v cos(theta), v sin(theta), omega, 0, 0] + [[0,0],[0,0],[0,0],[1,0],[0,1]] u
+
+The reference point sits a distance l ahead of the axle (paper eq. 11); with
+l = 0 the steering column of Lgh vanishes::
+
+    r     = [x_p + l cos(theta), y_p + l sin(theta)]
+    r_dot = [v cos(theta) - l omega sin(theta), v sin(theta) + l omega cos(theta)]
+    r_ddot = drift + B u,
+      drift = [-v omega sin(theta) - l omega^2 cos(theta),
+                v omega cos(theta) - l omega^2 sin(theta)]
+      B     = [[cos(theta), -l sin(theta)],
+               [sin(theta),  l cos(theta)]]
+
+which is minus the paper's v_rel_dot expression.
+"""
+import numpy as np
+
+from polyc2bf_ros.core.models.base import (
+    damped_brake, ReferenceKinematics, register_model, RobotModel)
+
+
+@register_model
+class Unicycle(RobotModel):
+    """Acceleration-controlled unicycle with reference-point offset ``offset_l``."""
+
+    name = 'unicycle'
+    state_dim = 5
+    input_dim = 2
+    position_dim = 2
+
+    def __init__(self, offset_l=0.2, max_accel=2.0, max_angular_accel=4.0,
+                 brake_time_constant=0.05):
+        """Set the offset l [m], |a| <= max_accel, |alpha| <= max_angular_accel."""
+        self.offset_l = float(offset_l)
+        self.input_upper = np.array([max_accel, max_angular_accel], dtype=float)
+        self.input_lower = -self.input_upper
+        self.brake_time_constant = float(brake_time_constant)
+
+    def f(self, x):
+        """Return [v cos(theta), v sin(theta), omega, 0, 0]."""
+        _, _, theta, v, omega = x
+        return np.array([v * np.cos(theta), v * np.sin(theta), omega, 0.0, 0.0])
+
+    def g(self, x):
+        """Return the constant input matrix: a drives v, alpha drives omega."""
+        g = np.zeros((5, 2))
+        g[3, 0] = g[4, 1] = 1.0
+        return g
+
+    def reference(self, x):
+        """Return the kinematics of the point l ahead of the axle."""
+        px, py, theta, v, omega = x
+        c, s = np.cos(theta), np.sin(theta)
+        l_ = self.offset_l
+        return ReferenceKinematics(
+            position=np.array([px + l_ * c, py + l_ * s]),
+            velocity=np.array([v * c - l_ * omega * s, v * s + l_ * omega * c]),
+            drift=np.array([-v * omega * s - l_ * omega ** 2 * c,
+                            v * omega * c - l_ * omega ** 2 * s]),
+            input_matrix=np.array([[c, -l_ * s], [s, l_ * c]]))
+
+    def braking_input(self, x):
+        """Decelerate v and omega to zero at the input limits."""
+        return damped_brake(np.asarray(x, dtype=float)[3:5], self.input_upper,
+                            self.brake_time_constant)
