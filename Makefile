@@ -44,8 +44,9 @@ test: $(PKG_STAMP)
 lint: $(PKG_STAMP)
 	$(PY) -m ruff check .
 
+# Benchmarks print a table and write JSON under bench/results/ (DESIGN.md section 8).
 bench: $(PKG_STAMP)
-	ROS_DOMAIN_ID=$${ROS_DOMAIN_ID:-$(DOMAIN)} $(PY) -m polyc2bf_ros.bench_cli
+	$(PY) bench/bench_core.py
 
 demo:
 	@echo "make demo: the closed-loop demo is not built yet; see the open 'make demo' issue." >&2

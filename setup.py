@@ -9,7 +9,6 @@ PACKAGE = 'polyc2bf_ros'
 # Names follow DESIGN.md section 5; each is added only once it does real work.
 CONSOLE_SCRIPTS = [
     'safety_filter = polyc2bf_ros.safety_filter_node:main',
-    'bench = polyc2bf_ros.bench_cli:main',
 ]
 
 setup(
