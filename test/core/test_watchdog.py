@@ -1,0 +1,60 @@
+"""Watchdog: per-input staleness on caller-supplied monotonic times."""
+import math
+
+import pytest
+
+from polyc2bf_ros.core.watchdog import Watchdog
+
+
+def test_never_received_is_stale_with_infinite_age():
+    """An input that never arrived is stale and infinitely old."""
+    dog = Watchdog({'odom': 0.1, 'cmd': 0.5})
+    assert dog.stale(100.0) == ('odom', 'cmd')
+    assert dog.age('odom', 100.0) == math.inf
+
+
+def test_fresh_until_timeout_then_stale():
+    """Stale exactly when the age reaches the timeout."""
+    dog = Watchdog({'odom': 0.25})
+    dog.feed('odom', 10.0)
+    assert not dog.is_stale('odom', 10.2499)
+    assert dog.is_stale('odom', 10.25)
+    assert dog.age('odom', 10.125) == 0.125
+
+
+def test_inputs_are_independent_and_recover_when_fed_again():
+    """Each input expires on its own timeout and recovers when fed."""
+    dog = Watchdog({'odom': 0.1, 'cmd': 0.5, 'obstacles': 1.0})
+    for name in dog.names:
+        dog.feed(name, 0.0)
+    assert dog.stale(0.2) == ('odom',)
+    assert dog.stale(0.7) == ('odom', 'cmd')
+    dog.feed('odom', 0.7)
+    assert dog.stale(0.7) == ('cmd',)
+
+
+def test_zero_timeout_never_expires_once_received():
+    """Timeout 0: stale until the first message, then never again."""
+    dog = Watchdog({'obstacles': 0.0})
+    assert dog.is_stale('obstacles', 0.0)
+    dog.feed('obstacles', 0.0)
+    assert not dog.is_stale('obstacles', 1e9)
+
+
+def test_reset_and_set_timeout():
+    """A new timeout applies at once; reset makes the input stale."""
+    dog = Watchdog({'cmd': 0.5})
+    dog.feed('cmd', 1.0)
+    dog.set_timeout('cmd', 0.1)
+    assert dog.timeout('cmd') == 0.1
+    assert dog.is_stale('cmd', 1.2)
+    dog.feed('cmd', 1.2)
+    dog.reset('cmd')
+    assert dog.is_stale('cmd', 1.2)
+
+
+@pytest.mark.parametrize('bad', [-0.1, math.nan, math.inf])
+def test_bad_timeouts_are_refused(bad):
+    """Negative, NaN and infinite timeouts raise with the input name."""
+    with pytest.raises(ValueError, match='cmd'):
+        Watchdog({'cmd': bad})
