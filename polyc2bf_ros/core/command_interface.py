@@ -1,0 +1,73 @@
+"""Velocity commands <-> acceleration inputs for velocity-interface robots.
+
+The barrier functions are written for acceleration-controlled models, but most
+robots take a velocity command (``geometry_msgs/Twist``).  With ``v`` the
+commandable velocity read from the state, ``tau`` the tracking time constant
+and ``T`` the control period::
+
+    u_nom  = (v_cmd - v) / tau          nominal velocity -> nominal acceleration
+    v_safe = v + u_safe * T             safe acceleration held for one period
+
+With ``tau == T`` (the node's default) an unconstrained step returns
+``v_safe == v_cmd`` exactly, so the filter is transparent until a constraint
+or an acceleration bound is active; a larger ``tau`` smooths the command.
+
+Coordinates of the command vector per model:
+
+- ``unicycle``: ``[v, omega]`` = Twist ``linear.x, angular.z``; ``v`` and
+  ``omega`` are state entries 3 and 4, the input is ``[a, alpha]``.
+- ``point_mass_2d``: ``[vx, vy]`` = Twist ``linear.x, linear.y`` in the body
+  (heading) frame; the state velocity and the input are in the odometry frame,
+  so ``v_cmd`` is rotated by the odometry yaw ``psi``: ``v_world = Rz(psi) v_cmd``
+  and back with ``Rz(psi)^T``.
+- ``point_mass_3d``: ``[vx, vy, vz]`` = Twist ``linear.x, .y, .z`` in the
+  heading frame (body frame without roll and pitch: ``Rz(psi)``), so a tilted
+  drone's vertical command stays vertical.
+"""
+import math
+
+import numpy as np
+
+# model -> (slice of the state holding the commandable velocity, rotate by yaw?)
+_LAYOUT = {
+    'unicycle': (slice(3, 5), False),
+    'point_mass_2d': (slice(2, 4), True),
+    'point_mass_3d': (slice(3, 6), True),
+}
+
+VELOCITY_MODELS = tuple(_LAYOUT)
+
+
+class VelocityCommandInterface:
+    """Map a velocity command to a nominal acceleration and a safe input back."""
+
+    def __init__(self, model_name, tau, period):
+        """Build for ``model_name`` in ``VELOCITY_MODELS``; ``tau``, ``period`` > 0 [s]."""
+        if model_name not in _LAYOUT:
+            raise ValueError(f'model {model_name!r} has no velocity interface; '
+                             f'expected one of {VELOCITY_MODELS}')
+        if not (tau > 0.0 and period > 0.0 and math.isfinite(tau) and math.isfinite(period)):
+            raise ValueError(f'tau and period must be finite and > 0, got {tau}, {period}')
+        self._slice, self._rotate = _LAYOUT[model_name]
+        self.velocity_dim = self._slice.stop - self._slice.start
+        self.tau = float(tau)
+        self.period = float(period)
+        self._buf = np.zeros(self.velocity_dim)
+
+    def _to_world(self, cmd, yaw, out):
+        out[:] = cmd
+        if self._rotate:
+            c, s = math.cos(yaw), math.sin(yaw)
+            out[0] = c * cmd[0] - s * cmd[1]
+            out[1] = s * cmd[0] + c * cmd[1]
+        return out
+
+    def nominal_input(self, state, cmd, yaw=0.0):
+        """``u_nom = (Rz(yaw) v_cmd - v) / tau`` (no rotation for the unicycle)."""
+        v_cmd = self._to_world(cmd, yaw, self._buf)
+        return (v_cmd - state[self._slice]) / self.tau
+
+    def safe_command(self, state, u_safe, yaw=0.0):
+        """``v_safe = Rz(yaw)^T (v + u_safe T)`` in command coordinates."""
+        v_world = state[self._slice] + np.asarray(u_safe) * self.period
+        return self._to_world(v_world, -yaw, np.empty(self.velocity_dim))
