@@ -1,4 +1,4 @@
-"""Crazyflie 2.1 constants, rotor layout and mixer: the one place for them.
+r"""Crazyflie 2.1 constants, rotor layout and mixer: the one place for them.
 
 Shared by the filter's quadrotor model and the PyBullet plant, so both agree
 on which rotor rolls the vehicle which way.
@@ -11,9 +11,9 @@ Rotor layout ("X" configuration, body x forward, y left, z up), numbered
 clockwise seen from above, starting front-right::
 
         4 (+x,+y)   1 (+x,-y)
-              \\   /
+              \   /
                [ ]          rotors 1 and 3 spin clockwise, 2 and 4 counter-clockwise
-              /   \\
+              /   \
         3 (-x,+y)   2 (-x,-y)
 
 A rotor spinning clockwise (seen from above) pushes the body

@@ -50,11 +50,11 @@ class RobotModel(abc.ABC):
 
     @abc.abstractmethod
     def f(self, x):
-        """Return the drift f(x) of x_dot = f(x) + g(x) u."""
+        """Return the drift term of the control-affine dynamics (paper eq. 1)."""
 
     @abc.abstractmethod
     def g(self, x):
-        """Return the input matrix g(x) (state_dim x input_dim)."""
+        """Return the input matrix (state_dim x input_dim) of the dynamics (paper eq. 1)."""
 
     @abc.abstractmethod
     def reference(self, x) -> ReferenceKinematics:

@@ -7,7 +7,11 @@ State x = [p, v] with p, v in R^d, input u = a in R^d::
 import numpy as np
 
 from polyc2bf_ros.core.models.base import (
-    damped_brake, ReferenceKinematics, register_model, RobotModel)
+    damped_brake,
+    ReferenceKinematics,
+    register_model,
+    RobotModel,
+)
 
 
 class PointMass(RobotModel):

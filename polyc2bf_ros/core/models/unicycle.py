@@ -20,7 +20,11 @@ which is minus the paper's v_rel_dot expression.
 import numpy as np
 
 from polyc2bf_ros.core.models.base import (
-    damped_brake, ReferenceKinematics, register_model, RobotModel)
+    damped_brake,
+    ReferenceKinematics,
+    register_model,
+    RobotModel,
+)
 
 
 @register_model
