@@ -35,6 +35,9 @@ SHUTDOWN_TIMEOUT_S = 15.0
 # Absolute topics a node may use besides its own (relative, namespaced) ones.
 GLOBAL_TOPICS = {'/rosout', '/parameter_events', '/diagnostics', '/clock', '/tf', '/tf_static'}
 
+# Every test here needs the colcon build (about 5 s alone, more on a busy machine).
+pytestmark = pytest.mark.slow
+
 
 def _console_scripts():
     """Return ``{name: 'module:function'}`` from ``CONSOLE_SCRIPTS`` in setup.py."""
@@ -97,24 +100,33 @@ def _installed_env(install):
     return dict(item.split('=', 1) for item in proc.stdout.decode().split('\0') if '=' in item)
 
 
-@pytest.mark.slow
-def test_install_tree_has_what_ros2_run_and_launch_resolve(colcon_tree):
-    """Executables, ament index marker, package.xml, config and launch files are installed."""
+def test_build_stays_out_of_the_checkout(colcon_tree):
+    """Colcon's build, install and log trees are in tmp, none appeared in the repository."""
     root, record = colcon_tree
-    install = root / 'install'
     assert not set(record['new_repo_entries']) & {'build', 'install', 'log'}, record
-    assert not (root / 'build' / PACKAGE).is_relative_to(REPO)
+    for tree in ('build', 'install', 'log'):
+        assert (root / tree).is_dir() and not (root / tree).is_relative_to(REPO)
 
+
+def test_every_console_script_is_installed_to_lib_package(colcon_tree):
+    """``lib/polyc2bf_ros/<name>`` exists for each of setup.py's CONSOLE_SCRIPTS."""
+    root, _ = colcon_tree
     scripts = _console_scripts()
     assert 'safety_filter' in scripts, scripts
     generated = configparser.ConfigParser()
     generated.read(root / 'build' / PACKAGE / f'{PACKAGE}.egg-info' / 'entry_points.txt')
     assert dict(generated['console_scripts']) == scripts
     for name in scripts:
-        exe = install / 'lib' / PACKAGE / name
+        exe = root / 'install' / 'lib' / PACKAGE / name
         assert exe.is_file() and os.access(exe, os.X_OK), f'{exe} missing or not executable'
+        # Run by the interpreter colcon ran with (the one that has rclpy).
         assert sys.executable in exe.read_text().splitlines()[0], exe.read_text()[:200]
 
+
+def test_ament_index_marker_package_xml_config_and_launch_are_installed(colcon_tree):
+    """What ``ros2 run``, ``ros2 pkg prefix`` and ``ros2 launch`` look up is in place."""
+    root, _ = colcon_tree
+    install = root / 'install'
     marker = install / 'share' / 'ament_index' / 'resource_index' / 'packages' / PACKAGE
     assert marker.is_file()
     share = install / 'share' / PACKAGE
@@ -125,12 +137,28 @@ def test_install_tree_has_what_ros2_run_and_launch_resolve(colcon_tree):
         installed = {p.name for p in (share / sub).glob(pattern)}
         assert in_repo <= installed, (sub, in_repo - installed)
     assert (share / 'launch' / 'safety_filter.launch.py').is_file()
-    # The launch file's default parameter file must exist in the installed share.
-    assert (share / 'config' / 'quadruped.yaml').is_file(), 'config/quadruped.yaml not installed'
-    assert (install / 'lib' / 'python3.11' / 'site-packages' / PACKAGE / '__init__.py').is_file()
 
 
-@pytest.mark.slow
+def test_launch_file_default_params_file_is_installed(colcon_tree):
+    """``safety_filter.launch.py`` defaults to ``config/quadruped.yaml``: it must be there."""
+    root, _ = colcon_tree
+    launch_text = (REPO / 'launch' / 'safety_filter.launch.py').read_text()
+    assert "'quadruped.yaml'" in launch_text
+    installed = root / 'install' / 'share' / PACKAGE / 'config' / 'quadruped.yaml'
+    assert installed.is_file(), 'config/quadruped.yaml (launch default) is not installed'
+
+
+def test_every_python_package_is_installed(colcon_tree):
+    """Each package directory of the checkout is installed (setup.py's ``packages``)."""
+    root, _ = colcon_tree
+    site = root / 'install' / 'lib' / 'python3.11' / 'site-packages'
+    in_repo = {p.parent.relative_to(REPO).as_posix()
+               for top in (PACKAGE, 'sim_bridge') for p in (REPO / top).rglob('__init__.py')}
+    assert PACKAGE in in_repo
+    missing = {pkg for pkg in in_repo if not (site / pkg / '__init__.py').is_file()}
+    assert not missing, f'packages not installed (add them to setup.py): {sorted(missing)}'
+
+
 def test_installed_safety_filter_honours_ros_args_remapping(colcon_tree, tmp_path):
     """``lib/polyc2bf_ros/safety_filter --ros-args -r __ns:=/robot1 -r __node:=renamed``."""
     root, _ = colcon_tree
