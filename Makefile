@@ -13,9 +13,8 @@ PKG_SOURCES := setup.py setup.cfg package.xml \
 	        -not -name '*.pyc' -not -path '*/__pycache__/*' 2>/dev/null)
 
 # DDS never leaves this machine. Tests pick a ROS_DOMAIN_ID per pytest worker
-# (test/conftest.py); other targets use DOMAIN unless the caller set one.
+# (test/conftest.py).
 export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
-DOMAIN ?= $(shell echo $$(( ($$$$ % 80) + 10 )))
 PYTEST_WORKERS ?= 2
 PYTEST_ARGS ?=
 

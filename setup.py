@@ -1,7 +1,7 @@
 """ament_python package definition for polyc2bf_ros."""
 from glob import glob
 
-from setuptools import setup
+from setuptools import find_packages, setup
 
 PACKAGE = 'polyc2bf_ros'
 
@@ -14,7 +14,8 @@ CONSOLE_SCRIPTS = [
 setup(
     name=PACKAGE,
     version='0.1.0',
-    packages=[PACKAGE, f'{PACKAGE}.core', 'sim_bridge'],
+    # polyc2bf_ros, polyc2bf_ros.core (and its subpackages) and sim_bridge.
+    packages=find_packages(include=[PACKAGE, f'{PACKAGE}.*', 'sim_bridge', 'sim_bridge.*']),
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
