@@ -1,0 +1,41 @@
+"""Hypothesis strategies shared by the core tests (not collected: no test_ prefix)."""
+import numpy as np
+from hypothesis import strategies as st
+
+from polyc2bf_ros.core.geometry import convex_hull
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+@st.composite
+def convex_polygons(draw, centre_range=6.0, min_size=0.2, max_size=2.0):
+    """Draw a convex polygon with 3..10 vertices, centred within +-centre_range."""
+    seed = draw(st.integers(0, 2 ** 32 - 1))
+    rng = np.random.default_rng(seed)
+    count = draw(st.integers(3, 10))
+    size = draw(st.floats(min_size, max_size))
+    aspect = draw(st.floats(0.15, 1.0))
+    angles = np.sort(rng.uniform(0.0, 2 * np.pi, count))
+    radii = rng.uniform(0.6, 1.0, count)
+    points = np.column_stack([size * radii * np.cos(angles),
+                              aspect * size * radii * np.sin(angles)])
+    turn = rng.uniform(0, 2 * np.pi)
+    rot = np.array([[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]])
+    centre = np.array([draw(st.floats(-centre_range, centre_range)),
+                       draw(st.floats(-centre_range, centre_range))])
+    hull = convex_hull(points @ rot.T + centre)
+    return hull
+
+
+def random_state(model_name, rng):
+    """Return a random state for the named model, away from documented singularities."""
+    if model_name == 'unicycle':
+        return np.array([*rng.uniform(-1, 1, 2), rng.uniform(-np.pi, np.pi),
+                         rng.uniform(-1.5, 1.5), rng.uniform(-2, 2)])
+    if model_name == 'point_mass_2d':
+        return np.concatenate([rng.uniform(-1, 1, 2), rng.uniform(-1.5, 1.5, 2)])
+    if model_name == 'point_mass_3d':
+        return np.concatenate([rng.uniform(-1, 1, 3), rng.uniform(-1.5, 1.5, 3)])
+    return np.concatenate([rng.uniform(-1, 1, 3), rng.uniform(-1.5, 1.5, 3),
+                           rng.uniform(-0.7, 0.7, 2), rng.uniform(-np.pi, np.pi, 1),
+                           rng.uniform(-3, 3, 3)])
