@@ -1,0 +1,516 @@
+"""``safety_filter``: PolyC2BF safety filter between a planner and a robot.
+
+Subscribes ``odom`` (nav_msgs/Odometry, best effort), ``obstacles``
+(visualization_msgs/MarkerArray, reliable + transient local) and the nominal
+command: ``cmd_vel_in`` (Twist, or TwistStamped with ``stamped:=true``) for the
+velocity-interface models, ``wrench_in`` (WrenchStamped) for ``quadrotor``.
+Publishes the safe command on ``cmd_vel_out`` / ``wrench_out`` (same type,
+header copied from the input), ``/diagnostics`` at 1 Hz and ``~/markers`` at
+10 Hz while someone subscribes.  ``~/enable`` (std_srvs/SetBool) switches
+filtering off (pass-through, reported as WARN) and on.
+
+Each step (every ``1/rate`` s with ``trigger:=timer``, or per nominal command
+with ``trigger:=command``)::
+
+    stale odom / command / obstacles (steady clock)  -> stop
+    NaN/Inf in odometry, command or obstacles        -> stop (brake)
+    otherwise  u_nom = (v_cmd - v) / tau   (velocity models; thrusts = M^-1 w for the quadrotor)
+               u_safe = SafetyFilter.step(state, obstacles, u_nom, obstacle_age)
+               v_safe = v + u_safe T                  (T = 1/rate)
+
+A stop is a zero twist, or the model's braking (hover) input for the
+quadrotor.  Nothing is published before the first nominal command; after it,
+every step publishes.
+"""
+import dataclasses
+import inspect
+import math
+import sys
+import time
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Twist, TwistStamped, WrenchStamped
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_srvs.srv import SetBool
+from visualization_msgs.msg import MarkerArray
+
+from polyc2bf_ros import conversions
+from polyc2bf_ros.core.command_interface import VELOCITY_MODELS, VelocityCommandInterface
+from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
+from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
+from polyc2bf_ros.core.obstacles import ObstacleSet
+from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
+from polyc2bf_ros.core.stats import LatencyRing, RateMeter
+from polyc2bf_ros.core.watchdog import Watchdog
+
+# name: (default, (min, max) or None, description, read-only)
+NODE_PARAMETERS = {
+    'model': ('unicycle', None, f'robot model, one of {", ".join(MODEL_NAMES)}', True),
+    'stamped': (False, None, 'cmd_vel_in / cmd_vel_out are TwistStamped instead of Twist', True),
+    'trigger': ('timer', None, "'timer': step every 1/rate s; 'command': one step per "
+                'nominal command', True),
+    'rate': (100.0, (1.0, 2000.0), 'control rate [Hz]: timer rate, and T = 1/rate in '
+             'v_safe = v + u_safe T', False),
+    'velocity_tau': (0.0, (0.0, 10.0), 'tau [s] in u_nom = (v_cmd - v) / tau; 0 = one '
+                     'control period (transparent when nothing constrains)', False),
+    'odom_timeout': (0.25, (0.002, 10.0), 'odometry older than this [s] -> stop', False),
+    'cmd_timeout': (0.5, (0.002, 10.0), 'nominal command older than this [s] -> stop', False),
+    'obstacles_timeout': (1.0, (0.0, 3600.0), 'obstacles older than this [s] -> stop; 0 = '
+                          'never stale once received (latched static map)', False),
+    'max_extrapolation': (0.5, (0.0, 5.0), 'obstacles are moved by velocity * age, age = '
+                          'odometry stamp - obstacle stamp clipped to [0, this] [s]', False),
+    'wall_thickness': (0.05, (0.001, 10.0), 'width [m] of walls from 2-point / collinear '
+                       'outlines whose marker has no line width (scale.x)', False),
+    'cylinder_sides': (12, (3, 64), 'sides of the polygon circumscribing CYLINDER / SPHERE '
+                       'markers', False),
+}
+
+# FilterConfig field: ((min, max) or None, description); control_period comes from rate.
+FILTER_PARAMETERS = {
+    'barrier': (None, "cone construction: 'polyc2bf_paper' (segment extended by w/2), "
+                "'polyc2bf_inflated' (polygon inflated by the radius) or 'c3bf' (circles)"),
+    'robot_radius': ((0.0, 10.0), 'robot radius w/2 [m]'),
+    'gamma': ((0.0, 1000.0), 'class-K gain in h_dot + gamma h >= margin [1/s], > 0'),
+    'margin_gain': ((0.0, 1000.0), 'sample-and-hold margin = margin_gain * T'),
+    'solver': (None, "QP solver: 'daqp' or 'proxsuite'"),
+    'velocity_epsilon': ((0.0, 10.0), 'smooth norm sqrt(|v_rel|^2 + eps^2) [m/s], > 0'),
+    'slack_weight': ((0.0, 1e12), 'weight of the shared slack when the QP is infeasible, > 0'),
+    'prune': (None, 'drop rows that no input in the box can violate (same solution)'),
+    'escape_speed': ((0.0, 10.0), 'speed [m/s] of the escape from inside an obstacle'),
+    'escape_gain': ((0.0, 1000.0), 'gain [1/s] of the escape velocity loop, > 0'),
+    'inflation_segments': ((3, 256), 'segments of the robot disc for polyc2bf_inflated'),
+}
+
+_STEADY = ClockType.STEADY_TIME
+_DIAGNOSTICS_PERIOD = 1.0
+_MARKERS_PERIOD = 0.1
+_COMMAND_WATCHDOG_PERIOD = 0.02
+_FALLBACKS = ('slack', 'brake', 'escape')
+
+
+@dataclasses.dataclass
+class _Settings:
+    """Everything derived from the mutable parameters (built and validated together)."""
+
+    config: FilterConfig
+    interface: object
+    timeouts: dict
+    period: float
+
+
+class SafetyFilterNode(Node):
+    """ROS shell around ``core.SafetyFilter``: messages, watchdogs, diagnostics, markers."""
+
+    def __init__(self, **kwargs):
+        """Declare parameters, build the model and filter, wire topics, timers and service."""
+        super().__init__('safety_filter', **kwargs)
+        self._declared = []
+        for name, (default, bounds, text, read_only) in NODE_PARAMETERS.items():
+            self._declare(name, default, bounds, text, read_only)
+        self._model_name = self.get_parameter('model').value
+        if self._model_name not in MODELS:
+            raise ValueError(f"parameter 'model' must be one of {MODEL_NAMES}, "
+                             f'got {self._model_name!r}')
+        self._declare_model_and_filter_parameters()
+        self._stamped = self.get_parameter('stamped').value
+        trigger = self.get_parameter('trigger').value
+        if trigger not in ('timer', 'command'):
+            raise ValueError(f"parameter 'trigger' must be 'timer' or 'command', got {trigger!r}")
+        self._per_command = trigger == 'command'
+        self._model = make_model(self._model_name, **{
+            name: self.get_parameter(f'model_params.{name}').value
+            for name in self._model_parameter_names})
+        self._velocity = self._model_name in VELOCITY_MODELS
+
+        settings = self._settings(self._parameter_values())
+        self._watchdog = Watchdog(settings.timeouts)
+        self._apply(settings)
+        self._tracker = ObstacleTracker()
+        self._obstacle_set = ObstacleSet.empty()
+        self._obstacle_error = ''
+        self._wrong_frame = {}
+        self._t_ref = math.nan
+
+        # State, latest inputs and preallocated outputs.
+        self._state = np.zeros(self._model.state_dim)
+        self._scratch = np.zeros(self._model.state_dim)
+        self._yaw = 0.0
+        self._odom_stamp = 0.0
+        self._odom_frame = None
+        self._odom_valid = False
+        self._have_state = False
+        self._cmd = None
+        self._cmd_valid = False
+        self._enabled = True
+        self._last_info = None
+        self._counts = dict.fromkeys([s.value for s in FilterStatus] + ['stale_stop'], 0)
+        self._reported = dict(self._counts)
+        self._invalid_messages = 0
+        self._min_h = math.inf
+        self._latency = LatencyRing()
+        steady = Clock(clock_type=_STEADY)
+        self._rate_meter = RateMeter(time.monotonic())
+
+        # Topics (relative names), QoS per DESIGN.md section 5.
+        sensor_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+        command_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+        latched_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        if self._velocity:
+            command_type = TwistStamped if self._stamped else Twist
+            command_in, command_out = 'cmd_vel_in', 'cmd_vel_out'
+        else:
+            command_type = WrenchStamped
+            command_in, command_out = 'wrench_in', 'wrench_out'
+        self._out = command_type()
+        self._publisher = self.create_publisher(command_type, command_out, command_qos)
+        self.create_subscription(Odometry, 'odom', self._on_odom, sensor_qos)
+        self.create_subscription(command_type, command_in, self._on_command, command_qos)
+        self.create_subscription(MarkerArray, 'obstacles', self._on_obstacles, latched_qos)
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 1)
+        self.create_service(SetBool, '~/enable', self._on_enable)
+
+        callback = self._on_watchdog if self._per_command else self._on_timer
+        self._timer = self.create_timer(self._timer_period(settings), callback, clock=steady)
+        self.create_timer(_DIAGNOSTICS_PERIOD, self._publish_diagnostics, clock=steady)
+        self.create_timer(_MARKERS_PERIOD, self._publish_markers, clock=steady)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._parameters_changed)
+        self.get_logger().info(
+            f'model {self._model_name}, barrier {settings.config.barrier}, trigger {trigger} '
+            f'at {1.0 / settings.period:g} Hz, listening on {command_in}')
+
+    # -- parameters ------------------------------------------------------------------------
+
+    def _declare_model_and_filter_parameters(self):
+        """Declare ``model_params.*`` (read-only, from the model constructor) and ``filter.*``."""
+        signature = inspect.signature(MODELS[self._model_name].__init__)
+        self._model_parameter_names = []
+        for name, p in signature.parameters.items():
+            if isinstance(p.default, (float, int)) and not isinstance(p.default, bool):
+                self._model_parameter_names.append(name)
+                self._declare(f'model_params.{name}', float(p.default), None,
+                              f'{self._model_name} model parameter {name!r}', True)
+        self._filter_fields = [f for f in dataclasses.fields(FilterConfig)
+                               if f.name != 'control_period']
+        for field in self._filter_fields:
+            bounds, text = FILTER_PARAMETERS.get(field.name, (None, f'FilterConfig.{field.name}'))
+            self._declare(f'filter.{field.name}', field.default, bounds, text, False)
+
+    def _declare(self, name, default, bounds, description, read_only):
+        """Declare one parameter with its description and range."""
+        descriptor = ParameterDescriptor(name=name, description=description, read_only=read_only)
+        if bounds is not None and isinstance(default, int):
+            descriptor.integer_range = [IntegerRange(from_value=bounds[0], to_value=bounds[1])]
+        elif bounds is not None:
+            descriptor.floating_point_range = [
+                FloatingPointRange(from_value=float(bounds[0]), to_value=float(bounds[1]))]
+        self.declare_parameter(name, default, descriptor)
+        self._declared.append(name)
+
+    def _parameter_values(self, changes=()):
+        """Return ``{name: value}`` of every parameter, overlaid with ``changes``."""
+        values = {p.name: p.value for p in self.get_parameters(self._declared)}
+        values.update({p.name: p.value for p in changes})
+        return values
+
+    def _settings(self, values):
+        """Build and validate everything derived from ``values``; ``ValueError`` says why not."""
+        period = 1.0 / values['rate']
+        config = FilterConfig(control_period=period, **{
+            f.name: values[f'filter.{f.name}'] for f in self._filter_fields}).validate()
+        timeouts = {name: values[f'{name}_timeout'] for name in ('odom', 'cmd', 'obstacles')}
+        for name, timeout in timeouts.items():
+            if 0.0 < timeout <= period:
+                raise ValueError(f'{name}_timeout ({timeout:g} s) must exceed the control '
+                                 f'period 1/rate ({period:g} s)')
+        interface = None
+        if self._velocity:
+            interface = VelocityCommandInterface(
+                self._model_name, values['velocity_tau'] or period, period)
+        return _Settings(config, interface, timeouts, period)
+
+    def _apply(self, settings):
+        """Swap in a validated configuration."""
+        self._filter = SafetyFilter(self._model, settings.config)
+        self._interface = settings.interface
+        self._period = settings.period
+        for name, timeout in settings.timeouts.items():
+            self._watchdog.set_timeout(name, timeout)
+        self._max_extrapolation = self.get_parameter('max_extrapolation').value
+        self._wall_thickness = self.get_parameter('wall_thickness').value
+        self._cylinder_sides = self.get_parameter('cylinder_sides').value
+
+    def _validate_parameters(self, params):
+        """Refuse a change that makes the configuration invalid, with the reason."""
+        try:
+            self._settings(self._parameter_values(params))
+        except (ValueError, TypeError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _parameters_changed(self, params):
+        """Apply accepted parameters (filter rebuilt, timer period updated)."""
+        settings = self._settings(self._parameter_values())
+        self._apply(settings)
+        self._timer.timer_period_ns = int(1e9 * self._timer_period(settings))
+
+    def _timer_period(self, settings):
+        """Step period, or with ``trigger:=command`` the stop watchdog's (at most 50 Hz)."""
+        if self._per_command:
+            return max(settings.period, _COMMAND_WATCHDOG_PERIOD)
+        return settings.period
+
+    # -- inputs ------------------------------------------------------------------------------
+
+    def _on_odom(self, msg):
+        """Convert odometry to the model state; keep the last finite one."""
+        self._watchdog.feed('odom', time.monotonic())
+        yaw = conversions.odometry_to_state(msg, self._model_name, self._scratch)
+        self._odom_valid = bool(np.isfinite(self._scratch).all()) and math.isfinite(yaw)
+        if not self._odom_valid:
+            self._bad_message('odometry')
+            return
+        self._state[:] = self._scratch
+        self._yaw = yaw
+        self._have_state = True
+        self._odom_stamp = conversions.stamp_seconds(msg.header.stamp)
+        frame = msg.header.frame_id.lstrip('/')
+        if frame != self._odom_frame:
+            self._odom_frame = frame
+            self._rebuild_obstacles()
+
+    def _on_command(self, msg):
+        """Store the nominal command; with ``trigger:=command`` answer it right away."""
+        now = time.monotonic()
+        self._watchdog.feed('cmd', now)
+        self._cmd = msg
+        body = msg.wrench if not self._velocity else msg.twist if self._stamped else msg
+        values = (conversions.twist_values if self._velocity else conversions.wrench_values)(body)
+        self._cmd_valid = all(map(math.isfinite, values))
+        if not self._cmd_valid:
+            self._bad_message('nominal command')
+        if self._per_command:
+            self._step(now)
+
+    def _on_obstacles(self, msg):
+        """Apply marker updates to the tracker and rebuild the filter's obstacle set."""
+        self._watchdog.feed('obstacles', time.monotonic())
+        conversions.apply_markers(self._tracker, msg, self.get_clock().now().nanoseconds * 1e-9,
+                                  self._wall_thickness, self._cylinder_sides)
+        if self._tracker.has_invalid:
+            self._bad_message('obstacles')
+        self._rebuild_obstacles()
+
+    def _rebuild_obstacles(self):
+        """Snapshot the tracker in the odometry frame into a new ``ObstacleSet``."""
+        if self._odom_frame is None:
+            return
+        obstacles, self._t_ref, self._wrong_frame = self._tracker.snapshot(
+            self._odom_frame, self._model.position_dim)
+        try:
+            self._obstacle_set = ObstacleSet.from_obstacles(obstacles)
+            self._obstacle_error = ''
+        except ValueError as exc:
+            self._obstacle_set = ObstacleSet.empty()
+            self._obstacle_error = f'obstacle set could not be built: {exc}'
+            self.get_logger().error(self._obstacle_error, throttle_duration_sec=1.0)
+
+    def _bad_message(self, what):
+        self._invalid_messages += 1
+        self.get_logger().error(f'NaN/Inf in {what}: braking', throttle_duration_sec=1.0)
+
+    def _on_enable(self, request, response):
+        """``~/enable``: true filters, false passes nominal commands through."""
+        self._enabled = bool(request.data)
+        response.success = True
+        if self._enabled:
+            response.message = 'safety filter enabled'
+            self.get_logger().info(response.message)
+        else:
+            response.message = 'safety filter DISABLED: nominal commands pass through unfiltered'
+            self.get_logger().warning(response.message)
+        return response
+
+    # -- steps -------------------------------------------------------------------------------
+
+    def _on_timer(self):
+        self._step(time.monotonic())
+
+    def _on_watchdog(self):
+        """With ``trigger:=command``, keep publishing stops while the command is stale."""
+        now = time.monotonic()
+        if self._watchdog.is_stale('cmd', now):
+            self._step(now)
+
+    def _step(self, now):
+        """Publish one safe command (or a stop); see the module docstring."""
+        if self._cmd is None:
+            return
+        start = time.perf_counter()
+        if not self._enabled:
+            self._pass_through(now)
+            return
+        if self._watchdog.stale(now):
+            self._counts['stale_stop'] += 1
+            self._publish_stop()
+            return
+        if not (self._odom_valid and self._cmd_valid and not self._tracker.has_invalid
+                and not self._obstacle_error):
+            self._counts['invalid_input'] += 1
+            self._publish_stop()
+            return
+        age = 0.0
+        if self._odom_stamp > 0.0 and self._t_ref > 0.0:
+            age = min(max(self._odom_stamp - self._t_ref, 0.0), self._max_extrapolation)
+        body = self._cmd.twist if self._stamped else self._cmd
+        if self._velocity:
+            command = conversions.twist_to_command(body, self._model_name)
+            u_nom = self._interface.nominal_input(self._state, command, self._yaw)
+        else:
+            u_nom = conversions.wrench_to_thrusts(self._cmd.wrench)
+        u_safe, info = self._filter.step(self._state, self._obstacle_set, u_nom, age)
+        self._counts[info.status.value] += 1
+        self._last_info = info
+        if self._velocity:
+            out = self._out.twist if self._stamped else self._out
+            conversions.fill_twist(out, self._model_name, self._interface.safe_command(
+                self._state, u_safe, self._yaw), body.angular.z)
+        else:
+            conversions.fill_wrench(self._out.wrench, u_safe)
+        if self._stamped or not self._velocity:
+            self._out.header.stamp = self._cmd.header.stamp
+            self._out.header.frame_id = self._cmd.header.frame_id
+        self._publish(self._out)
+        self._min_h = min(self._min_h, info.min_h)
+        self._latency.add(time.perf_counter() - start)
+
+    def _publish(self, msg):
+        """Publish a command and count it for the achieved rate."""
+        self._publisher.publish(msg)
+        self._rate_meter.tick()
+
+    def _pass_through(self, now):
+        """Disabled: forward the nominal command as is; stop if it is stale or non-finite."""
+        if self._watchdog.is_stale('cmd', now):
+            self._counts['stale_stop'] += 1
+            self._publish_stop()
+        elif not self._cmd_valid:
+            self._counts['invalid_input'] += 1
+            self._publish_stop()
+        else:
+            self._publish(self._cmd)
+
+    def _publish_stop(self):
+        """Zero twist, or the quadrotor's braking (hover) wrench from the last finite state."""
+        if self._velocity:
+            conversions.zero_twist(self._out.twist if self._stamped else self._out)
+        else:
+            state = self._state if self._have_state else np.zeros(self._model.state_dim)
+            conversions.fill_wrench(self._out.wrench, self._model.braking_input(state))
+        if self._stamped or not self._velocity:
+            self._out.header.frame_id = self._cmd.header.frame_id
+            self._out.header.stamp = self.get_clock().now().to_msg()
+        self._publish(self._out)
+
+    # -- observability ------------------------------------------------------------------------
+
+    def _publish_diagnostics(self):
+        """Publish one status: rate, latency, staleness, step counts, min h, rejections."""
+        now = time.monotonic()
+        p50, p99 = self._latency.percentiles()
+        self._latency.clear()
+        stale = self._watchdog.stale(now)
+        window = {k: v - self._reported[k] for k, v in self._counts.items()}
+        self._reported = dict(self._counts)
+        rejected = {**self._tracker.rejected, **self._wrong_frame}
+        values = {
+            'enabled': str(self._enabled).lower(),
+            'model': self._model_name,
+            'barrier': self._filter.config.barrier,
+            'rate_target_hz': f'{1.0 / self._period:g}',
+            'rate_achieved_hz': f'{self._rate_meter.rate(now):.1f}',
+            'latency_p50_ms': f'{1e3 * p50:.3f}',
+            'latency_p99_ms': f'{1e3 * p99:.3f}',
+            'stale_inputs': ','.join(stale) or 'none',
+            **{f'age_{name}_s': f'{self._watchdog.age(name, now):.3f}'
+               for name in self._watchdog.names},
+            **{f'steps_{name}': count for name, count in self._counts.items()},
+            'invalid_messages': self._invalid_messages,
+            'min_h': f'{self._min_h:.4g}',
+            'obstacles_in_use': len(self._obstacle_set),
+            'obstacles_tracked': len(self._tracker),
+            'obstacles_rejected': len(rejected),
+            **{f'rejected {key}': reason for key, reason in sorted(rejected.items())},
+        }
+        if self._obstacle_error:
+            values['obstacle_error'] = self._obstacle_error
+        self._min_h = math.inf
+        problems, level = [], DiagnosticStatus.OK
+        if rejected or self._obstacle_error or window['invalid_input']:
+            level = DiagnosticStatus.ERROR
+            problems.append(f'{len(rejected)} obstacles rejected' if rejected else
+                            'invalid input: braking')
+        if not self._enabled:
+            problems.insert(0, 'DISABLED: pass-through, not filtering')
+            self.get_logger().warning('safety filter is DISABLED: nominal commands pass '
+                                      'through unfiltered', throttle_duration_sec=5.0)
+        if stale and self._cmd is not None:
+            problems.append(f'stale: {", ".join(stale)}')
+        fallbacks = [f'{name} x{window[name]}' for name in _FALLBACKS if window[name]]
+        if fallbacks:
+            problems.append('fallback ' + ', '.join(fallbacks))
+        if level == DiagnosticStatus.OK and problems:
+            level = DiagnosticStatus.WARN
+        self._diagnostics_pub.publish(conversions.diagnostic_array(
+            self.get_clock().now().to_msg(), f'{self.get_fully_qualified_name()}: safety filter',
+            self._model_name, level, '; '.join(problems) or 'ok', values))
+
+    def _publish_markers(self):
+        """Publish obstacle parts and cones, only while ``~/markers`` has subscribers."""
+        if self._odom_frame is None or self._markers_pub.get_subscription_count() == 0:
+            return
+        info = self._last_info
+        active = info.active if info is not None else ()
+        apex = cones = None
+        if info is not None and self._model.position_dim == 2:
+            apex = self._model.reference(self._state).position
+            cones = getattr(info, 'cones', None)
+        self._markers_pub.publish(conversions.filter_markers(
+            self._odom_frame, self.get_clock().now().to_msg(), self._obstacle_set.footprints,
+            active, apex, cones))
+
+
+def main(args=None):
+    """Run the safety filter node until shutdown; exit status 1 on a configuration error."""
+    rclpy.init(args=args)
+    try:
+        node = SafetyFilterNode()
+    except ValueError as exc:
+        rclpy.logging.get_logger('safety_filter').fatal(f'invalid configuration: {exc}')
+        rclpy.try_shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())
