@@ -1,0 +1,200 @@
+"""Message <-> numpy conversions (no DDS): odometry, commands, markers, diagnostics."""
+import math
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import Point, Twist, Wrench
+from visualization_msgs.msg import Marker, MarkerArray
+
+from node_harness import odometry, wall
+from polyc2bf_ros import conversions
+from polyc2bf_ros.core.geometry import point_in_polygon, signed_area, signed_distance
+from polyc2bf_ros.core.models.quadrotor import rotation_matrix
+from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
+from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+
+
+def _state(msg, model, dim):
+    out = np.zeros(dim)
+    yaw = conversions.odometry_to_state(msg, model, out)
+    return out, yaw
+
+
+def _quaternion(roll, pitch, yaw):
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
+
+
+def test_unicycle_and_holonomic_states():
+    """Body twist: unicycle keeps (v, omega); point masses rotate it into the odom frame."""
+    msg = odometry(1.0, 2.0, math.pi / 2, v=0.5, omega=0.3)
+    state, yaw = _state(msg, 'unicycle', 5)
+    np.testing.assert_allclose(state, [1.0, 2.0, math.pi / 2, 0.5, 0.3])
+    assert yaw == pytest.approx(math.pi / 2)
+    state, _ = _state(msg, 'point_mass_2d', 4)
+    np.testing.assert_allclose(state, [1.0, 2.0, 0.0, 0.5], atol=1e-12)
+    msg.twist.twist.linear.z = -0.2
+    state, _ = _state(msg, 'point_mass_3d', 6)
+    np.testing.assert_allclose(state, [1.0, 2.0, 0.0, 0.0, 0.5, -0.2], atol=1e-12)
+
+
+def test_quadrotor_state_matches_the_model_rotation():
+    """Roll/pitch/yaw read back exactly; world velocity = R body velocity; body rates kept."""
+    msg = odometry()
+    roll, pitch, yaw = 0.2, -0.3, 2.5
+    q = msg.pose.pose.orientation
+    q.x, q.y, q.z, q.w = _quaternion(roll, pitch, yaw)
+    msg.twist.twist.linear.x, msg.twist.twist.linear.z = 1.0, 0.5
+    msg.twist.twist.angular.x, msg.twist.twist.angular.y = 0.1, 0.2
+    state, _ = _state(msg, 'quadrotor', 12)
+    np.testing.assert_allclose(state[6:9], [roll, pitch, yaw], atol=1e-12)
+    np.testing.assert_allclose(state[3:6], rotation_matrix(roll, pitch, yaw) @ [1.0, 0.0, 0.5])
+    np.testing.assert_allclose(state[9:12], [0.1, 0.2, 0.0])
+
+
+def test_zero_quaternion_is_identity_and_nan_passes_through():
+    """An unset orientation reads as identity; NaN stays NaN for the caller to refuse."""
+    msg = odometry(v=1.0)
+    msg.pose.pose.orientation.w = 0.0
+    state, yaw = _state(msg, 'point_mass_2d', 4)
+    assert yaw == 0.0 and state[2] == 1.0
+    msg.pose.pose.position.x = math.nan
+    assert math.isnan(_state(msg, 'unicycle', 5)[0][0])
+
+
+def test_commands_round_trip():
+    """Twist <-> command vectors per model; wrench <-> rotor thrusts through the mixer."""
+    msg = Twist()
+    msg.linear.x, msg.linear.y, msg.linear.z, msg.angular.z = 1.0, 2.0, 3.0, 0.4
+    assert conversions.twist_to_command(msg, 'unicycle') == (1.0, 0.4)
+    assert conversions.twist_to_command(msg, 'point_mass_2d') == (1.0, 2.0)
+    assert conversions.twist_to_command(msg, 'point_mass_3d') == (1.0, 2.0, 3.0)
+    out = Twist()
+    conversions.fill_twist(out, 'point_mass_2d', (0.1, 0.2), yaw_rate=0.4)
+    assert (out.linear.x, out.linear.y, out.linear.z, out.angular.z) == (0.1, 0.2, 0.0, 0.4)
+    conversions.zero_twist(out)
+    assert conversions.twist_values(out) == (0.0,) * 6
+    wrench = Wrench()
+    wrench.force.z, wrench.torque.x, wrench.torque.z = 0.3, 1e-4, -2e-5
+    again = Wrench()
+    conversions.fill_wrench(again, conversions.wrench_to_thrusts(wrench))
+    np.testing.assert_allclose(conversions.wrench_values(again), conversions.wrench_values(wrench),
+                               atol=1e-12)
+
+
+def _solid(kind, position=(1.0, 2.0, 0.5), scale=(2.0, 1.0, 1.0), yaw=0.0):
+    marker = Marker(ns='s', id=1, type=kind)
+    marker.header.frame_id = 'odom'
+    marker.pose.position.x, marker.pose.position.y, marker.pose.position.z = position
+    marker.pose.orientation.z, marker.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    marker.scale.x, marker.scale.y, marker.scale.z = scale
+    return marker
+
+
+def test_cube_pose_and_scale():
+    """A yawed CUBE: its rotated rectangle, z range from the pose and height, pose position."""
+    polygons, z_min, z_max, position = conversions.marker_geometry(
+        _solid(Marker.CUBE, yaw=math.pi / 2), 0.05, 12)
+    [polygon] = polygons
+    assert signed_area(polygon) == pytest.approx(2.0)
+    np.testing.assert_allclose(polygon.min(axis=0), [0.5, 1.0], atol=1e-12)
+    assert (z_min, z_max) == pytest.approx((0.0, 1.0))
+    np.testing.assert_allclose(position, [1.0, 2.0, 0.5])
+
+
+@pytest.mark.parametrize('sides', [3, 8, 12])
+def test_cylinder_polygon_circumscribes_the_circle(sides):
+    """Every point of the cylinder's circle lies inside its polygon."""
+    [polygon], *_ = conversions.marker_geometry(_solid(Marker.CYLINDER, scale=(1.0, 1.0, 2.0)),
+                                                0.05, sides)
+    assert len(polygon) == sides
+    circle = np.column_stack([np.cos(np.linspace(0, 2 * np.pi, 200)),
+                              np.sin(np.linspace(0, 2 * np.pi, 200))]) * 0.5 + (1.0, 2.0)
+    assert all(signed_distance(p, polygon) <= 1e-9 for p in circle)
+
+
+def test_line_markers():
+    """2-point strip: rectangle of the line width; LINE_LIST: one wall per pair; flat z: inf."""
+    [polygon], z_min, z_max, position = conversions.marker_geometry(
+        wall([(0.0, 0.0), (2.0, 0.0)], width=0.2), 0.05, 12)
+    assert signed_area(polygon) == pytest.approx(2.2 * 0.2)
+    assert (z_min, z_max) == (-math.inf, math.inf)
+    np.testing.assert_allclose(position, [1.0, 0.0, 0.0])
+    marker = wall([(0, 0), (1, 0), (0, 1), (1, 1)], width=0.0)
+    marker.type = Marker.LINE_LIST
+    polygons, *_ = conversions.marker_geometry(marker, 0.05, 12)
+    assert [signed_area(p) for p in polygons] == pytest.approx([1.05 * 0.05] * 2)
+
+
+def test_triangle_list_applies_pose_and_scale():
+    """TRIANGLE_LIST points are scaled, then moved by the pose; z range from the points."""
+    marker = _solid(Marker.TRIANGLE_LIST, position=(10.0, 0.0, 0.0), scale=(2.0, 2.0, 1.0))
+    marker.points = [Point(x=0.0, y=0.0, z=0.0), Point(x=1.0, y=0.0, z=0.0),
+                     Point(x=0.0, y=1.0, z=1.0)]
+    [polygon], z_min, z_max, _ = conversions.marker_geometry(marker, 0.05, 12)
+    assert signed_area(polygon) == pytest.approx(2.0)
+    assert point_in_polygon((10.5, 0.5), polygon)
+    assert (z_min, z_max) == (0.0, 1.0)
+
+
+@pytest.mark.parametrize('edit, reason', [
+    (lambda m: setattr(m.pose.position, 'x', math.nan), 'non-finite'),
+    (lambda m: setattr(m, 'type', Marker.ARROW), 'unsupported marker type ARROW'),
+    (lambda m: setattr(m, 'type', Marker.LINE_LIST), 'multiple of 2'),
+    (lambda m: setattr(m, 'points', []), 'no points'),
+])
+def test_bad_markers_raise_a_reason(edit, reason):
+    """NaN, unsupported types, odd LINE_LISTs and empty outlines are refused with a reason."""
+    marker = wall([(0, 0), (1, 0), (1, 1)])
+    edit(marker)
+    with pytest.raises(ValueError, match=reason):
+        conversions.marker_geometry(marker, 0.05, 12)
+
+
+def test_apply_markers_actions_frames_and_stamps():
+    """ADD/DELETE/DELETEALL, labels skipped, empty frame and NaN rejected, zero stamp = now."""
+    tracker = ObstacleTracker()
+    nan_wall = wall([(0, 0), (math.nan, 1)], marker_id=3)
+    no_frame = wall([(0, 0), (1, 0)], marker_id=4, frame='')
+    label = Marker(ns='walls', id=5, type=Marker.TEXT_VIEW_FACING)
+    msg = MarkerArray(markers=[wall([(0, 0), (1, 0)], marker_id=1),
+                               wall([(0, 2), (1, 2)], marker_id=2), nan_wall, no_frame, label])
+    conversions.apply_markers(tracker, msg, 42.0, 0.05, 12)
+    assert len(tracker) == 2 and tracker.has_invalid
+    assert set(tracker.rejected) == {'walls/3', 'walls/4'}
+    assert 'frame' in tracker.rejected['walls/4']
+    assert tracker.snapshot('odom', 2)[1] == 42.0
+    conversions.apply_markers(tracker, MarkerArray(markers=[
+        Marker(ns='walls', id=1, action=Marker.DELETE),
+        Marker(ns='walls', id=3, action=Marker.DELETE)]), 43.0, 0.05, 12)
+    assert len(tracker) == 1 and not tracker.has_invalid
+    conversions.apply_markers(tracker, MarkerArray(markers=[
+        Marker(action=Marker.DELETEALL)]), 44.0, 0.05, 12)
+    assert len(tracker) == 0 and tracker.rejected == {}
+
+
+def test_filter_markers_and_diagnostics():
+    """Markers: DELETEALL, one outline per part (active in red), cones only when given."""
+    obstacles = ObstacleSet.from_obstacles([])
+    plain = conversions.filter_markers('odom', odometry().header.stamp,
+                                       obstacles.footprints, active=())
+    assert [m.action for m in plain.markers] == [Marker.DELETEALL]
+    obstacles = ObstacleSet.from_obstacles([
+        Obstacle(polygon=np.array([[1.0, -1.0], [2.0, -1.0], [2.0, 1.0], [1.0, 1.0]]))])
+
+    class Cones:
+        p = np.array([[1.5, 0.0]])
+        k = np.array([[1.0, 1.0]])
+
+    drawn = conversions.filter_markers('odom', odometry().header.stamp, obstacles.footprints,
+                                       active=[0], apex=(0.0, 0.0), cones=Cones())
+    outline, cone = drawn.markers[1:]
+    assert outline.color.r > 0.5 and len(outline.points) == 5
+    assert [(p.x, p.y) for p in cone.points] == [(0, 0), (1, 1), (0, 0), (1, -1)]
+    array = conversions.diagnostic_array(odometry().header.stamp, 'f', 'unicycle', b'\x01',
+                                         'msg', {'a': 1, 'b': 'x'})
+    [status] = array.status
+    assert [(kv.key, kv.value) for kv in status.values] == [('a', '1'), ('b', 'x')]
