@@ -1,0 +1,63 @@
+"""``~/enable``: false passes the nominal command through (loudly), true filters again."""
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import Twist
+from nav_msgs.msg import Odometry
+from std_srvs.srv import SetBool
+from visualization_msgs.msg import MarkerArray
+
+from node_harness import (
+    Harness,
+    LATCHED,
+    latest_status,
+    markers,
+    node_log,
+    odometry,
+    running_filter,
+    twist,
+    wall,
+)
+
+RATE = 50.0
+
+
+@pytest.mark.slow
+def test_enable_service_switches_between_pass_through_and_filtering():
+    """A wall 2 m ahead cuts 0.8 m/s from rest to a creep; disabled, it passes (with a WARN)."""
+    with running_filter(params={'model': 'unicycle', 'rate': RATE}) as proc, Harness() as h:
+        out = h.collect(Twist, 'cmd_vel_out')
+        diagnostics = h.collect(DiagnosticArray, '/diagnostics')
+        odom_pub = h.publisher(Odometry, 'odom')
+        cmd_pub = h.publisher(Twist, 'cmd_vel_in')
+        obstacles_pub = h.publisher(MarkerArray, 'obstacles', LATCHED)
+        assert h.wait_for_subscribers(odom_pub, cmd_pub, obstacles_pub), node_log(proc)
+        nominal = twist(0.8, 0.1)
+
+        def feed():
+            odom_pub.publish(odometry())
+            cmd_pub.publish(nominal)
+            obstacles_pub.publish(markers(wall([(2.0, -2.0), (2.0, 2.0)])))
+
+        def filtered():
+            return bool(out) and 0.0 < out[-1][1].linear.x < 0.2
+
+        def passed_through():
+            return bool(out) and out[-1][1] == nominal
+
+        assert h.spin_until(filtered, 15.0, feed, 1.0 / RATE), (out[-3:], node_log(proc))
+        response = h.call(SetBool, 'safety_filter/enable', SetBool.Request(data=False))
+        assert response.success and 'DISABLED' in response.message
+        assert h.spin_until(passed_through, 5.0, feed, 1.0 / RATE)
+
+        def reported_disabled():
+            status, values = latest_status(diagnostics)
+            return status is not None and values['enabled'] == 'false'
+
+        assert h.spin_until(reported_disabled, 3.0, feed, 1.0 / RATE)
+        status, _ = latest_status(diagnostics)
+        assert status.level == DiagnosticStatus.WARN and 'DISABLED' in status.message
+        assert 'DISABLED' in node_log(proc)
+
+        response = h.call(SetBool, 'safety_filter/enable', SetBool.Request(data=True))
+        assert response.success
+        assert h.spin_until(filtered, 5.0, feed, 1.0 / RATE)
