@@ -401,6 +401,19 @@ def test_messages_come_in_log_time_order(tmp_path):
     assert [m.log_time_ns for m in BagReader(tmp_path / 'bag').messages()] == [1, 2, 3, 4, 5]
 
 
+def test_flush_puts_everything_written_so_far_on_disk(tmp_path):
+    """After flush() an open bag's file already holds every message written (no footer yet)."""
+    with BagRecorder(tmp_path / 'bag', flush_interval_s=3600.0) as recorder:
+        recorder.add_topic('/clock', Clock, CLOCK_QOS)
+        for ms in range(1, 8):
+            recorder.write('/clock', clock(ms), ms)
+        recorder.flush()
+        snapshot = tmp_path / 'snapshot.mcap'
+        snapshot.write_bytes(recorder.mcap_path.read_bytes())
+        recovered = [m.log_time_ns for m in BagReader(snapshot).messages()]
+    assert recovered == list(range(1, 8))
+
+
 def test_misuse_is_refused_and_close_is_idempotent(tmp_path):
     """Unknown topic, wrong type, negative time, retyped topic, existing bag; close twice."""
     recorder = BagRecorder(tmp_path / 'bag')
