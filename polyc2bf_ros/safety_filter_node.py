@@ -376,8 +376,8 @@ class SafetyFilterNode(Node):
         age = 0.0
         if self._odom_stamp > 0.0 and self._t_ref > 0.0:
             age = min(max(self._odom_stamp - self._t_ref, 0.0), self._max_extrapolation)
-        body = self._cmd.twist if self._stamped else self._cmd
         if self._velocity:
+            body = self._cmd.twist if self._stamped else self._cmd
             command = conversions.twist_to_command(body, self._model_name)
             u_nom = self._interface.nominal_input(self._state, command, self._yaw)
         else:
@@ -456,28 +456,30 @@ class SafetyFilterNode(Node):
             'obstacles_rejected': len(rejected),
             **{f'rejected {key}': reason for key, reason in sorted(rejected.items())},
         }
-        if self._obstacle_error:
-            values['obstacle_error'] = self._obstacle_error
         self._min_h = math.inf
-        problems, level = [], DiagnosticStatus.OK
-        if rejected or self._obstacle_error or window['invalid_input']:
-            level = DiagnosticStatus.ERROR
-            problems.append(f'{len(rejected)} obstacles rejected' if rejected else
-                            'invalid input: braking')
+        errors, warnings = [], []
+        if rejected:
+            errors.append(f'{len(rejected)} obstacles rejected')
+        if self._obstacle_error:
+            errors.append(self._obstacle_error)
+        if window['invalid_input']:
+            errors.append('NaN/Inf input: braking')
         if not self._enabled:
-            problems.insert(0, 'DISABLED: pass-through, not filtering')
+            warnings.append('DISABLED: pass-through, not filtering')
             self.get_logger().warning('safety filter is DISABLED: nominal commands pass '
                                       'through unfiltered', throttle_duration_sec=5.0)
         if stale and self._cmd is not None:
-            problems.append(f'stale: {", ".join(stale)}')
+            warnings.append(f'stale {", ".join(stale)}: stopping')
         fallbacks = [f'{name} x{window[name]}' for name in _FALLBACKS if window[name]]
         if fallbacks:
-            problems.append('fallback ' + ', '.join(fallbacks))
-        if level == DiagnosticStatus.OK and problems:
-            level = DiagnosticStatus.WARN
+            warnings.append('fallback ' + ', '.join(fallbacks))
+        level = (DiagnosticStatus.ERROR if errors else DiagnosticStatus.WARN if warnings
+                 else DiagnosticStatus.OK)
+        message = '; '.join(errors + warnings) or (
+            'ok' if self._cmd is not None else 'waiting for the first nominal command')
         self._diagnostics_pub.publish(conversions.diagnostic_array(
             self.get_clock().now().to_msg(), f'{self.get_fully_qualified_name()}: safety filter',
-            self._model_name, level, '; '.join(problems) or 'ok', values))
+            self._model_name, level, message, values))
 
     def _publish_markers(self):
         """Publish obstacle parts and cones, only while ``~/markers`` has subscribers."""
