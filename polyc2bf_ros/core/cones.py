@@ -38,6 +38,7 @@ from polyc2bf_ros.core.geometry import (
 )
 
 _TINY = 1e-12
+_ORIGIN = np.zeros(2)
 
 
 @dataclass(frozen=True)
@@ -77,8 +78,9 @@ class ConeModel(abc.ABC):
 def _polygon_cones(batch, viewpoints, extension, outside):
     """Build PolyC2BF cones from silhouette vertices (see module docstring)."""
     n = len(batch)
-    rel = batch.vertices - viewpoints[:, None, :]
-    first, second, seen = silhouette_indices(np.zeros(2), PolygonBatch(rel, batch.counts))
+    relative = batch.translated(-viewpoints)
+    rel = relative.vertices
+    first, second, seen = silhouette_indices(_ORIGIN, relative)
     rows = np.arange(n)
     a = rel[rows, first]
     b = rel[rows, second]
@@ -120,8 +122,7 @@ class PaperCone(ConeModel):
 
 def _signed_distances(batch, viewpoints):
     """Return the signed distance from each viewpoint to its own polygon."""
-    rel = PolygonBatch(batch.vertices - viewpoints[:, None, :], batch.counts)
-    return signed_distance_batch(np.zeros(2), rel)
+    return signed_distance_batch(_ORIGIN, batch.translated(-viewpoints))
 
 
 class InflatedCone(ConeModel):
