@@ -288,7 +288,7 @@ def filter_markers(frame, stamp, footprints, active, apex=None, cones=None):
 
     ``footprints`` is the filter's ``PolygonBatch`` (at the obstacles' stamp),
     ``active`` the indices of the active rows.  Cones are drawn when
-    ``cones`` (with per-row axis ``p`` and boundary ray ``k``, 2-D) and the
+    ``cones`` (axis ``p`` and boundary ray ``k`` as (2, N) planar vectors) and the
     ``apex`` are given: the rays ``k`` and its mirror ``2 <k, p_hat> p_hat - k``.
     The first marker is a DELETEALL, so parts that disappeared vanish.
     """
@@ -301,11 +301,12 @@ def filter_markers(frame, stamp, footprints, active, apex=None, cones=None):
             ns='obstacles', id=i, type=Marker.LINE_STRIP, action=Marker.ADD,
             scale=Vector3(x=0.03), color=_ACTIVE if is_active[i] else _INACTIVE,
             points=[Point(x=float(x), y=float(y)) for x, y in np.vstack([ring, ring[:1]])]))
-    if cones is not None and apex is not None and len(cones.k) == len(footprints):
-        p_hat = cones.p / np.maximum(np.linalg.norm(cones.p, axis=1, keepdims=True), 1e-12)
-        mirror = 2.0 * np.sum(cones.k * p_hat, axis=1, keepdims=True) * p_hat - cones.k
+    if cones is not None and apex is not None and cones.k.shape[1] == len(footprints):
+        axis, ray = cones.p.T, cones.k.T
+        p_hat = axis / np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+        mirror = 2.0 * np.sum(ray * p_hat, axis=1, keepdims=True) * p_hat - ray
         apex_point = Point(x=float(apex[0]), y=float(apex[1]))
-        for i, (k, m) in enumerate(zip(cones.k, mirror)):
+        for i, (k, m) in enumerate(zip(ray, mirror)):
             markers.append(Marker(
                 ns='cones', id=i, type=Marker.LINE_LIST, action=Marker.ADD,
                 scale=Vector3(x=0.01), color=_ACTIVE if is_active[i] else _INACTIVE,

@@ -23,10 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from polyc2bf_ros.core.cones import dot2
+
 
 @dataclass(frozen=True)
 class BarrierTerms:
-    """h (N,), Lf h (N,) and Lg h (N, m) for N cones."""
+    """h (N,), Lf h (N,) and Lg h (m, N) for N cones (obstacle index last)."""
 
     h: np.ndarray
     lf_h: np.ndarray
@@ -34,11 +36,18 @@ class BarrierTerms:
 
 
 def barrier_terms(cones, v_rel, a_drift, b_rel, velocity_epsilon) -> BarrierTerms:
-    """Evaluate h, Lf h, Lg h for cones given v_rel (N,2), a_drift (N,2), b_rel (N,2,m)."""
-    speed = np.sqrt(np.einsum('ij,ij->i', v_rel, v_rel) + velocity_epsilon ** 2)
-    h = np.einsum('ij,ij->i', cones.p, v_rel) + speed * cones.s
-    dh_dp = v_rel + speed[:, None] * cones.ds_dp
-    dh_dv = cones.p + (cones.s / speed)[:, None] * v_rel
-    lf_h = np.einsum('ij,ij->i', dh_dp, v_rel) + np.einsum('ij,ij->i', dh_dv, a_drift)
-    lg_h = np.einsum('ij,ijk->ik', dh_dv, b_rel)
+    """Evaluate h, Lf h, Lg h from planar (2, N) v_rel and a_drift and input map b_rel.
+
+    ``a_drift`` may be (2, 1) (shared by all obstacles); ``b_rel`` is (2, m) shared,
+    or (N, 2, m) per obstacle.
+    """
+    speed = np.sqrt(dot2(v_rel, v_rel) + velocity_epsilon ** 2)
+    h = dot2(cones.p, v_rel) + speed * cones.s
+    dh_dp = v_rel + speed * cones.ds_dp
+    dh_dv = cones.p + (cones.s / speed) * v_rel
+    lf_h = dot2(dh_dp, v_rel) + dot2(dh_dv, a_drift)
+    if b_rel.ndim == 2:
+        lg_h = b_rel.T @ dh_dv
+    else:
+        lg_h = np.einsum('in,nij->jn', dh_dv, b_rel)
     return BarrierTerms(h=h, lf_h=lf_h, lg_h=lg_h)

@@ -34,19 +34,23 @@ from polyc2bf_ros.core.geometry import (
     minimum_enclosing_circle,
     PolygonBatch,
     signed_distance_batch,
-    silhouette_indices,
 )
 
 _TINY = 1e-12
-_ORIGIN = np.zeros(2)
+
+
+def dot2(a, b):
+    """Return the column-wise dot product of planar vectors stored as (2, N) rows x, y."""
+    return a[0] * b[0] + a[1] * b[1]
 
 
 @dataclass(frozen=True)
 class Cones:
-    """Per-obstacle cones (N rows): axis p, boundary k, s = <p, k_hat>, ds/dp, validity.
+    """Per-obstacle cones as (2, N) planar vectors (rows x, y) and (N,) scalars.
 
-    ``valid`` is False where the viewpoint is inside the (inflated) obstacle,
-    where no cone exists; the other fields are finite there but meaningless.
+    Axis ``p``, boundary ray ``k``, ``s = <p, k_hat>`` and ``ds_dp``; ``valid`` is
+    False where the viewpoint is inside the (inflated) obstacle, where no cone
+    exists (the other fields are finite there but meaningless).
     """
 
     p: np.ndarray
@@ -58,7 +62,36 @@ class Cones:
     @property
     def k_norm(self):
         """Return ||k||, the distance to the cone's boundary point."""
-        return np.linalg.norm(self.k, axis=1)
+        return np.sqrt(dot2(self.k, self.k))
+
+
+@dataclass(frozen=True)
+class PlanarPolygons:
+    """Convex polygons laid out for the hot path: vertices (2, V, N), edges (V, N) each.
+
+    ``previous`` indexes the edge before each vertex slot; padding slots repeat the
+    last vertex and the closing edge, so chains of edges never break in the padding.
+    """
+
+    batch: PolygonBatch
+    vertices: np.ndarray
+    edge_x: np.ndarray
+    edge_y: np.ndarray
+    previous: np.ndarray
+    columns: np.ndarray
+
+    @classmethod
+    def from_batch(cls, batch):
+        """Precompute the layout once per obstacle update."""
+        edge_x, edge_y, _ = batch.edge_table
+        slots = batch.x.shape[0]
+        return cls(batch=batch, vertices=np.stack([batch.x, batch.y]), edge_x=edge_x,
+                   edge_y=edge_y, previous=np.roll(np.arange(slots), 1),
+                   columns=np.arange(len(batch)))
+
+    def __len__(self):
+        """Return the number of polygons."""
+        return len(self.batch)
 
 
 class ConeModel(abc.ABC):
@@ -72,31 +105,40 @@ class ConeModel(abc.ABC):
 
     @abc.abstractmethod
     def cones(self, prepared, viewpoints) -> Cones:
-        """Return the cones seen from ``viewpoints`` (N,2), one per polygon."""
+        """Return the cones seen from ``viewpoints``: (2, N), or (2,) shared by all."""
 
 
-def _polygon_cones(batch, viewpoints, extension, outside):
-    """Build PolyC2BF cones from silhouette vertices (see module docstring)."""
-    n = len(batch)
-    relative = batch.translated(-viewpoints)
-    rel = relative.vertices
-    first, second, seen = silhouette_indices(_ORIGIN, relative)
-    rows = np.arange(n)
-    a = rel[rows, first]
-    b = rel[rows, second]
-    along = b - a
-    along /= np.maximum(np.linalg.norm(along, axis=1), _TINY)[:, None]
-    a_ext = a - extension * along
-    b_ext = b + extension * along
-    p = 0.5 * (a + b)
-    cos_a = np.einsum('ij,ij->i', p, a_ext) / np.maximum(np.linalg.norm(a_ext, axis=1), _TINY)
-    cos_b = np.einsum('ij,ij->i', p, b_ext) / np.maximum(np.linalg.norm(b_ext, axis=1), _TINY)
-    k = np.where((cos_a < cos_b)[:, None], a_ext, b_ext)
-    k_norm = np.maximum(np.linalg.norm(k, axis=1), _TINY)
-    k_hat = k / k_norm[:, None]
-    s = np.einsum('ij,ij->i', p, k_hat)
-    ds_dp = k_hat + (p - s[:, None] * k_hat) / k_norm[:, None]
-    return Cones(p=p, k=k, s=s, ds_dp=ds_dp, valid=seen & outside)
+def _column(viewpoints):
+    """Return viewpoints shaped (2, 1, N) or (2, 1, 1) to broadcast against (2, V, N)."""
+    return viewpoints.reshape(2, 1, -1)
+
+
+def _polygon_cones(polygons, viewpoints, extension):
+    """Build PolyC2BF cones from silhouette vertices (see module docstring).
+
+    Edge k faces the viewpoint q when q is strictly right of it, cross(e_k, v_k - q) > 0;
+    the facing edges form one chain whose end vertices are the tangent vertices.
+    """
+    rel = polygons.vertices - _column(viewpoints)
+    facing = polygons.edge_x * rel[1] > polygons.edge_y * rel[0]
+    incoming = facing[polygons.previous]
+    ends = np.stack([(incoming > facing).argmax(axis=0), (facing > incoming).argmax(axis=0)])
+    ab = rel[:, ends, polygons.columns]  # (2 coords, 2 vertices, N)
+    p = 0.5 * (ab[:, 0] + ab[:, 1])
+    if extension:
+        along = ab[:, 1] - ab[:, 0]
+        along *= extension / np.maximum(np.sqrt(dot2(along, along)), _TINY)
+        ab[:, 0] -= along
+        ab[:, 1] += along
+    norms = np.maximum(np.sqrt(ab[0] * ab[0] + ab[1] * ab[1]), _TINY)
+    cosines = (p[0] * ab[0] + p[1] * ab[1]) / norms  # <p, a_hat>, <p, b_hat>
+    first = cosines[0] < cosines[1]  # the closer vertex makes the larger angle with p
+    s = np.where(first, cosines[0], cosines[1])
+    k_norm = np.where(first, norms[0], norms[1])
+    k = np.where(first, ab[:, 0], ab[:, 1])
+    k_hat = k / k_norm
+    ds_dp = k_hat + (p - s * k_hat) / k_norm
+    return Cones(p=p, k=k, s=s, ds_dp=ds_dp, valid=facing.any(axis=0))
 
 
 class PaperCone(ConeModel):
@@ -110,19 +152,16 @@ class PaperCone(ConeModel):
 
     def prepare(self, batch):
         """Use the polygons as they are."""
-        return batch
+        return PlanarPolygons.from_batch(batch)
 
     def cones(self, prepared, viewpoints):
         """Return paper cones; inside means within w/2 of the polygon."""
-        outside = np.ones(len(prepared), dtype=bool)
+        cones = _polygon_cones(prepared, viewpoints, self.extension)
         if self.extension > 0.0:
-            outside = _signed_distances(prepared, viewpoints) > self.extension
-        return _polygon_cones(prepared, viewpoints, self.extension, outside)
-
-
-def _signed_distances(batch, viewpoints):
-    """Return the signed distance from each viewpoint to its own polygon."""
-    return signed_distance_batch(_ORIGIN, batch.translated(-viewpoints))
+            offsets = -np.broadcast_to(viewpoints.reshape(2, -1), (2, len(prepared))).T
+            distance = signed_distance_batch(np.zeros(2), prepared.batch.translated(offsets))
+            cones.valid[:] &= distance > self.extension
+        return cones
 
 
 class InflatedCone(ConeModel):
@@ -138,20 +177,24 @@ class InflatedCone(ConeModel):
     def prepare(self, batch):
         """Inflate every polygon (once per obstacle update)."""
         polygons = [batch.vertices[i, :batch.counts[i]] for i in range(len(batch))]
-        return PolygonBatch.from_polygons(
-            [inflate_polygon(poly, self.radius, self.segments) for poly in polygons])
+        return PlanarPolygons.from_batch(PolygonBatch.from_polygons(
+            [inflate_polygon(poly, self.radius, self.segments) for poly in polygons]))
 
     def cones(self, prepared, viewpoints):
         """Return tangent cones of the inflated polygons, no extension."""
-        return _polygon_cones(prepared, viewpoints, 0.0, np.ones(len(prepared), dtype=bool))
+        return _polygon_cones(prepared, viewpoints, 0.0)
 
 
 @dataclass(frozen=True)
 class Circles:
-    """Circle obstacles: centres (N,2) and radii (N,)."""
+    """Circle obstacles: centres (2, N) and radii (N,)."""
 
     centres: np.ndarray
     radii: np.ndarray
+
+    def __len__(self):
+        """Return the number of circles."""
+        return self.radii.size
 
 
 class CircleCone(ConeModel):
@@ -167,24 +210,21 @@ class CircleCone(ConeModel):
         """Compute each polygon's minimum enclosing circle."""
         circles = [minimum_enclosing_circle(batch.vertices[i, :batch.counts[i]])
                    for i in range(len(batch))]
-        centres = np.array([c for c, _ in circles], dtype=float).reshape(-1, 2)
+        centres = np.array([c for c, _ in circles], dtype=float).reshape(-1, 2).T
         radii = np.array([r for _, r in circles], dtype=float) + self.radius
-        return Circles(centres, radii)
+        return Circles(np.ascontiguousarray(centres), radii)
 
     def cones(self, prepared, viewpoints):
         """Return C3BF cones: s = sqrt(|p|^2 - R^2), ds/dp = p / s."""
-        p = prepared.centres - viewpoints
-        clearance_sq = np.einsum('ij,ij->i', p, p) - prepared.radii ** 2
-        valid = clearance_sq > 0.0
+        p = prepared.centres - viewpoints.reshape(2, -1)
+        distance_sq = dot2(p, p)
+        clearance_sq = distance_sq - prepared.radii ** 2
         s = np.sqrt(np.maximum(clearance_sq, _TINY))
-        ds_dp = p / s[:, None]
         # Boundary ray: p rotated by the half-angle phi, scaled to the tangent length s.
-        dist = np.maximum(np.linalg.norm(p, axis=1), _TINY)
-        cos_phi, sin_phi = s / dist, prepared.radii / dist
-        rotated = np.stack([cos_phi * p[:, 0] - sin_phi * p[:, 1],
-                            sin_phi * p[:, 0] + cos_phi * p[:, 1]], axis=1)
-        k = rotated * (s / dist)[:, None]
-        return Cones(p=p, k=k, s=s, ds_dp=ds_dp, valid=valid)
+        cos_phi = s / np.sqrt(np.maximum(distance_sq, _TINY))
+        sin_phi = prepared.radii / np.sqrt(np.maximum(distance_sq, _TINY))
+        k = cos_phi * np.stack([cos_phi * p[0] - sin_phi * p[1], sin_phi * p[0] + cos_phi * p[1]])
+        return Cones(p=p, k=k, s=s, ds_dp=p / s, valid=clearance_sq > 0.0)
 
 
 CONE_MODELS = {cls.name: cls for cls in (PaperCone, InflatedCone, CircleCone)}

@@ -43,8 +43,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from polyc2bf_ros.core.barrier import barrier_terms
-from polyc2bf_ros.core.cones import CONE_MODELS, make_cone_model
+from polyc2bf_ros.core.cones import CONE_MODELS, dot2, make_cone_model
 from polyc2bf_ros.core.geometry import PolygonBatch, thin_axis, vertical_shadow
+from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.qp import make_solver, QPStatus, solve_with_shared_slack, SOLVERS
 
 ACTIVE_TOLERANCE = 1e-7
@@ -132,7 +133,8 @@ class FilterInfo:
 class Evaluation:
     """Per obstacle part: cones, barrier terms, inside flag, outward direction, plane used.
 
-    ``plane`` is 0 for the horizontal plane, 1 for the vertical one (3-D models).
+    ``plane`` is 0 for the horizontal plane, 1 for the vertical one (3-D models);
+    ``outward`` (d, N) points from each obstacle's centroid to the robot, in world axes.
     """
 
     cones: object
@@ -144,17 +146,21 @@ class Evaluation:
 
     def escape_direction(self):
         """Return the unit sum of outward directions of the obstacles we are inside."""
-        direction = self.outward[self.inside].sum(axis=0)
+        direction = self.outward[:, self.inside].sum(axis=1)
         norm = np.linalg.norm(direction)
         return direction / norm if norm > 1e-9 else np.zeros_like(direction)
 
 
 @dataclass(frozen=True)
 class _View:
-    """Obstacles seen in one plane: prepared cone geometry and the (N,2,d) projections."""
+    """Obstacles seen in one plane: prepared cone geometry, centroids (2, N), enabled (N,).
+
+    ``axes`` is None for the horizontal plane (world x, y) and (2, N) unit horizontal
+    axes for the vertical planes (axis, world z).
+    """
 
     prepared: object
-    projection: np.ndarray
+    axes: object
     centroids: np.ndarray
     enabled: np.ndarray
 
@@ -165,6 +171,7 @@ class _Prepared:
 
     views: tuple
     velocities: np.ndarray
+    moving: bool
     finite: bool
 
 
@@ -179,6 +186,8 @@ class SafetyFilter:
                                           self.config.inflation_segments)
         self.solver = make_solver(self.config.solver)
         self._weights = np.ones(model.input_dim)
+        self._lower_column = model.input_lower[:, None]
+        self._upper_column = model.input_upper[:, None]
         self._cache_key = None
         self._cache = None
 
@@ -202,15 +211,15 @@ class SafetyFilter:
             status = FilterStatus.ESCAPE
             message = (f'reference point inside {int(inside.sum())} (inflated) obstacle '
                        'part(s); escaping along the outward direction')
-        keep = ~inside
-        rows_a = terms.lg_h[keep]
-        rows_b = config.margin - terms.lf_h[keep] - config.gamma * terms.h[keep]
-        index = np.flatnonzero(keep)
-        if config.prune and index.size:
-            worst = np.minimum(rows_a * self.model.input_lower,
-                               rows_a * self.model.input_upper).sum(axis=1)
-            needed = worst < rows_b
-            rows_a, rows_b, index = rows_a[needed], rows_b[needed], index[needed]
+        rows_b = config.margin - terms.lf_h - config.gamma * terms.h
+        needed = ~inside
+        if config.prune:
+            worst = np.minimum(terms.lg_h * self._lower_column,
+                               terms.lg_h * self._upper_column).sum(axis=0)
+            needed &= worst < rows_b
+        index = np.flatnonzero(needed)
+        rows_a = np.ascontiguousarray(terms.lg_h[:, index].T)
+        rows_b = rows_b[index]
         lower, upper = self.model.input_lower, self.model.input_upper
         result = self.solver.solve(u_ref, self._weights, rows_a, rows_b, lower, upper)
         slack = 0.0
@@ -257,21 +266,19 @@ class SafetyFilter:
 
     def _evaluate(self, prepared, ref, age):
         """Evaluate cones and barrier terms in every plane, keep the smaller-||k|| plane."""
-        dim = ref.position.size
-        velocities = prepared.velocities[:, :dim]
         best = None
         for plane, view in enumerate(prepared.views):
-            viewpoints = _project_rows(view.projection, ref.position - age * velocities)
-            cones = self.cone_model.cones(view.prepared, viewpoints)
-            v_rel = _project_rows(view.projection, velocities - ref.velocity)
-            terms = barrier_terms(cones, v_rel, -view.projection @ ref.drift,
-                                  -view.projection @ ref.input_matrix,
-                                  self.config.velocity_epsilon)
+            viewpoint, v_rel, a_drift, b_rel = _in_plane(view.axes, ref, prepared, age)
+            cones = self.cone_model.cones(view.prepared, viewpoint)
+            terms = barrier_terms(cones, v_rel, a_drift, b_rel, self.config.velocity_epsilon)
             usable = cones.valid & view.enabled
-            outward = np.einsum('nij,ni->nj', view.projection, viewpoints - view.centroids)
-            candidate = Evaluation(cones=cones, terms=terms, inside=~usable, outward=outward,
-                                   plane=np.full(len(usable), plane),
-                                   rank=np.where(usable, cones.k_norm, np.inf))
+            candidate = Evaluation(
+                cones=cones, terms=terms, inside=~usable,
+                outward=_to_world(view.axes, viewpoint.reshape(2, -1) - view.centroids,
+                                  ref.position.size),
+                plane=np.full(usable.size, plane),
+                rank=np.where(usable, cones.k_norm, np.inf) if len(prepared.views) > 1
+                else None)
             best = candidate if best is None else _select(candidate.rank < best.rank,
                                                           best, candidate)
         return best
@@ -281,49 +288,74 @@ class SafetyFilter:
         if obstacles is self._cache_key:
             return self._cache
         finite = obstacles.is_finite()
-        dim = self.model.position_dim
-        n = len(obstacles)
-        footprints = obstacles.footprints if finite else PolygonBatch.from_polygons([])
         if not finite:
-            n = 0
-        views = [self._view(footprints, np.broadcast_to(np.eye(2, dim), (n, 2, dim)),
-                            np.ones(n, dtype=bool))]
-        if dim == 3 and n:
+            obstacles = ObstacleSet.empty()
+        batch = obstacles.footprints
+        views = [self._view(batch, None, np.ones(len(batch), dtype=bool))]
+        if self.model.position_dim == 3 and len(batch):
             views.append(self._vertical_view(obstacles))
-        self._cache_key = obstacles
-        self._cache = _Prepared(views=tuple(views), finite=finite,
-                                velocities=obstacles.velocities[:n] if finite else
-                                np.zeros((0, 3)))
+        velocities = np.ascontiguousarray(obstacles.velocities.T)
+        self._cache_key = obstacles if finite else None
+        self._cache = _Prepared(views=tuple(views), velocities=velocities,
+                                moving=bool(velocities.any()), finite=finite)
         return self._cache
 
-    def _view(self, batch, projection, enabled):
+    def _view(self, batch, axes, enabled):
         """Prepare one plane's geometry for the cone model."""
-        return _View(prepared=self.cone_model.prepare(batch), projection=projection,
-                     centroids=batch.centroids(), enabled=enabled)
+        return _View(prepared=self.cone_model.prepare(batch), axes=axes,
+                     centroids=np.ascontiguousarray(batch.centroids().T), enabled=enabled)
 
     def _vertical_view(self, obstacles):
         """Project each prism onto the vertical plane through its footprint's thin axis."""
         batch = obstacles.footprints
-        shadows, projections = [], []
+        shadows, axes = [], []
         enabled = np.isfinite(obstacles.z_ranges).all(axis=1)
         for i in range(len(batch)):
             footprint = batch.vertices[i, :batch.counts[i]]
             axis = thin_axis(footprint)
             z_min, z_max = obstacles.z_ranges[i] if enabled[i] else (-1.0, 1.0)
             shadows.append(vertical_shadow(footprint, z_min, z_max, axis))
-            projections.append([[axis[0], axis[1], 0.0], [0.0, 0.0, 1.0]])
-        return self._view(PolygonBatch.from_polygons(shadows), np.array(projections), enabled)
+            axes.append(axis)
+        return self._view(PolygonBatch.from_polygons(shadows), np.array(axes).T, enabled)
 
 
-def _project_rows(projection, points):
-    """Return P_n points_n for projections (N,2,d) and points (N,d) or (d,)."""
-    points = np.broadcast_to(points, (projection.shape[0], projection.shape[2]))
-    return np.einsum('nij,nj->ni', projection, points)
+def _in_plane(axes, ref, prepared, age):
+    """Return viewpoint, v_rel, a_drift (relative) and B_rel projected into one plane.
+
+    Obstacles are extrapolated by ``age`` seconds: seen from the obstacle frame the
+    viewpoint moves by -age c_dot.  Horizontal plane: the x, y rows.  Vertical plane
+    n: rows (axis_n . xy, z), constant per obstacle (the paper's constant projection).
+    """
+    position, velocities = ref.position, prepared.velocities
+    dim = position.size
+    if axes is None:
+        viewpoint = position[:2]
+        if prepared.moving and age:
+            viewpoint = viewpoint[:, None] - age * velocities[:2]
+        v_rel = velocities[:2] - ref.velocity[:2, None]
+        return viewpoint, v_rel, -ref.drift[:2, None], -ref.input_matrix[:2]
+    viewpoint_3d = position[:, None] - age * velocities[:dim]
+    v_rel_3d = velocities[:dim] - ref.velocity[:, None]
+    viewpoint = np.stack([dot2(axes, viewpoint_3d), viewpoint_3d[2]])
+    v_rel = np.stack([dot2(axes, v_rel_3d), v_rel_3d[2]])
+    a_drift = -np.stack([axes[0] * ref.drift[0] + axes[1] * ref.drift[1],
+                         np.full(axes.shape[1], ref.drift[2])])
+    b_horizontal = -(axes[0][:, None] * ref.input_matrix[0] + axes[1][:, None]
+                     * ref.input_matrix[1])
+    b_rel = np.stack([b_horizontal, np.broadcast_to(-ref.input_matrix[2],
+                                                    b_horizontal.shape)], axis=1)
+    return viewpoint, v_rel, a_drift, b_rel
+
+
+def _to_world(axes, planar, dim):
+    """Map planar (2, N) directions back to ``dim`` world axes."""
+    if axes is None:
+        return planar if dim == 2 else np.vstack([planar, np.zeros_like(planar[:1])])
+    return np.stack([axes[0] * planar[0], axes[1] * planar[0], planar[1]])
 
 
 def _select(take, a, b):
-    """Row-wise choose b where take else a, for arrays and dataclasses of arrays."""
+    """Per obstacle (last axis) choose b where take else a, also inside dataclasses."""
     if isinstance(a, np.ndarray):
-        mask = take.reshape((-1,) + (1,) * (a.ndim - 1))
-        return np.where(mask, b, a)
+        return np.where(take, b, a)
     return type(a)(**{k: _select(take, v, getattr(b, k)) for k, v in vars(a).items()})

@@ -55,7 +55,7 @@ def test_lie_derivatives_match_finite_differences(model_name, barrier, polygon, 
     assume(np.allclose(_structure(here)[0], _structure(ahead)[0], atol=1e-4))
 
     finite_difference = (ahead.terms.h - behind.terms.h) / (2 * STEP)
-    analytic = here.terms.lf_h + here.terms.lg_h @ u
+    analytic = here.terms.lf_h + u @ here.terms.lg_h
     scale = np.maximum(1.0, np.abs(analytic))
     assert np.all(np.abs(finite_difference - analytic) <= RELATIVE_TOLERANCE * scale), (
         finite_difference, analytic)
@@ -68,7 +68,7 @@ def test_unicycle_steering_column_needs_offset():
     state = np.array([0.0, 0.0, 0.3, 1.0, 0.2])
     for offset, expect_zero in ((0.0, True), (0.2, False)):
         filt = SafetyFilter(make_model('unicycle', offset_l=offset), FilterConfig())
-        steering = filt.evaluate(state, obstacles).terms.lg_h[0, 1]
+        steering = filt.evaluate(state, obstacles).terms.lg_h[1, 0]
         assert (abs(steering) < 1e-12) == expect_zero
 
 
@@ -88,6 +88,6 @@ def test_low_wide_wall_uses_vertical_plane_and_derivatives_hold():
         x_dot = model.state_derivative(x, u)
         ahead = filt.evaluate(x + STEP * x_dot, obstacles).terms.h
         behind = filt.evaluate(x - STEP * x_dot, obstacles).terms.h
-        analytic = here.terms.lf_h + here.terms.lg_h @ u
+        analytic = here.terms.lf_h + u @ here.terms.lg_h
         assert np.allclose((ahead - behind) / (2 * STEP), analytic, rtol=RELATIVE_TOLERANCE,
                            atol=RELATIVE_TOLERANCE)

@@ -17,7 +17,7 @@ viewpoints = st.tuples(st.floats(-8, 8), st.floats(-8, 8)).map(np.array)
 
 def _inside_cone(points, cones, tol=1e-9):
     """Return True when every point (relative to the apex) is within the cone's half-angle."""
-    p, s = cones.p[0], cones.s[0]
+    p, s = cones.p[:, 0], cones.s[0]
     p_norm = np.linalg.norm(p)
     cos_phi = s / p_norm
     cos_points = points @ p / (np.linalg.norm(points, axis=1) * p_norm)
@@ -30,12 +30,13 @@ def test_polygon_and_extension_inside_paper_cone(polygon, viewpoint, radius):
     """Vertices and the segment extended by w/2 lie in the paper's cone."""
     assume(signed_distance(viewpoint, polygon) > radius + 1e-3)
     cone_model = PaperCone(radius)
-    cones = cone_model.cones(PolygonBatch.from_polygons([polygon]), viewpoint[None])
+    cones = cone_model.cones(cone_model.prepare(PolygonBatch.from_polygons([polygon])),
+                             viewpoint)
     assert cones.valid[0]
     assert _inside_cone(polygon - viewpoint, cones)
     # The cone is symmetric about p with half-angle angle(p, k): k is on its boundary.
-    k = cones.k[0]
-    assert np.isclose(cones.s[0], k @ cones.p[0] / np.linalg.norm(k))
+    k = cones.k[:, 0]
+    assert np.isclose(cones.s[0], k @ cones.p[:, 0] / np.linalg.norm(k))
 
 
 @settings(max_examples=300, deadline=None)
@@ -46,7 +47,7 @@ def test_inflated_obstacle_inside_inflated_cone(polygon, viewpoint, radius):
     assume(signed_distance(viewpoint, inflated) > 1e-3)
     cone_model = InflatedCone(radius, 16)
     cones = cone_model.cones(cone_model.prepare(PolygonBatch.from_polygons([polygon])),
-                             viewpoint[None])
+                             viewpoint)
     assert cones.valid[0]
     angles = np.linspace(0, 2 * np.pi, 64, endpoint=False)
     disk = radius * np.column_stack([np.cos(angles), np.sin(angles)])
@@ -63,11 +64,11 @@ def test_c3bf_cone_is_tangent_to_circle(polygon, viewpoint, radius):
     assume(np.linalg.norm(centre - viewpoint) > big + 1e-3)
     cone_model = CircleCone(radius)
     cones = cone_model.cones(cone_model.prepare(PolygonBatch.from_polygons([polygon])),
-                             viewpoint[None])
+                             viewpoint)
     p = centre - viewpoint
     assert np.isclose(cones.s[0], np.sqrt(p @ p - big ** 2))
     assert _inside_cone(polygon - viewpoint, cones)
-    assert np.isclose(np.linalg.norm(cones.k[0]), cones.s[0])
+    assert np.isclose(np.linalg.norm(cones.k[:, 0]), cones.s[0])
 
 
 @pytest.mark.parametrize('cone_model', [PaperCone(0.3), InflatedCone(0.3), CircleCone(0.3)])
@@ -76,5 +77,5 @@ def test_inside_inflated_obstacle_is_flagged(cone_model):
     square = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
     prepared = cone_model.prepare(PolygonBatch.from_polygons([square]))
     for viewpoint, valid in (((0.0, 0.0), False), ((1.2, 0.0), False), ((5.0, 0.0), True)):
-        cones = cone_model.cones(prepared, np.array([viewpoint]))
+        cones = cone_model.cones(prepared, np.array(viewpoint))
         assert cones.valid[0] == valid, viewpoint

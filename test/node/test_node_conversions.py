@@ -186,8 +186,8 @@ def test_filter_markers_and_diagnostics():
         Obstacle(polygon=np.array([[1.0, -1.0], [2.0, -1.0], [2.0, 1.0], [1.0, 1.0]]))])
 
     class Cones:
-        p = np.array([[1.5, 0.0]])
-        k = np.array([[1.0, 1.0]])
+        p = np.array([[1.5], [0.0]])  # (2, N) planar vectors, as the core's Cones
+        k = np.array([[1.0], [1.0]])
 
     drawn = conversions.filter_markers('odom', odometry().header.stamp, obstacles.footprints,
                                        active=[0], apex=(0.0, 0.0), cones=Cones())
