@@ -227,7 +227,7 @@ class SafetyFilter:
         if result.status != QPStatus.OPTIMAL:
             u, slack, slack_result = solve_with_shared_slack(
                 self.solver, u_ref, self._weights, rows_a, rows_b, lower, upper,
-                config.slack_weight)
+                config.slack_weight, plain=result)
             if slack_result.status != QPStatus.OPTIMAL:
                 return self._brake(state, FilterStatus.BRAKE, start,
                                    'QP and slack QP failed', terms.h, inside, cones)

@@ -1,0 +1,185 @@
+"""SafetyFilter behaviour: constraints hold, pruning is exact, fallbacks are flagged, no NaN."""
+import numpy as np
+import pytest
+from hypothesis import given, HealthCheck, settings, strategies as st
+
+from polyc2bf_ros.core.models import make_model, MODEL_NAMES
+from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.qp import QPResult, QPStatus
+from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
+from strategies import convex_polygons, random_state
+
+SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+obstacle_lists = st.lists(convex_polygons(centre_range=6.0), min_size=0, max_size=8)
+
+
+def _world(polygons, rng):
+    """Return obstacles with random velocities and z ranges."""
+    return ObstacleSet.from_obstacles([
+        Obstacle(polygon=p, velocity=rng.uniform(-0.5, 0.5, 3), z_min=-1.0, z_max=2.0)
+        for p in polygons])
+
+
+def _case(model_name, seed, polygons):
+    """Return (model, state, obstacles, u_nom) drawn from ``seed``."""
+    rng = np.random.default_rng(seed)
+    model = make_model(model_name)
+    span = model.input_upper - model.input_lower
+    u_nom = model.input_lower + rng.uniform(-0.5, 1.5, model.input_dim) * span
+    return model, random_state(model_name, rng), _world(polygons, rng), u_nom
+
+
+def _constraint_rows(filt, state, obstacles):
+    """Return (A, b, usable) of the CBF rows Lg h u >= m - Lf h - gamma h."""
+    evaluation = filt.evaluate(state, obstacles)
+    terms = evaluation.terms
+    b = filt.config.margin - terms.lf_h - filt.config.gamma * terms.h
+    return terms.lg_h.T, b, ~evaluation.inside
+
+
+@pytest.mark.parametrize('model_name', MODEL_NAMES)
+@SETTINGS
+@given(polygons=obstacle_lists, seed=st.integers(0, 2 ** 32 - 1))
+def test_ok_solution_satisfies_every_row_and_bound(model_name, polygons, seed):
+    """Status ok: every CBF row and the input box hold; pruning changes nothing."""
+    model, state, obstacles, u_nom = _case(model_name, seed, polygons)
+    filt = SafetyFilter(model, FilterConfig())
+    u, info = filt.step(state, obstacles, u_nom)
+    assert np.isfinite(u).all()
+    assert np.all(u >= model.input_lower - 1e-9) and np.all(u <= model.input_upper + 1e-9)
+    A, b, usable = _constraint_rows(filt, state, obstacles)
+    if info.status == FilterStatus.OK:
+        assert np.all(A[usable] @ u >= b[usable] - 1e-7)
+    elif info.status == FilterStatus.SLACK:
+        assert info.slack > 0 and np.all(A[usable] @ u >= b[usable] - info.slack - 1e-7)
+    unpruned = SafetyFilter(model, FilterConfig(prune=False))
+    u_full, info_full = unpruned.step(state, obstacles, u_nom)
+    assert info_full.status == info.status
+    np.testing.assert_allclose(u, u_full, atol=1e-7)
+
+
+@pytest.mark.parametrize('model_name', MODEL_NAMES)
+@SETTINGS
+@given(polygons=obstacle_lists, seed=st.integers(0, 2 ** 32 - 1))
+def test_backends_agree(model_name, polygons, seed):
+    """DAQP and proxsuite (duality-gap check on) give the same safe input.
+
+    proxsuite sometimes stalls where DAQP solves exactly; that must surface as a
+    flagged brake with the model's braking input, never as a different answer.
+    """
+    model, state, obstacles, u_nom = _case(model_name, seed, polygons)
+    u_daqp, info_daqp = SafetyFilter(model, FilterConfig(solver='daqp')).step(
+        state, obstacles, u_nom)
+    u_prox, info_prox = SafetyFilter(model, FilterConfig(solver='proxsuite')).step(
+        state, obstacles, u_nom)
+    if info_prox.status == FilterStatus.BRAKE and info_daqp.status != FilterStatus.BRAKE:
+        np.testing.assert_allclose(u_prox, model.braking_input(state))
+        return
+    assert info_daqp.status == info_prox.status
+    np.testing.assert_allclose(u_daqp, u_prox, atol=1e-5)
+
+
+BAD = st.sampled_from([np.nan, np.inf, -np.inf])
+
+
+@pytest.mark.parametrize('model_name', MODEL_NAMES)
+@SETTINGS
+@given(polygons=obstacle_lists.filter(len), seed=st.integers(0, 2 ** 32 - 1), bad=BAD,
+       where=st.sampled_from(['state', 'u_nom', 'vertex', 'velocity', 'age']))
+def test_non_finite_input_brakes_and_never_outputs_nan(model_name, polygons, seed, bad, where):
+    """NaN/Inf anywhere gives status invalid_input and a finite braking command."""
+    model, state, obstacles, u_nom = _case(model_name, seed, polygons)
+    age = 0.0
+    if where == 'state':
+        state[np.random.default_rng(seed).integers(state.size)] = bad
+    elif where == 'u_nom':
+        u_nom[0] = bad
+    elif where == 'age':
+        age = bad
+    else:
+        field = obstacles.footprints.vertices if where == 'vertex' else obstacles.velocities
+        field.reshape(-1)[0] = bad
+    u, info = SafetyFilter(model, FilterConfig()).step(state, obstacles, u_nom, age)
+    assert info.status == FilterStatus.INVALID_INPUT
+    assert np.isfinite(u).all()
+    assert np.all(u >= model.input_lower) and np.all(u <= model.input_upper)
+
+
+WALL = np.array([[1.0, -3.0], [1.2, -3.0], [1.2, 3.0], [1.0, 3.0]])
+
+
+def _box(x0, y0, x1, y1):
+    """Return the axis-aligned rectangle [x0, x1] x [y0, y1]."""
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+
+
+def test_infeasible_rows_fall_back_to_shared_slack():
+    """At rest, boxed in by four close walls: no input meets every margin; slack is flagged."""
+    model = make_model('point_mass_2d')
+    filt = SafetyFilter(model, FilterConfig(robot_radius=0.2))
+    walls = [_box(0.5, -0.7, 0.7, 0.7), _box(-0.7, -0.7, -0.5, 0.7),
+             _box(-0.7, 0.5, 0.7, 0.7), _box(-0.7, -0.7, 0.7, -0.5)]
+    obstacles = ObstacleSet.from_obstacles([Obstacle(polygon=w) for w in walls])
+    u, info = filt.step(np.zeros(4), obstacles, np.array([1.0, 0.0]))
+    assert info.status == FilterStatus.SLACK
+    assert info.slack > 0.0
+    np.testing.assert_allclose(u, 0.0, atol=1e-9)  # symmetric room: stay put
+
+
+class _FailingSolver:
+    """A QP backend that always fails, to drive the last fallback."""
+
+    name = 'failing'
+
+    def solve(self, x_ref, weights, A, b, lower, upper):
+        """Fail."""
+        return QPResult(x=np.clip(x_ref, lower, upper), status=QPStatus.FAILED, iterations=0)
+
+
+def test_solver_failure_brakes_and_says_so():
+    """If the QP and the slack QP both fail, the model's braking input is applied."""
+    model = make_model('unicycle')
+    filt = SafetyFilter(model, FilterConfig())
+    filt.solver = _FailingSolver()
+    obstacles = ObstacleSet.from_obstacles([Obstacle(polygon=WALL + [2.0, 0.0])])
+    state = np.array([0.0, 0.0, 0.0, 1.0, 0.5])
+    u, info = filt.step(state, obstacles, np.array([1.0, 0.0]))
+    assert info.status == FilterStatus.BRAKE
+    np.testing.assert_allclose(u, model.braking_input(state))
+    assert u[0] < 0 and u[1] < 0
+
+
+@pytest.mark.parametrize('barrier', ['polyc2bf_paper', 'polyc2bf_inflated', 'c3bf'])
+def test_inside_obstacle_escapes_outward(barrier):
+    """Reference point inside the inflated obstacle: status escape, pushed out."""
+    model = make_model('point_mass_2d')
+    filt = SafetyFilter(model, FilterConfig(barrier=barrier, robot_radius=0.3))
+    obstacles = ObstacleSet.from_obstacles([Obstacle(polygon=WALL)])
+    u, info = filt.step(np.array([0.9, 0.5, 0.0, 0.0]), obstacles, np.zeros(2))
+    assert info.status == FilterStatus.ESCAPE
+    assert 'inside' in info.message
+    assert u[0] < 0.0  # away from the wall's centroid at x = 1.1
+
+
+def test_far_obstacles_are_pruned_but_h_is_reported():
+    """Rows that hold for every input in the box are dropped; h still covers all.
+
+    With gamma = 1 a receding obstacle is rarely prunable: braking hard could make its
+    row active.  With gamma = 10 the rows of obstacles 20-30 m behind cannot bind.
+    """
+    model = make_model('unicycle')
+    filt = SafetyFilter(model, FilterConfig(gamma=10.0))
+    far = [Obstacle(polygon=WALL + [x, 0.0]) for x in (-20.0, -30.0)]
+    obstacles = ObstacleSet.from_obstacles(far + [Obstacle(polygon=WALL + [1.5, 0.0])])
+    _, info = filt.step(np.array([0.0, 0.0, 0.0, 1.5, 0.0]), obstacles, np.array([1.0, 0.0]))
+    assert info.num_obstacles == 3 and np.isfinite(info.h).all()
+    assert info.num_constraints == 1
+    assert list(info.active) == [2]
+
+
+def test_config_validation_names_the_field():
+    """Bad configuration values are refused with the field name."""
+    for field, value in (('gamma', 0.0), ('barrier', 'circles'), ('solver', 'osqp'),
+                         ('control_period', -1.0), ('robot_radius', np.nan)):
+        with pytest.raises(ValueError, match=field):
+            FilterConfig(**{field: value}).validate()
