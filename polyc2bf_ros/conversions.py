@@ -30,8 +30,10 @@ polygons in its header frame plus a z range, after applying the marker pose
 
 Degenerate outlines (one point, a segment, collinear points) become thin
 rectangles of width ``scale.x`` (the line width) or ``wall_thickness`` when the
-marker has none; see ``outline_polygon``.  The z range is the points' z extent,
-infinite (an extruded wall) when the outline is flat.  The velocity reference
+marker has none; see ``outline_polygon``.  The z range is the points' z extent;
+a flat LINE_STRIP / LINE_LIST outline with ``scale.z > 0`` is a prism from the
+points' z up by ``scale.z`` (how ``sim_bridge`` publishes obstacles; RViz ignores
+scale.z on lines), and otherwise an infinite extrusion (a wall).  The velocity reference
 position is the pose, or the points' centroid when the pose is the identity.
 """
 import math
@@ -241,7 +243,9 @@ def marker_geometry(marker, wall_thickness, cylinder_sides):
     polygons = [outline_polygon(g[:, :2], thickness) for g in groups]
     z_min, z_max = world[:, 2].min(), world[:, 2].max()
     if z_max - z_min < POINT_TOLERANCE:
-        z_min, z_max = -math.inf, math.inf
+        # A flat outline is a prism of height scale.z above it, or an infinite extrusion.
+        z_max = z_min + scale.z if kind != Marker.TRIANGLE_LIST and scale.z > 0.0 else math.inf
+        z_min = z_min if math.isfinite(z_max) else -math.inf
     position = origin if not _is_identity(pose) else world.mean(axis=0)
     return polygons, z_min, z_max, position
 

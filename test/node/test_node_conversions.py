@@ -129,6 +129,17 @@ def test_line_markers():
     assert [signed_area(p) for p in polygons] == pytest.approx([1.05 * 0.05] * 2)
 
 
+def test_flat_line_strip_with_scale_z_is_a_prism():
+    """A flat outline with scale.z > 0 spans [points' z, points' z + scale.z]."""
+    marker = wall([(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)], width=0.02)
+    for point in marker.points:
+        point.z = 0.5
+    marker.scale.z = 2.0
+    [polygon], z_min, z_max, _ = conversions.marker_geometry(marker, 0.05, 12)
+    assert (z_min, z_max) == (0.5, 2.5)
+    assert signed_area(polygon) == pytest.approx(0.5)
+
+
 def test_triangle_list_applies_pose_and_scale():
     """TRIANGLE_LIST points are scaled, then moved by the pose; z range from the points."""
     marker = _solid(Marker.TRIANGLE_LIST, position=(10.0, 0.0, 0.0), scale=(2.0, 2.0, 1.0))
