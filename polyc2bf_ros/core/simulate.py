@@ -9,7 +9,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from polyc2bf_ros.core.geometry import signed_distance_batch
+from polyc2bf_ros.core.geometry import convex_hull, signed_distance, signed_distance_batch
+from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 
 
 def rk4_step(model, x, u, dt):
@@ -83,3 +84,22 @@ def rollout(model, safety_filter, controller, x0, goal, obstacles, duration,
                    nominal=np.array(nominal), statuses=statuses,
                    clearances=np.array(clearances))
 
+
+
+def random_clutter(seed, count=30, region=((1.0, -4.0), (11.0, 4.0)),
+                   keep_clear=((0.0, 0.0), (12.0, 0.0)), clearance=1.2):
+    """Return ``count`` seeded random convex polygons in ``region``, away from ``keep_clear``.
+
+    Each is the hull of 3-8 points in a box of 0.2-0.6 m half-size; polygons whose
+    signed distance to any ``keep_clear`` point is below ``clearance`` are redrawn.
+    """
+    rng = np.random.default_rng(seed)
+    polygons = []
+    while len(polygons) < count:
+        centre = rng.uniform(*region)
+        count_points = rng.integers(3, 9)
+        offsets = rng.uniform(-0.5, 0.5, size=(count_points, 2))
+        hull = convex_hull(centre + offsets * rng.uniform(0.4, 1.2, size=2))
+        if len(hull) >= 3 and min(signed_distance(p, hull) for p in keep_clear) >= clearance:
+            polygons.append(hull)
+    return ObstacleSet.from_obstacles([Obstacle(polygon=p) for p in polygons])

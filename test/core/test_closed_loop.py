@@ -7,7 +7,6 @@ obstacle minus the radius, so a collision is clearance < 0.
 import numpy as np
 import pytest
 
-from polyc2bf_ros.core.geometry import convex_hull, signed_distance
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.nominal import (
     PointMassGoalController,
@@ -16,7 +15,7 @@ from polyc2bf_ros.core.nominal import (
 )
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
-from polyc2bf_ros.core.simulate import rollout
+from polyc2bf_ros.core.simulate import random_clutter, rollout
 
 RADIUS = 0.3
 LONG_WALL = np.array([[3.0, -10.0], [3.2, -10.0], [3.2, 10.0], [3.0, 10.0]])
@@ -64,21 +63,6 @@ def test_c3bf_fails_where_the_paper_says():
     assert poly.step(start, obstacles, np.array([0.5, 0.0]))[1].status == FilterStatus.OK
 
 
-def _clutter(seed, count=30):
-    """Return ``count`` random convex polygons in [1, 11] x [-4, 4], clear of start and goal."""
-    rng = np.random.default_rng(seed)
-    polygons = []
-    while len(polygons) < count:
-        centre = rng.uniform([1.0, -4.0], [11.0, 4.0])
-        points = centre + rng.uniform(-0.5, 0.5, size=(rng.integers(3, 9), 2)) * rng.uniform(
-            0.4, 1.2, size=2)
-        hull = convex_hull(points)
-        if len(hull) < 3 or min(signed_distance(p, hull) for p in ([0.0, 0.0], [12.0, 0.0])) < 1.2:
-            continue
-        polygons.append(hull)
-    return ObstacleSet.from_obstacles([Obstacle(polygon=p) for p in polygons])
-
-
 CLUTTER_MODELS = {
     'unicycle': (UnicycleGoalController(), lambda: np.array([-0.2, 0.0, 0.0, 0.0, 0.0])),
     'point_mass_2d': (PointMassGoalController(), lambda: np.zeros(4)),
@@ -97,8 +81,8 @@ def test_clutter_zero_collisions(model_name, chunk):
     controller, start = CLUTTER_MODELS[model_name]
     filt = SafetyFilter(model, FilterConfig(robot_radius=RADIUS, control_period=0.02))
     for seed in range(chunk * 10, chunk * 10 + 10):
-        run = rollout(model, filt, controller, start(), np.array([12.0, 0.0]), _clutter(seed),
-                      duration=20.0, physics_step=0.005)
+        run = rollout(model, filt, controller, start(), np.array([12.0, 0.0]),
+                      random_clutter(seed), duration=20.0, physics_step=0.005)
         assert run.min_clearance > 0.0, f'seed {seed}: clearance {run.min_clearance:.3f}'
         assert FilterStatus.INVALID_INPUT not in run.statuses
 
