@@ -1,0 +1,426 @@
+"""The PyBullet world of a scenario: the one place for the simulator's physics.
+
+``SimWorld(scenario)`` builds a DIRECT-mode world: a ground plane, every
+obstacle as a vertical prism (one convex-mesh body per convex part, collision
+margin 0 so distances are exact), and the robots.  ``step()`` advances one
+physics step of ``dt = 1 / physics_rate``; commands are held between
+``set_command`` calls (zero-order hold).
+
+Quadruped (Unitree A1, ``pybullet_data/a1/a1.urdf``, a dynamic body) is the
+paper's acceleration-controlled unicycle.  Its plant state [x, y, theta, v,
+omega] is integrated here, per physics step dt::
+
+    velocity command: a = clip((v_cmd - v) / dt, +-a_max)   (reach v_cmd at a_max)
+    acceleration command: a = clip(a_cmd, +-a_max)
+    v' = clip(v + a dt, +-v_max)   (same for omega with alpha_max, omega_max)
+    theta' = theta + (omega + omega') dt / 2
+    [x, y]' = [x, y] + (v + v') dt / 2 [cos, sin](theta + (omega + omega') dt / 4)
+
+and after each physics step the base is reset to that pose at standing
+height, upright (roll = pitch = 0), with the matching base velocity.  The
+body (mass > 0) is kept asleep with wake-up disabled, so Bullet never
+integrates it: gravity cannot sink or tip it and the legs stay in the
+standing pose.  Its links are out of contact solving (collision mask 0), so
+contacts never push it: a collision is detected with ``getClosestPoints``
+(which ignores masks), not resolved.  [x, y] is PyBullet's base frame (the
+trunk's centre of mass).  Fixed links are merged on load (12 links, not 21),
+which halves the per-step and closest-point cost.
+
+Crazyflie 2.1 (``assets/crazyflie21.urdf``) is a free rigid body with zero
+linear and angular damping (PyBullet's default 0.04 is a hidden drag) and
+collision margin.  Every physics step each rotor's thrust f_i is an
+external force [0, 0, f_i] in the body frame at ``cf.ROTOR_POSITIONS[i]``, plus
+the yaw reaction torque tau_z = sum(s_i c f_i) = ``cf.MIXER[3] @ f``; rotor
+thrusts are clipped to [0, MAX_ROTOR_THRUST].  Until the first command it holds
+hover thrust.  State: [p, v (world), roll, pitch, yaw, w = R^T w_world (body)].
+"""
+import contextlib
+import math
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet as pb
+import pybullet_data
+
+from polyc2bf_ros.core import crazyflie as cf
+from polyc2bf_ros.core.geometry import decompose_convex, is_convex
+
+GRAVITY = cf.GRAVITY
+# Quadruped plant limits (at least the filter's unicycle bounds, so its inputs are realisable).
+QUADRUPED_MAX_SPEED = 2.0             # m/s
+QUADRUPED_MAX_TURN_RATE = 3.0         # rad/s
+QUADRUPED_MAX_ACCEL = 2.0             # m/s^2
+QUADRUPED_MAX_ANGULAR_ACCEL = 4.0     # rad/s^2
+A1_URDF = 'a1/a1.urdf'
+A1_STANDING_POSE = (0.0, 0.9, -1.8)   # hip, thigh, calf [rad], the same for all four legs
+# Asleep and never woken: Bullet neither integrates the A1 nor applies gravity to it.
+A1_ASLEEP = pb.ACTIVATION_STATE_SLEEP | pb.ACTIVATION_STATE_DISABLE_WAKEUP
+CRAZYFLIE_URDF = Path(__file__).resolve().parent / 'assets' / 'crazyflie21.urdf'
+CRAZYFLIE_HALF_HEIGHT = 0.015         # m, half the collision cylinder's length
+# Distance below which getClosestPoints counts as a collision (contact-solver
+# penetration and float noise are far below it).
+COLLISION_TOLERANCE = 1e-3            # m
+CLEARANCE_RANGE = 5.0                 # m, getClosestPoints search distance; beyond: inf
+FOOTPRINT_SEGMENTS = 16               # vertices of a robot's footprint circle
+COMMAND_KINDS = {'quadruped': ('velocity', 'acceleration'), 'crazyflie': ('thrusts', 'wrench')}
+
+
+@dataclass(frozen=True, eq=False)
+class Footprint:
+    """An obstacle as published: CCW polygon (k, 2), z range, velocity [vx, vy, vz]."""
+
+    name: str
+    polygon: np.ndarray
+    z_min: float
+    z_max: float
+    velocity: np.ndarray
+    robot: bool = False
+
+
+def _yaw_quaternion(yaw):
+    """Return the quaternion [x, y, z, w] of a rotation by ``yaw`` about z."""
+    return (0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw))
+
+
+def _finite(cmd, size, what):
+    """Return ``cmd`` as a float array of ``size`` finite values or raise ValueError."""
+    array = np.asarray(cmd, dtype=float).ravel()
+    if array.size != size or not np.isfinite(array).all():
+        raise ValueError(f'{what} must be {size} finite numbers, got {cmd!r}')
+    return array
+
+
+class _Obstacle:
+    """Static or constant-velocity prism: one mass-0 body per convex part, sharing an anchor."""
+
+    def __init__(self, spec, client):
+        """Create the bodies; part vertices are relative to the footprint's vertex mean."""
+        self.spec = spec
+        self.client = client
+        self.anchor = np.mean(spec.polygon, axis=0)
+        velocity = np.append(spec.velocity, 0.0)
+        self.footprint = Footprint(spec.name, spec.polygon, spec.z[0], spec.z[1], velocity)
+        parts = [spec.polygon] if is_convex(spec.polygon) else decompose_convex(spec.polygon)
+        self.bodies = []
+        for part in parts:
+            local = part - self.anchor
+            vertices = [(x, y, z) for z in spec.z for x, y in local]
+            shape = pb.createCollisionShape(pb.GEOM_MESH, vertices=vertices,
+                                            physicsClientId=client)
+            body = pb.createMultiBody(0.0, shape, basePosition=(*self.anchor, 0.0),
+                                      physicsClientId=client)
+            pb.changeDynamics(body, -1, collisionMargin=0.0, physicsClientId=client)
+            self.bodies.append(body)
+        self.lower = spec.polygon.min(axis=0)
+        self.upper = spec.polygon.max(axis=0)
+
+    def offset(self, time):
+        """Return the translation since t = 0: velocity * time."""
+        return self.spec.velocity * time
+
+    def place(self, time):
+        """Move every part to its position at ``time``."""
+        x, y = self.anchor + self.offset(time)
+        for body in self.bodies:
+            pb.resetBasePositionAndOrientation(body, (x, y, 0.0), (0.0, 0.0, 0.0, 1.0),
+                                               physicsClientId=self.client)
+
+    def footprint_at(self, time):
+        """Return the published footprint at ``time``."""
+        if not self.spec.moving:
+            return self.footprint
+        return Footprint(self.spec.name, self.spec.polygon + self.offset(time),
+                         self.spec.z[0], self.spec.z[1], self.footprint.velocity)
+
+
+class _Robot:
+    """Shared parts of the two plants: the body, its footprint circle, reach and height."""
+
+    def __init__(self, spec, body, client):
+        """Measure the body: ``reach`` [m] bounds its horizontal extent from the base."""
+        self.spec = spec
+        self.body = body
+        self.client = client
+        angles = np.linspace(0.0, 2.0 * np.pi, FOOTPRINT_SEGMENTS, endpoint=False)
+        self.circle = spec.radius * np.column_stack([np.cos(angles), np.sin(angles)])
+        base = np.array(pb.getBasePositionAndOrientation(body, physicsClientId=client)[0])
+        boxes = np.array([pb.getAABB(body, link, physicsClientId=client)
+                          for link in range(-1, pb.getNumJoints(body, physicsClientId=client))])
+        far = np.max(np.abs(boxes[:, :, :2] - base[:2]), axis=1)
+        self.reach = float(np.max(np.hypot(far[:, 0], far[:, 1])))
+        self.top = float(boxes[:, 1, 2].max() - base[2])
+
+    def before_physics(self):
+        """Apply this step's forces (none by default)."""
+
+    def after_physics(self, dt):
+        """Update after the physics step (nothing by default)."""
+
+    def footprint(self):
+        """Return this robot as another robot's obstacle: its circle, z range, velocity."""
+        position, velocity, z_min, z_max = self.extent()
+        return Footprint(self.spec.name, position[:2] + self.circle, z_min, z_max, velocity,
+                         robot=True)
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence file descriptor 1 for the block (Bullet prints every merged URDF link)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, 'wb') as null:
+            os.dup2(null.fileno(), 1)
+        yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+class _Quadruped(_Robot):
+    """Unitree A1 driven as an acceleration-limited unicycle (see the module docstring)."""
+
+    def __init__(self, spec, client, ground):
+        """Load the A1 (fixed links merged) standing at the start pose, asleep, uncollidable.
+
+        The standing height is the distance from the legs to the ``ground`` body
+        when the base is at z = 1: base z = 1 - that distance puts the feet on z = 0.
+        """
+        x, y, yaw = spec.start
+        with _quiet_stdout():
+            body = pb.loadURDF(A1_URDF, (x, y, 1.0), _yaw_quaternion(yaw),
+                               flags=pb.URDF_MERGE_FIXED_LINKS, physicsClientId=client)
+        links = range(-1, pb.getNumJoints(body, physicsClientId=client))
+        for joint in links[1:]:  # merged: hip, thigh, calf of each leg in turn
+            pb.resetJointState(body, joint, A1_STANDING_POSE[joint % 3], physicsClientId=client)
+        for link in links:
+            pb.setCollisionFilterGroupMask(body, link, 0, 0, physicsClientId=client)
+        pb.changeDynamics(body, -1, activationState=A1_ASLEEP, physicsClientId=client)
+        gap = min(point[8] for point in pb.getClosestPoints(body, ground, 1.0,
+                                                              physicsClientId=client))
+        self.height = 1.0 - gap
+        pb.resetBasePositionAndOrientation(body, (x, y, self.height), _yaw_quaternion(yaw),
+                                           physicsClientId=client)
+        super().__init__(spec, body, client)
+        self.state = np.array([x, y, yaw, 0.0, 0.0])
+        self.command = (0.0, 0.0)
+        self.velocity_mode = True
+
+    def set_command(self, cmd, kind):
+        """Hold [v, omega] (kind 'velocity') or [a, alpha] (kind 'acceleration')."""
+        self.command = tuple(_finite(cmd, 2, f'{self.spec.name} {kind} command').tolist())
+        self.velocity_mode = kind == 'velocity'
+
+    def after_physics(self, dt):
+        """Integrate the unicycle over dt and put the base there, upright at standing height."""
+        x, y, theta, v, omega = self.state.tolist()
+        a, alpha = self.command
+        if self.velocity_mode:
+            a, alpha = (a - v) / dt, (alpha - omega) / dt
+        a = min(max(a, -QUADRUPED_MAX_ACCEL), QUADRUPED_MAX_ACCEL)
+        alpha = min(max(alpha, -QUADRUPED_MAX_ANGULAR_ACCEL), QUADRUPED_MAX_ANGULAR_ACCEL)
+        v_new = min(max(v + a * dt, -QUADRUPED_MAX_SPEED), QUADRUPED_MAX_SPEED)
+        omega_new = min(max(omega + alpha * dt, -QUADRUPED_MAX_TURN_RATE),
+                        QUADRUPED_MAX_TURN_RATE)
+        speed, turn = 0.5 * (v + v_new), 0.5 * (omega + omega_new)
+        heading = theta + 0.5 * turn * dt
+        x += speed * math.cos(heading) * dt
+        y += speed * math.sin(heading) * dt
+        theta += turn * dt
+        self.state[:] = x, y, theta, v_new, omega_new
+        pb.resetBasePositionAndOrientation(self.body, (x, y, self.height),
+                                           _yaw_quaternion(theta), physicsClientId=self.client)
+        pb.resetBaseVelocity(self.body, (v_new * math.cos(theta), v_new * math.sin(theta), 0.0),
+                             (0.0, 0.0, omega_new), physicsClientId=self.client)
+
+    def robot_state(self):
+        """Return the unicycle state [x, y, theta, v, omega]."""
+        return self.state.copy()
+
+    def extent(self):
+        """Return position (3,), world velocity (3,) and z range of the body."""
+        x, y, theta, v, _ = self.state
+        velocity = np.array([v * math.cos(theta), v * math.sin(theta), 0.0])
+        return np.array([x, y, self.height]), velocity, 0.0, self.height + self.top
+
+
+class _Crazyflie(_Robot):
+    """Crazyflie 2.1 rigid body driven by four rotor thrusts (see the module docstring)."""
+
+    def __init__(self, spec, client):
+        """Load the URDF at the start pose with its own inertia and zero damping."""
+        x, y, z, yaw = spec.start
+        body = pb.loadURDF(str(CRAZYFLIE_URDF), (x, y, z), _yaw_quaternion(yaw),
+                           flags=pb.URDF_USE_INERTIA_FROM_FILE, physicsClientId=client)
+        pb.changeDynamics(body, -1, linearDamping=0.0, angularDamping=0.0, collisionMargin=0.0,
+                          physicsClientId=client)
+        super().__init__(spec, body, client)
+        self.rotors = [tuple(r) for r in cf.ROTOR_POSITIONS]
+        self.thrusts = np.full(4, cf.HOVER_ROTOR_THRUST)
+        self.yaw_torque = 0.0
+
+    def set_command(self, cmd, kind):
+        """Hold rotor thrusts f (kind 'thrusts') or f = M^-1 [T, tau] (kind 'wrench'), clipped."""
+        values = _finite(cmd, 4, f'{self.spec.name} {kind} command')
+        if kind == 'wrench':
+            values = cf.thrusts_from_wrench(values)
+        self.thrusts = np.clip(values, 0.0, cf.MAX_ROTOR_THRUST)
+        self.yaw_torque = float(cf.MIXER[3] @ self.thrusts)
+
+    def before_physics(self):
+        """Apply each rotor's thrust at its position and the yaw reaction torque, body frame."""
+        for thrust, rotor in zip(self.thrusts, self.rotors):
+            pb.applyExternalForce(self.body, -1, (0.0, 0.0, thrust), rotor, pb.LINK_FRAME,
+                                  physicsClientId=self.client)
+        pb.applyExternalTorque(self.body, -1, (0.0, 0.0, self.yaw_torque), pb.LINK_FRAME,
+                               physicsClientId=self.client)
+
+    def robot_state(self):
+        """Return [p, v, roll, pitch, yaw, body rates] read from PyBullet."""
+        position, quaternion = pb.getBasePositionAndOrientation(self.body,
+                                                                physicsClientId=self.client)
+        velocity, omega = pb.getBaseVelocity(self.body, physicsClientId=self.client)
+        rotation = np.reshape(pb.getMatrixFromQuaternion(quaternion), (3, 3))
+        euler = pb.getEulerFromQuaternion(quaternion)
+        return np.concatenate([position, velocity, euler, rotation.T @ omega])
+
+    def extent(self):
+        """Return position (3,), world velocity (3,) and z range of the body."""
+        position = np.array(pb.getBasePositionAndOrientation(
+            self.body, physicsClientId=self.client)[0])
+        velocity = np.array(pb.getBaseVelocity(self.body, physicsClientId=self.client)[0])
+        return (position, velocity, position[2] - CRAZYFLIE_HALF_HEIGHT,
+                position[2] + CRAZYFLIE_HALF_HEIGHT)
+
+
+class SimWorld:
+    """A scenario's PyBullet world; call ``close()`` (or use ``with``) when done."""
+
+    def __init__(self, scenario, gui=False):
+        """Connect (DIRECT, or GUI), then build ground, obstacles and robots."""
+        self.scenario = scenario
+        self.dt = 1.0 / scenario.physics_rate
+        self.steps = 0
+        self._client = pb.connect(pb.GUI if gui else pb.DIRECT)
+        client = self._client
+        pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
+        pb.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=client)
+        pb.setTimeStep(self.dt, physicsClientId=client)
+        pb.setPhysicsEngineParameter(deterministicOverlappingPairs=1, physicsClientId=client)
+        ground = pb.loadURDF('plane.urdf', physicsClientId=client)
+        self._obstacles = [_Obstacle(spec, client) for spec in scenario.all_obstacles()]
+        self._moving = [o for o in self._obstacles if o.spec.moving]
+        self._robots = {spec.name: (_Quadruped(spec, client, ground) if spec.type == 'quadruped'
+                                    else _Crazyflie(spec, client)) for spec in scenario.robots}
+        self._plants = list(self._robots.values())
+        self._lower = np.array([o.lower for o in self._obstacles]).reshape(-1, 2)
+        self._upper = np.array([o.upper for o in self._obstacles]).reshape(-1, 2)
+        self._offsets = np.zeros_like(self._lower)
+        self._velocities = np.array([o.spec.velocity for o in self._obstacles]).reshape(-1, 2)
+
+    @property
+    def time(self):
+        """Return the simulated time [s] = steps * dt."""
+        return self.steps * self.dt
+
+    @property
+    def robot_names(self):
+        """Return the robots' names in scenario order."""
+        return tuple(self._robots)
+
+    def robot_spec(self, robot):
+        """Return the scenario's RobotSpec of ``robot``."""
+        return self._robots[robot].spec
+
+    def set_command(self, robot, cmd, kind=None):
+        """Hold ``cmd`` for ``robot`` until the next call.
+
+        Quadruped: kind 'velocity' (default) [v, omega] or 'acceleration' [a, alpha].
+        Crazyflie: kind 'thrusts' (default) f (4,) [N] or 'wrench' [T, tau_x, tau_y, tau_z].
+        Raises ValueError for an unknown kind or a wrongly sized or non-finite command.
+        """
+        plant = self._robots[robot]
+        kinds = COMMAND_KINDS[plant.spec.type]
+        kind = kind or kinds[0]
+        if kind not in kinds:
+            raise ValueError(f'{robot} ({plant.spec.type}) takes commands of kind '
+                             f'{" or ".join(kinds)}, not {kind!r}')
+        plant.set_command(cmd, kind)
+
+    def step(self):
+        """Advance one physics step: forces, Bullet step, quadruped plants, moving obstacles."""
+        for plant in self._plants:
+            plant.before_physics()
+        pb.stepSimulation(physicsClientId=self._client)
+        self.steps += 1
+        for plant in self._plants:
+            plant.after_physics(self.dt)
+        if self._moving:
+            time = self.time
+            for obstacle in self._moving:
+                obstacle.place(time)
+            np.multiply(self._velocities, time, out=self._offsets)
+
+    def robot_state(self, robot):
+        """Return ``robot``'s state in the core model's layout (unicycle or quadrotor)."""
+        return self._robots[robot].robot_state()
+
+    def robot_pose(self, robot):
+        """Return PyBullet's base position (3,) and quaternion [x, y, z, w] of ``robot``."""
+        position, quaternion = pb.getBasePositionAndOrientation(
+            self._robots[robot].body, physicsClientId=self._client)
+        return np.array(position), np.array(quaternion)
+
+    def obstacle_footprints(self, robot=None):
+        """Return every obstacle's current Footprint, then every robot other than ``robot``'s."""
+        time = self.time
+        return ([o.footprint_at(time) for o in self._obstacles]
+                + [p.footprint() for name, p in self._robots.items() if name != robot])
+
+    def clearances(self, robot, max_distance=CLEARANCE_RANGE):
+        """Return closest-point distances [m] from ``robot`` to each obstacle, then other robots.
+
+        Same order as ``obstacle_footprints(robot)``; negative means penetration,
+        inf means farther than ``max_distance``.  Obstacles whose bounding box is
+        farther than ``max_distance`` from the robot's reach are skipped unqueried.
+        """
+        plant = self._robots[robot]
+        others = [p for name, p in self._robots.items() if name != robot]
+        result = np.full(len(self._obstacles) + len(others), np.inf)
+        position = plant.extent()[0][:2]
+        gaps = np.maximum(np.maximum(self._lower + self._offsets - position,
+                                     position - self._upper - self._offsets), 0.0)
+        near = np.hypot(gaps[:, 0], gaps[:, 1]) - plant.reach <= max_distance
+        for index in np.flatnonzero(near):
+            result[index] = min((self._distance(plant.body, body, max_distance)
+                                 for body in self._obstacles[index].bodies))
+        for index, other in enumerate(others, start=len(self._obstacles)):
+            result[index] = self._distance(plant.body, other.body, max_distance)
+        return result
+
+    def _distance(self, body_a, body_b, max_distance):
+        """Return the smallest getClosestPoints distance between two bodies, inf if none."""
+        points = pb.getClosestPoints(body_a, body_b, max_distance, physicsClientId=self._client)
+        return min((point[8] for point in points), default=np.inf)
+
+    def collided(self, robot):
+        """Return True when ``robot`` penetrates an obstacle or robot by > COLLISION_TOLERANCE."""
+        return bool(np.min(self.clearances(robot, max_distance=0.0), initial=np.inf)
+                    < -COLLISION_TOLERANCE)
+
+    def close(self):
+        """Disconnect from PyBullet; safe to call twice."""
+        if self._client is not None:
+            pb.disconnect(physicsClientId=self._client)
+            self._client = None
+
+    def __enter__(self):
+        """Return the world for a ``with`` block."""
+        return self
+
+    def __exit__(self, *exc):
+        """Close the world."""
+        self.close()
