@@ -181,9 +181,10 @@ def random_polygons(spec, seed, robots, fixed=()):
     within ``spacing`` of another obstacle's.
     """
     rng = np.random.default_rng(seed)
-    points = [np.asarray(p, dtype=float)[:2] for r in robots for p in (r.position, r.goal)]
-    placed = [(np.mean(o.polygon, axis=0), float(np.max(np.linalg.norm(
-        o.polygon - np.mean(o.polygon, axis=0), axis=1)))) for o in fixed]
+    points = np.array([p[:2] for r in robots for p in (r.position, r.goal)])
+    centres = np.array([np.mean(o.polygon, axis=0) for o in fixed]).reshape(-1, 2)
+    reaches = np.array([np.max(np.linalg.norm(o.polygon - c, axis=1))
+                        for o, c in zip(fixed, centres)])
     obstacles = []
     for _ in range(spec.count * RANDOM_ATTEMPTS):
         if len(obstacles) == spec.count:
@@ -194,15 +195,18 @@ def random_polygons(spec, seed, robots, fixed=()):
         angles = np.sort(rng.uniform(0.0, 2.0 * np.pi, count))
         radii = radius * rng.uniform(0.7, 1.0, count)
         height = rng.uniform(*spec.height)
+        if np.any(np.hypot(*(centres - centre).T) - reaches - radius < spec.spacing):
+            continue
         polygon = centre + np.column_stack([radii * np.cos(angles), radii * np.sin(angles)])
         if len(np.unique(polygon, axis=0)) < 3:
             continue
         polygon = convex_hull(polygon)
-        if min(signed_distance(p, polygon) for p in points) < spec.clearance:
+        # Points outside the circle by more than the clearance need no exact test.
+        near = points[np.hypot(*(points - centre).T) - radius < spec.clearance]
+        if any(signed_distance(p, polygon) < spec.clearance for p in near):
             continue
-        if any(np.linalg.norm(centre - c) - r - radius < spec.spacing for c, r in placed):
-            continue
-        placed.append((centre, radius))
+        centres = np.vstack([centres, centre])
+        reaches = np.append(reaches, radius)
         obstacles.append(ObstacleSpec(name=f'random_{len(obstacles):02d}',
                                       polygon=_frozen(polygon), z=(0.0, float(height))))
     if len(obstacles) < spec.count:
