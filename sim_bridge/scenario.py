@@ -8,7 +8,7 @@ YAML schema (units: m, s, rad, Hz)::
     control_rate: 100          # optional, default 100, <= physics_rate
     seed: 0                    # optional, default 0; drives random_obstacles
     robots:                    # names are the robots' ROS namespaces
-      - {name: a1, type: quadruped, start: [x, y, yaw], goal: [x, y], radius: 0.3}
+      - {name: a1, type: quadruped, start: [x, y, yaw], goal: [x, y], radius: 0.4}
       - {name: cf, type: crazyflie, start: [x, y, z, yaw], goal: [x, y, z]}
     obstacles:                 # optional
       - polygon: [[x, y], ...] # convex or simple non-convex, either orientation
@@ -47,8 +47,9 @@ from polyc2bf_ros.core.geometry import (
 
 PACKAGE = 'polyc2bf_ros'
 ROBOT_TYPES = ('quadruped', 'crazyflie')
-# Footprint circle radius [m]: A1 trunk and legs (0.46 x 0.30 m) fit in 0.28 m.
-ROBOT_RADIUS = {'quadruped': 0.3, 'crazyflie': cf.BODY_RADIUS}
+# Footprint circle radius [m] around the base: the standing A1 reaches 0.378 m (its rear
+# knees stick out 0.354 m behind the base), the Crazyflie its rotor tips.
+ROBOT_RADIUS = {'quadruped': 0.4, 'crazyflie': cf.BODY_RADIUS}
 # Layouts of start and goal per robot type.
 START_FIELDS = {'quadruped': '[x, y, yaw]', 'crazyflie': '[x, y, z, yaw]'}
 GOAL_FIELDS = {'quadruped': '[x, y]', 'crazyflie': '[x, y, z]'}

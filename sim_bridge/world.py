@@ -16,15 +16,19 @@ omega] is integrated here, per physics step dt::
     theta' = theta + (omega + omega') dt / 2
     [x, y]' = [x, y] + (v + v') dt / 2 [cos, sin](theta + (omega + omega') dt / 4)
 
-and after each physics step the base is reset to that pose at standing
-height, upright (roll = pitch = 0), with the matching base velocity.  The
-body (mass > 0) is kept asleep with wake-up disabled, so Bullet never
-integrates it: gravity cannot sink or tip it and the legs stay in the
-standing pose.  Its links are out of contact solving (collision mask 0), so
-contacts never push it: a collision is detected with ``getClosestPoints``
+and the Bullet base is reset to that pose at standing height, upright
+(roll = pitch = 0), before anything reads it (closest points,
+``robot_pose``; every step with the GUI): a reset costs ~20 us per A1.  The
+body (mass > 0) is kept asleep with wake-up disabled and its joint motors
+off, so Bullet never integrates it: gravity cannot sink or tip it and the
+legs stay in the standing pose.  Its Bullet base velocity stays zero (a base
+angular velocity would drive the legs' joints); the plant's velocity is in
+``robot_state``.  Its links are out of contact solving (collision mask 0),
+so contacts never push it: a collision is detected with ``getClosestPoints``
 (which ignores masks), not resolved.  [x, y] is PyBullet's base frame (the
-trunk's centre of mass).  Fixed links are merged on load (12 links, not 21),
-which halves the per-step and closest-point cost.
+trunk's centre of mass); the rear knees reach 0.354 m behind it.  Fixed
+links are merged on load (12 links, not 21), which halves the per-step and
+closest-point cost.
 
 Crazyflie 2.1 (``assets/crazyflie21.urdf``) is a free rigid body with zero
 linear and angular damping (PyBullet's default 0.04 is a hidden drag) and
@@ -63,7 +67,12 @@ CRAZYFLIE_HALF_HEIGHT = 0.015         # m, half the collision cylinder's length
 # Distance below which getClosestPoints counts as a collision (contact-solver
 # penetration and float noise are far below it).
 COLLISION_TOLERANCE = 1e-3            # m
-CLEARANCE_RANGE = 5.0                 # m, getClosestPoints search distance; beyond: inf
+# getClosestPoints search distance [m]: farther reads as inf.  A query costs in proportion to
+# the link pairs within range (an A1 pair has 169, ~130 us even when none is), so keep
+# it to the range that matters for clearance metrics.
+CLEARANCE_RANGE = 0.5
+# First search distance beyond a pair's lower bound [m]; doubled until points are found.
+SEARCH_STEP = 0.1
 FOOTPRINT_SEGMENTS = 16               # vertices of a robot's footprint circle
 COMMAND_KINDS = {'quadruped': ('velocity', 'acceleration'), 'crazyflie': ('thrusts', 'wrench')}
 
@@ -100,6 +109,7 @@ class _Obstacle:
         """Create the bodies; part vertices are relative to the footprint's vertex mean."""
         self.spec = spec
         self.client = client
+        self.moving = spec.moving
         self.anchor = np.mean(spec.polygon, axis=0)
         velocity = np.append(spec.velocity, 0.0)
         self.footprint = Footprint(spec.name, spec.polygon, spec.z[0], spec.z[1], velocity)
@@ -130,7 +140,7 @@ class _Obstacle:
 
     def footprint_at(self, time):
         """Return the published footprint at ``time``."""
-        if not self.spec.moving:
+        if not self.moving:
             return self.footprint
         return Footprint(self.spec.name, self.spec.polygon + self.offset(time),
                          self.spec.z[0], self.spec.z[1], self.footprint.velocity)
@@ -159,11 +169,8 @@ class _Robot:
     def after_physics(self, dt):
         """Update after the physics step (nothing by default)."""
 
-    def footprint(self):
-        """Return this robot as another robot's obstacle: its circle, z range, velocity."""
-        position, velocity, z_min, z_max = self.extent()
-        return Footprint(self.spec.name, position[:2] + self.circle, z_min, z_max, velocity,
-                         robot=True)
+    def sync(self):
+        """Bring the Bullet body up to date with the plant (nothing by default)."""
 
 
 @contextlib.contextmanager
@@ -196,6 +203,9 @@ class _Quadruped(_Robot):
         links = range(-1, pb.getNumJoints(body, physicsClientId=client))
         for joint in links[1:]:  # merged: hip, thigh, calf of each leg in turn
             pb.resetJointState(body, joint, A1_STANDING_POSE[joint % 3], physicsClientId=client)
+        # No joint motors: Bullet would still solve their constraints for a sleeping body.
+        pb.setJointMotorControlArray(body, list(links[1:]), pb.VELOCITY_CONTROL,
+                                     forces=[0.0] * (len(links) - 1), physicsClientId=client)
         for link in links:
             pb.setCollisionFilterGroupMask(body, link, 0, 0, physicsClientId=client)
         pb.changeDynamics(body, -1, activationState=A1_ASLEEP, physicsClientId=client)
@@ -215,7 +225,7 @@ class _Quadruped(_Robot):
         self.velocity_mode = kind == 'velocity'
 
     def after_physics(self, dt):
-        """Integrate the unicycle over dt and put the base there, upright at standing height."""
+        """Integrate the unicycle over dt; the Bullet base follows on ``sync()``."""
         x, y, theta, v, omega = self.state.tolist()
         a, alpha = self.command
         if self.velocity_mode:
@@ -231,10 +241,12 @@ class _Quadruped(_Robot):
         y += speed * math.sin(heading) * dt
         theta += turn * dt
         self.state[:] = x, y, theta, v_new, omega_new
+
+    def sync(self):
+        """Put the base at the plant's pose, upright at standing height."""
+        x, y, theta = self.state[:3].tolist()
         pb.resetBasePositionAndOrientation(self.body, (x, y, self.height),
                                            _yaw_quaternion(theta), physicsClientId=self.client)
-        pb.resetBaseVelocity(self.body, (v_new * math.cos(theta), v_new * math.sin(theta), 0.0),
-                             (0.0, 0.0, omega_new), physicsClientId=self.client)
 
     def robot_state(self):
         """Return the unicycle state [x, y, theta, v, omega]."""
@@ -304,6 +316,8 @@ class SimWorld:
         self.scenario = scenario
         self.dt = 1.0 / scenario.physics_rate
         self.steps = 0
+        self._gui = gui
+        self._synced_step = 0
         self._client = pb.connect(pb.GUI if gui else pb.DIRECT)
         client = self._client
         pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
@@ -312,13 +326,14 @@ class SimWorld:
         pb.setPhysicsEngineParameter(deterministicOverlappingPairs=1, physicsClientId=client)
         ground = pb.loadURDF('plane.urdf', physicsClientId=client)
         self._obstacles = [_Obstacle(spec, client) for spec in scenario.all_obstacles()]
-        self._moving = [o for o in self._obstacles if o.spec.moving]
+        self._moving = [o for o in self._obstacles if o.moving]
         self._robots = {spec.name: (_Quadruped(spec, client, ground) if spec.type == 'quadruped'
                                     else _Crazyflie(spec, client)) for spec in scenario.robots}
         self._plants = list(self._robots.values())
         self._lower = np.array([o.lower for o in self._obstacles]).reshape(-1, 2)
         self._upper = np.array([o.upper for o in self._obstacles]).reshape(-1, 2)
         self._offsets = np.zeros_like(self._lower)
+        self._snapshot_step, self._footprints, self._centres, self._pairs = -1, {}, {}, {}
         self._velocities = np.array([o.spec.velocity for o in self._obstacles]).reshape(-1, 2)
 
     @property
@@ -358,6 +373,8 @@ class SimWorld:
         self.steps += 1
         for plant in self._plants:
             plant.after_physics(self.dt)
+        if self._gui:
+            self._sync_bodies()
         if self._moving:
             time = self.time
             for obstacle in self._moving:
@@ -368,43 +385,101 @@ class SimWorld:
         """Return ``robot``'s state in the core model's layout (unicycle or quadrotor)."""
         return self._robots[robot].robot_state()
 
+    def _sync_bodies(self):
+        """Move kinematic robot bodies to their plants' poses, once per physics step."""
+        if self._synced_step != self.steps:
+            self._synced_step = self.steps
+            for plant in self._plants:
+                plant.sync()
+
     def robot_pose(self, robot):
         """Return PyBullet's base position (3,) and quaternion [x, y, z, w] of ``robot``."""
+        self._sync_bodies()
         position, quaternion = pb.getBasePositionAndOrientation(
             self._robots[robot].body, physicsClientId=self._client)
         return np.array(position), np.array(quaternion)
 
+    def _robot_snapshot(self):
+        """Return each robot's footprint circle and [x, y], computed once per physics step."""
+        if self._snapshot_step != self.steps:
+            self._snapshot_step = self.steps
+            self._pairs.clear()
+            for name, plant in self._robots.items():
+                position, velocity, z_min, z_max = plant.extent()
+                self._centres[name] = position[:2]
+                self._footprints[name] = Footprint(name, position[:2] + plant.circle, z_min,
+                                                   z_max, velocity, robot=True)
+        return self._footprints, self._centres
+
+    def joint_positions(self, robot):
+        """Return {joint name: angle [rad]} of the robot's joints (none for a Crazyflie)."""
+        body = self._robots[robot].body
+        count = pb.getNumJoints(body, physicsClientId=self._client)
+        names = [pb.getJointInfo(body, j, physicsClientId=self._client)[1].decode()
+                 for j in range(count)]
+        states = pb.getJointStates(body, range(count), physicsClientId=self._client) or ()
+        return {name: state[0] for name, state in zip(names, states)}
+
     def obstacle_footprints(self, robot=None):
-        """Return every obstacle's current Footprint, then every robot other than ``robot``'s."""
+        """Return every obstacle's current Footprint, then every robot other than ``robot``'s.
+
+        Another robot is the circle of its scenario ``radius`` around its base.
+        """
         time = self.time
+        footprints = self._robot_snapshot()[0]
         return ([o.footprint_at(time) for o in self._obstacles]
-                + [p.footprint() for name, p in self._robots.items() if name != robot])
+                + [f for name, f in footprints.items() if name != robot])
 
     def clearances(self, robot, max_distance=CLEARANCE_RANGE):
         """Return closest-point distances [m] from ``robot`` to each obstacle, then other robots.
 
         Same order as ``obstacle_footprints(robot)``; negative means penetration,
-        inf means farther than ``max_distance``.  Obstacles whose bounding box is
-        farther than ``max_distance`` from the robot's reach are skipped unqueried.
+        inf means farther than ``max_distance``.  Obstacles whose bounding box, and
+        robots whose reach, is farther than ``max_distance`` from this robot's reach
+        are skipped unqueried; a robot pair is queried once per physics step.
         """
+        self._sync_bodies()
         plant = self._robots[robot]
-        others = [p for name, p in self._robots.items() if name != robot]
+        centres = self._robot_snapshot()[1]
+        others = [name for name in self._robots if name != robot]
         result = np.full(len(self._obstacles) + len(others), np.inf)
-        position = plant.extent()[0][:2]
-        gaps = np.maximum(np.maximum(self._lower + self._offsets - position,
-                                     position - self._upper - self._offsets), 0.0)
-        near = np.hypot(gaps[:, 0], gaps[:, 1]) - plant.reach <= max_distance
-        for index in np.flatnonzero(near):
-            result[index] = min((self._distance(plant.body, body, max_distance)
-                                 for body in self._obstacles[index].bodies))
-        for index, other in enumerate(others, start=len(self._obstacles)):
-            result[index] = self._distance(plant.body, other.body, max_distance)
+        position = centres[robot]
+        if self._obstacles:
+            gaps = np.maximum(np.maximum(self._lower + self._offsets - position,
+                                         position - self._upper - self._offsets), 0.0)
+            bounds = np.hypot(gaps[:, 0], gaps[:, 1]) - plant.reach
+            for index in np.flatnonzero(bounds <= max_distance):
+                result[index] = min(self._distance(plant.body, body, bounds[index], max_distance)
+                                    for body in self._obstacles[index].bodies)
+        x, y = position
+        for index, name in enumerate(others, start=len(self._obstacles)):
+            other = self._robots[name]
+            other_x, other_y = centres[name]
+            bound = math.hypot(other_x - x, other_y - y) - plant.reach - other.reach
+            if bound <= max_distance:
+                key = (min(plant.body, other.body), max(plant.body, other.body), max_distance)
+                if key not in self._pairs:
+                    self._pairs[key] = self._distance(plant.body, other.body, bound,
+                                                      max_distance)
+                result[index] = self._pairs[key]
         return result
 
-    def _distance(self, body_a, body_b, max_distance):
-        """Return the smallest getClosestPoints distance between two bodies, inf if none."""
-        points = pb.getClosestPoints(body_a, body_b, max_distance, physicsClientId=self._client)
-        return min((point[8] for point in points), default=np.inf)
+    def _distance(self, body_a, body_b, lower_bound, max_distance):
+        """Return the smallest getClosestPoints distance between two bodies, inf if none.
+
+        Bullet returns every link pair within the search distance, and its cost
+        grows with their number, so the search starts SEARCH_STEP beyond the
+        pair's lower bound and doubles until some pair is found; the minimum over
+        a non-empty answer is exact.
+        """
+        threshold = min(max(lower_bound, 0.0) + SEARCH_STEP, max_distance)
+        while True:
+            points = pb.getClosestPoints(body_a, body_b, threshold, physicsClientId=self._client)
+            if points:
+                return min(point[8] for point in points)
+            if threshold >= max_distance:
+                return np.inf
+            threshold = min(2.0 * threshold, max_distance)
 
     def collided(self, robot):
         """Return True when ``robot`` penetrates an obstacle or robot by > COLLISION_TOLERANCE."""

@@ -13,6 +13,7 @@ from polyc2bf_ros.core.simulate import rk4_step
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.scenario import load_scenario, scenario_from_dict
 from sim_bridge.world import (
+    A1_STANDING_POSE,
     COLLISION_TOLERANCE,
     CRAZYFLIE_HALF_HEIGHT,
     QUADRUPED_MAX_ACCEL,
@@ -114,6 +115,7 @@ def test_quadruped_tracks_a_velocity_command():
         _run(world, 1.8)
         state = world.robot_state('a1')
         position, quaternion = world.robot_pose('a1')
+        legs = world.joint_positions('a1')
     assert v_early == pytest.approx(QUADRUPED_MAX_ACCEL * 0.2, abs=0.01)
     np.testing.assert_allclose(state[3:], [0.8, 0.5], atol=1e-9)
     np.testing.assert_allclose(position[:2], state[:2])
@@ -121,6 +123,10 @@ def test_quadruped_tracks_a_velocity_command():
     assert abs(roll) < 1e-9 and abs(pitch) < 1e-9
     assert yaw == pytest.approx(state[2])
     assert 0.2 < position[2] < 0.35  # standing, not sunk by gravity
+    names = [f'{leg}_{part}_joint' for leg in ('FR', 'FL', 'RR', 'RL')
+             for part in ('hip', 'upper', 'lower')]
+    assert sorted(legs) == sorted(names)  # turning at 0.5 rad/s never moved them:
+    np.testing.assert_allclose([legs[n] for n in names], A1_STANDING_POSE * 4, atol=1e-9)
 
 
 def test_quadruped_follows_the_core_unicycle_model():
@@ -206,7 +212,7 @@ def test_clearance_follows_moving_and_non_convex_obstacles():
         _run(world, 2.0)
         footprint = world.obstacle_footprints('cf')[1]
         x, y = world.robot_state('cf')[:2]
-        mover = world.clearances('cf')[1]
+        mover = world.clearances('cf', max_distance=5.0)[1]
     assert notch == pytest.approx(0.5 - cf.BODY_RADIUS, abs=1e-4)
     np.testing.assert_allclose(footprint.polygon[:, 0].max(), -1.6 + 1.0)
     np.testing.assert_allclose(footprint.velocity, [0.5, 0.0, 0.0])
@@ -223,17 +229,19 @@ def test_footprints_list_obstacles_then_other_robots():
         world.set_command('b', [1.0, 0.0])
         _run(world, 1.0)
         footprints = world.obstacle_footprints('a')
-        clearances = world.clearances('a')
+        clearances = world.clearances('a', max_distance=5.0)
+        default_range = world.clearances('a')
         state_b = world.robot_state('b')
     assert [f.name for f in footprints] == ['wall', 'b', 'cf']
     assert [f.robot for f in footprints] == [False, True, True]
     b = footprints[1]
-    np.testing.assert_allclose(np.linalg.norm(b.polygon - state_b[:2], axis=1), 0.3)
+    np.testing.assert_allclose(np.linalg.norm(b.polygon - state_b[:2], axis=1), 0.4)
     np.testing.assert_allclose(b.velocity, [1.0, 0.0, 0.0])
     assert signed_distance(state_b[:2], b.polygon) < 0
     assert footprints[2].z_min < 1.0 < footprints[2].z_max
     assert clearances.shape == (3,) and np.isfinite(clearances[:2]).all()
     assert 2.0 < clearances[1] < 3.0  # A1 bodies 3 m apart
+    assert np.isinf(default_range).all()  # beyond CLEARANCE_RANGE
 
 
 def test_same_commands_give_identical_states():
@@ -274,5 +282,6 @@ def test_bad_commands_are_rejected():
             world.set_command('nobody', [0.0, 0.0])
         world.step()
         assert world.robot_state('a1')[3] == 0.0
+        assert world.joint_positions('cf') == {}
         world.close()
         world.close()
