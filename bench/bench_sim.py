@@ -1,0 +1,147 @@
+"""Benchmark the PyBullet world alone (no ROS, no filter): real-time factor and memory.
+
+Usage: python bench/bench_sim.py [--seconds S] [--out bench/results/sim.json]
+
+Per physics step: ``SimWorld.step()``.  Per control period, per robot, what the
+bridge node will do besides ROS: read the state, compute the nominal command
+(the open-loop reference controllers, no safety filter), hold it, build the
+obstacle footprints to publish, and sample the metrics (closest points).
+real_time_factor = simulated time / wall time; cpu_real_time_factor uses the
+process CPU time, the fairer number on a shared machine.  rss_mb is the peak
+resident set of the process so far (cases run in the order listed).
+"""
+import argparse
+import dataclasses
+import json
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+
+from polyc2bf_ros.core import crazyflie as cf
+from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+from sim_bridge.metrics import RunMetrics
+from sim_bridge.scenario import load_scenario, scenario_from_dict
+from sim_bridge.world import SimWorld
+
+
+def quadruped_50_obstacles():
+    """Return one A1 crossing 50 seeded random polygons."""
+    return scenario_from_dict({
+        'name': 'quadruped_50_obstacles', 'duration': 30.0, 'seed': 7,
+        'robots': [{'name': 'a1', 'type': 'quadruped', 'start': [0, 0, 0], 'goal': [20, 0]}],
+        'random_obstacles': {'count': 50, 'region': [[2, -8], [18, 8]], 'size': [0.4, 1.0],
+                             'height': [0.5, 1.5], 'clearance': 1.0, 'spacing': 0.9}})
+
+
+def crazyflie_pillars():
+    """Return the quadrotor_pillars scenario with a goal the open-loop flight reaches."""
+    scenario = load_scenario('quadrotor_pillars')
+    robot = dataclasses.replace(scenario.robots[0], goal=np.array([8.0, 1.2, 1.0]))
+    return dataclasses.replace(scenario, name='crazyflie_pillars', robots=(robot,))
+
+
+def quadrupeds_8():
+    """Return eight A1s walking abreast in lanes 1.5 m apart (each in range of two)."""
+    robots = [{'name': f'a1_{i}', 'type': 'quadruped', 'start': [0.0, 1.5 * i, 0.0],
+               'goal': [20.0, 1.5 * i]} for i in range(8)]
+    return scenario_from_dict({'name': 'quadrupeds_8', 'duration': 30.0, 'robots': robots})
+
+
+def quadrupeds_8_crossing():
+    """Return eight A1s on a 6 m circle driving through each other to the far side.
+
+    The worst case for clearances: with no filter all eight overlap mid-way,
+    and every close A1 pair costs a full link-pair query.
+    """
+    angles = np.arange(8) * np.pi / 4
+    robots = [{'name': f'a1_{i}', 'type': 'quadruped',
+               'start': [6 * np.cos(a), 6 * np.sin(a), a + np.pi],
+               'goal': [-6 * np.cos(a), -6 * np.sin(a)]} for i, a in enumerate(angles)]
+    return scenario_from_dict({'name': 'quadrupeds_8_crossing', 'duration': 30.0,
+                               'robots': robots})
+
+
+CASES = {'quadruped_50_obstacles': quadruped_50_obstacles,
+         'crazyflie_pillars': crazyflie_pillars, 'quadrupeds_8': quadrupeds_8,
+         'quadrupeds_8_crossing': quadrupeds_8_crossing}
+
+
+def _controller(world, robot):
+    """Return a closure that holds the reference controller's command for ``robot``."""
+    spec = world.robot_spec(robot)
+    if spec.type == 'quadruped':
+        controller = UnicycleGoalController()
+        return lambda: world.set_command(
+            robot, controller.velocity_command(world.robot_state(robot), spec.goal))
+    controller = QuadrotorGoalController()
+    return lambda: world.set_command(
+        robot, np.clip(controller(world.robot_state(robot), spec.goal), 0.0,
+                       cf.MAX_ROTOR_THRUST))
+
+
+def run_case(name, seconds):
+    """Simulate ``seconds`` of case ``name``; return its result record."""
+    start = time.perf_counter()
+    scenario = CASES[name]()
+    world = SimWorld(scenario)
+    build_s = time.perf_counter() - start
+    metrics = RunMetrics(world)
+    controls = [_controller(world, robot) for robot in world.robot_names]
+    steps_per_control = scenario.physics_rate / scenario.control_rate
+    steps = int(round(seconds * scenario.physics_rate))
+    published = 0
+    physics_s = 0.0
+    wall, cpu = time.perf_counter(), time.process_time()
+    next_control = 0.0
+    for step in range(steps):
+        if step >= next_control:
+            next_control += steps_per_control
+            for robot, control in zip(world.robot_names, controls):
+                control()
+                published += len(world.obstacle_footprints(robot))
+            metrics.update()
+        tick = time.perf_counter()
+        world.step()
+        physics_s += time.perf_counter() - tick
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    collisions = sum(m.collision for m in metrics.robots.values())
+    world.close()
+    return {'bench': 'sim', 'case': name, 'robots': len(scenario.robots),
+            'obstacles': len(scenario.all_obstacles()), 'closed_loop': False,
+            'real_time_factor': round(seconds / wall, 2),
+            'cpu_real_time_factor': round(seconds / cpu, 2),
+            'physics_share': round(physics_s / wall, 3),
+            'rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+            'sim_seconds': seconds, 'physics_rate': scenario.physics_rate,
+            'control_rate': scenario.control_rate, 'build_s': round(build_s, 2),
+            'footprints_per_s': round(published / wall), 'robots_collided': collisions}
+
+
+def main(argv=None):
+    """Run every case, print a table and write the JSON records."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--seconds', type=float, default=20.0, help='simulated time per case')
+    parser.add_argument('--case', choices=sorted(CASES), action='append',
+                        help='run only this case (repeatable)')
+    parser.add_argument('--out', default='bench/results/sim.json')
+    args = parser.parse_args(argv)
+    print(f'{"case":<24} {"robots":>6} {"RTF wall":>9} {"RTF cpu":>8} {"physics":>8} '
+          f'{"RSS MB":>7} {"build s":>8}')
+    records = []
+    for name in args.case or CASES:
+        record = run_case(name, args.seconds)
+        records.append(record)
+        print(f'{name:<24} {record["robots"]:>6} {record["real_time_factor"]:>9.1f} '
+              f'{record["cpu_real_time_factor"]:>8.1f} {record["physics_share"]:>8.0%} '
+              f'{record["rss_mb"]:>7.0f} {record["build_s"]:>8.2f}', flush=True)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(records, indent=1) + '\n')
+    print(f'wrote {out}')
+    return records
+
+
+if __name__ == '__main__':
+    main()
