@@ -28,7 +28,8 @@ solution is exactly the same.
 Fallbacks, always flagged in ``FilterInfo.status``:
 
 * ``slack``: the QP is infeasible; solve it again with one shared slack
-  s >= 0 on every row (weight ``slack_weight``), input bounds kept hard.
+  s >= 0 on every (unit-norm) row (weight ``slack_weight``), input bounds kept
+  hard.
 * ``brake``: the slack QP failed too; apply the model's braking input.
 * ``escape``: the reference point is inside an (inflated) obstacle, where no
   cone exists; the nominal input is replaced by one that accelerates the
@@ -218,8 +219,12 @@ class SafetyFilter:
                                terms.lg_h * self._upper_column).sum(axis=0)
             needed &= worst < rows_b
         index = np.flatnonzero(needed)
-        rows_a = np.ascontiguousarray(terms.lg_h[:, index].T)
-        rows_b = rows_b[index]
+        # Unit-norm rows: the same feasible set, but a well-scaled QP (row norms span
+        # 1e1..1e4 for the quadrotor) and a slack measured in input units.
+        rows_a = terms.lg_h[:, index]
+        scale = 1.0 / np.maximum(np.sqrt((rows_a * rows_a).sum(axis=0)), 1e-12)
+        rows_b = rows_b[index] * scale
+        rows_a = np.ascontiguousarray((rows_a * scale).T)
         lower, upper = self.model.input_lower, self.model.input_upper
         result = self.solver.solve(u_ref, self._weights, rows_a, rows_b, lower, upper)
         slack = 0.0

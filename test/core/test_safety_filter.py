@@ -51,7 +51,9 @@ def test_ok_solution_satisfies_every_row_and_bound(model_name, polygons, seed):
     if info.status == FilterStatus.OK:
         assert np.all(A[usable] @ u >= b[usable] - 1e-7)
     elif info.status == FilterStatus.SLACK:
-        assert info.slack > 0 and np.all(A[usable] @ u >= b[usable] - info.slack - 1e-7)
+        # The slack relaxes unit-norm rows: A u >= b - s |A_i|.
+        relax = info.slack * np.linalg.norm(A[usable], axis=1)
+        assert info.slack > 0 and np.all(A[usable] @ u >= b[usable] - relax - 1e-7)
     unpruned = SafetyFilter(model, FilterConfig(prune=False))
     u_full, info_full = unpruned.step(state, obstacles, u_nom)
     assert info_full.status == info.status
