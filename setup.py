@@ -9,6 +9,8 @@ PACKAGE = 'polyc2bf_ros'
 # Names follow DESIGN.md section 5; each is added only once it does real work.
 CONSOLE_SCRIPTS = [
     'safety_filter = polyc2bf_ros.safety_filter_node:main',
+    'sim_bridge = sim_bridge.bridge_node:main',
+    'nominal_controller = sim_bridge.nominal_controller_node:main',
 ]
 
 setup(
@@ -16,6 +18,7 @@ setup(
     version='0.1.0',
     # polyc2bf_ros, polyc2bf_ros.core (and its subpackages) and sim_bridge.
     packages=find_packages(include=[PACKAGE, f'{PACKAGE}.*', 'sim_bridge', 'sim_bridge.*']),
+    package_data={'sim_bridge': ['assets/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),

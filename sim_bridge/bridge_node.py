@@ -1,0 +1,560 @@
+"""``sim_bridge``: the PyBullet world of a scenario as ROS topics, recorded into one MCAP bag.
+
+Per robot namespace ``<ns>`` (the scenario's robot names), in frame ``frame_id``
+(default ``world``) and stamped with sim time:
+
+- publishes ``<ns>/odom`` (nav_msgs/Odometry: pose of the base, twist in the
+  body frame ``<ns>/base_link``) and ``<ns>/obstacles``
+  (visualization_msgs/MarkerArray, reliable + transient local): static prisms
+  as ``LINE_STRIP`` footprints at z_min with ``scale.z`` = height (``ns``
+  ``obstacles``), moving prisms as the same outline around a moving marker pose,
+  every other robot as a ``CYLINDER`` (``ns`` ``robots``), so the filter
+  estimates their velocities from successive poses.  Each control period sends
+  the moving markers (if any); every ``obstacles_refresh`` s of sim time, and
+  at the start, the full set.  A filter's ``obstacles_timeout`` (wall) must
+  exceed ``obstacles_refresh`` / real-time factor, or be 0 (never stale);
+- publishes ``/clock`` (rosgraph_msgs/Clock) once per control period;
+- ``/tf`` (world -> ``<ns>/base_link``): published when ``tf2_msgs`` is
+  importable; the PyPI ROS wheels lack it, so here ``/tf`` is only recorded,
+  from hand-written CDR (``sim_bridge.tf_cdr``);
+- subscribes to the safe command: ``<ns>/cmd_vel_out`` (TwistStamped,
+  quadruped: ``linear.x`` = v, ``angular.z`` = omega, tracked by the plant) or
+  ``<ns>/wrench_out`` (WrenchStamped, Crazyflie: ``force.z`` = collective thrust,
+  ``torque`` = body torques, mixed into rotor thrusts).  Commands are held
+  (zero-order hold); a robot whose last command is older than
+  ``command_timeout`` s of sim time, or that never got one, brakes (quadruped:
+  zero velocity, ramped at the plant's acceleration limit; Crazyflie: the
+  quadrotor model's hover brake).
+
+Lockstep (``lockstep: true``, default): each control period the bridge publishes
+odom, obstacles, clock and tf for sim time t, then waits until every robot that
+takes part has sent a command whose header stamp equals t (the nominal
+controller copies the odometry stamp, the filter the command's header; commands
+with other stamps, e.g. the filter's watchdog stops, are recorded but not
+applied), and only then steps physics to t + T.  Runs are deterministic and as
+fast as the processes allow.  At start the t = 0 topics are re-sent every
+0.25 s (wall) until every robot has answered or ``startup_timeout`` passes; a
+robot takes part once it has answered, and one that does not answer within
+``lockstep_timeout`` (wall) is dropped from the wait with a warning (it brakes
+after ``command_timeout`` and rejoins with its next matching command).  A robot
+that never gets a command simply brakes, without slowing the run.
+
+Real time (``lockstep: false``): periods are paced at ``real_time_factor`` times
+wall time; the latest command is applied whenever it arrives.
+
+The control period is ``n = round(physics_rate / control_rate)`` physics steps
+(240 / 100 Hz -> 2 steps, 120 Hz; the effective rate is logged): equal periods
+for the filter's sample-and-hold margin.
+
+With ``record: true`` every topic published or received goes into one bag
+(``bag_path``, default ``runs/<timestamp>/run``; ``sim_bridge.recorder``): the
+above, the nominal commands ``cmd_vel_in`` / ``wrench_in`` (subscribed for
+recording only), the filter's ``<ns>/safety_filter/markers`` and ``/diagnostics``.
+Log time is sim time.  Published messages are serialized once and the same
+bytes are published and recorded; received ones are taken raw.  SIGINT/SIGTERM
+close the bag cleanly (``close_on_signals``; rclpy's own handlers are off, the
+bag path being a parameter).  At the end of the scenario (exit 0, summary on
+stdout) or on shutdown the run metrics (``sim_bridge.metrics``) are written
+to ``metrics_path`` (default: ``metrics.json`` beside the bag directory).
+"""
+import dataclasses
+import json
+import math
+import signal
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point, TwistStamped, WrenchStamped
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+)
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray
+
+from polyc2bf_ros import conversions
+from polyc2bf_ros.core.models import make_model
+from sim_bridge.metrics import RunMetrics
+from sim_bridge.msg_definitions import message_class
+from sim_bridge.recorder import BagRecorder, close_on_signals
+from sim_bridge.scenario import load_scenario
+from sim_bridge.tf_cdr import tf_message_cdr, TF_MESSAGE_DEFINITION, TF_MESSAGE_TYPE
+from sim_bridge.world import SimWorld
+
+try:
+    from tf2_msgs.msg import TFMessage
+except ImportError:
+    TFMessage = None
+
+# name: (default, (min, max) or None, description).  Negative numbers mean "from the scenario".
+PARAMETERS = {
+    'scenario': ('', None, 'scenario name (config/scenarios/<name>.yaml) or YAML path; required'),
+    'physics_rate': (-1.0, (-1.0, 10000.0), "physics rate [Hz]; -1 = the scenario's (240)"),
+    'control_rate': (-1.0, (-1.0, 10000.0), "control rate [Hz]; -1 = the scenario's (100)"),
+    'duration': (-1.0, (-1.0, 1e6), "sim time [s] after which the run ends; -1 = scenario's"),
+    'seed': (-1, (-1, 2 ** 31 - 1), "random obstacle seed; -1 = the scenario's"),
+    'lockstep': (True, None, "wait for every robot's command of period t before stepping"),
+    'real_time_factor': (1.0, (0.01, 1000.0), 'pace (sim s per wall s) when lockstep is off'),
+    'lockstep_timeout': (2.0, (0.01, 60.0), 'wall [s] a lockstep period waits for a robot'),
+    'startup_timeout': (10.0, (0.0, 600.0), "wall [s] to wait for every robot's first command"),
+    'command_timeout': (0.5, (0.001, 60.0), 'sim [s]: an older command -> the robot brakes'),
+    'obstacles_refresh': (0.2, (0.001, 60.0), 'sim [s] between full obstacle marker sets'),
+    'frame_id': ('world', None, 'frame of odometry, obstacles and tf'),
+    'record': (False, None, 'record every topic into one MCAP bag'),
+    'bag_path': ('', None, 'bag directory; empty = runs/<timestamp>/run'),
+    'metrics_path': ('', None, 'metrics JSON; empty = metrics.json beside the bag (if any)'),
+}
+PUBLISHED_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+LATCHED_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# What the safety filter and nominal controller offer (doc/safety_filter.md), for the bag.
+COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+STARTUP_RESEND = 0.25  # wall s between re-sends of the t = 0 topics while waiting
+# robot type: (command type, safe topic, nominal topic, plant command kind).
+COMMANDS = {
+    'quadruped': (TwistStamped, 'cmd_vel_out', 'cmd_vel_in', 'velocity'),
+    'crazyflie': (WrenchStamped, 'wrench_out', 'wrench_in', 'wrench'),
+}
+LINE_WIDTH = 0.02
+COLORS = {'static': ColorRGBA(r=0.6, g=0.6, b=0.6, a=0.9),
+          'moving': ColorRGBA(r=1.0, g=0.5, b=0.0, a=0.9),
+          'robot': ColorRGBA(r=0.2, g=0.4, b=1.0, a=0.6)}
+
+
+def stamp(ns):
+    """Return builtin_interfaces/Time of ``ns`` nanoseconds."""
+    sec, nanosec = divmod(ns, 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
+
+
+def _point(x, y, z=0.0):
+    return Point(x=float(x), y=float(y), z=float(z))
+
+
+@dataclasses.dataclass
+class _Robot:
+    """Per-robot ROS plumbing and lockstep bookkeeping."""
+
+    name: str
+    type: str
+    kind: str
+    odom_topic: str
+    obstacles_topic: str
+    command_topic: str
+    odom_pub: object
+    obstacles_pub: object
+    odom: Odometry
+    dynamic: list = dataclasses.field(default_factory=list)  # (footprint index, Marker)
+    command: tuple = None
+    command_time: float = -math.inf
+    answered_ns: int = -1
+    waited: bool = False
+    commands: int = 0
+    stray: int = 0
+    timeouts: int = 0
+
+
+class BridgeNode(Node):
+    """Step a SimWorld, publish its state, apply the robots' commands, record everything."""
+
+    def __init__(self, **kwargs):
+        """Load the scenario, build the world, publishers, subscriptions and the recorder."""
+        super().__init__('sim_bridge', **kwargs)
+        params = {name: self._declare(name, *spec) for name, spec in PARAMETERS.items()}
+        if not params['scenario']:
+            raise ValueError("parameter 'scenario' is required (a shipped name such as "
+                             "long_wall, or a YAML path)")
+        scenario = load_scenario(params['scenario'])
+        if params['seed'] >= 0:
+            scenario = scenario.with_seed(params['seed'])
+        overrides = {name: params[name] for name in ('physics_rate', 'control_rate', 'duration')
+                     if params[name] > 0}
+        scenario = dataclasses.replace(scenario, **overrides)
+        if scenario.control_rate > scenario.physics_rate:
+            raise ValueError(f'control_rate {scenario.control_rate:g} Hz exceeds physics_rate '
+                             f'{scenario.physics_rate:g} Hz')
+        self.scenario = scenario
+        self.params = params
+        self.lockstep = params['lockstep']
+        self.world = SimWorld(scenario)
+        self.metrics = RunMetrics(self.world)
+        self.steps_per_period = max(1, round(scenario.physics_rate / scenario.control_rate))
+        self.period = self.steps_per_period * self.world.dt
+        self.frame = params['frame_id']
+        self.recorder = None
+        self.bag_path = None
+        if params['record']:
+            default = Path('runs') / datetime.now().strftime('%Y%m%d_%H%M%S') / 'run'
+            self.bag_path = Path(params['bag_path'] or default)
+            self.recorder = BagRecorder(self.bag_path)
+        metrics_path = params['metrics_path']
+        if not metrics_path and self.bag_path is not None:
+            metrics_path = self.bag_path.parent / 'metrics.json'
+        self.metrics_path = Path(metrics_path) if metrics_path else None
+        self._now_ns = 0
+        self._wall_start = None
+        self._metrics_written = False
+        self._brake_model = make_model('quadrotor')
+        self._tf_pub = None
+        self._clock_pub = self._publisher(Clock, '/clock', PUBLISHED_QOS)
+        if TFMessage is not None:
+            self._tf_pub = self._publisher(TFMessage, '/tf', PUBLISHED_QOS)
+        elif self.recorder is not None:
+            self.recorder.add_topic('/tf', TF_MESSAGE_TYPE, PUBLISHED_QOS,
+                                    definition=TF_MESSAGE_DEFINITION)
+        self.robots = [self._add_robot(name) for name in self.world.robot_names]
+        self._static, self._moving = self._classify_footprints()
+        self._record_only(DIAGNOSTICS_QOS, 'diagnostic_msgs/msg/DiagnosticArray', '/diagnostics')
+        self._executor = SingleThreadedExecutor(context=self.context)
+        self._executor.add_node(self)
+        self.get_logger().info(
+            f'scenario {scenario.name} (seed {scenario.seed}), {len(self.robots)} robot(s), '
+            f'physics {scenario.physics_rate:g} Hz, control every {self.steps_per_period} steps '
+            f'({1.0 / self.period:g} Hz), {"lockstep" if self.lockstep else "real time"}, '
+            f'duration {scenario.duration:g} s'
+            + (f', recording to {self.bag_path}' if self.recorder else ''))
+
+    # -- setup --------------------------------------------------------------------------------
+
+    def _declare(self, name, default, bounds, description):
+        """Declare a read-only parameter with its range and return its value."""
+        descriptor = ParameterDescriptor(description=description, read_only=True)
+        if bounds is not None and isinstance(default, int) and not isinstance(default, bool):
+            descriptor.integer_range = [IntegerRange(from_value=bounds[0], to_value=bounds[1])]
+        elif bounds is not None:
+            descriptor.floating_point_range = [FloatingPointRange(
+                from_value=float(bounds[0]), to_value=float(bounds[1]))]
+        return self.declare_parameter(name, default, descriptor).value
+
+    def _publisher(self, msg_type, topic, qos):
+        """Create a publisher and register its topic with the recorder."""
+        publisher = self.create_publisher(msg_type, topic, qos)
+        if self.recorder is not None:
+            self.recorder.add_topic(publisher.topic_name, msg_type, qos)
+        return publisher
+
+    def _record_only(self, qos, type_name, topic, callback=None):
+        """Subscribe raw to ``topic``: record every message, then pass it to ``callback``."""
+        msg_type = message_class(type_name)
+        subscription = self.create_subscription(
+            msg_type, topic, lambda data: self._on_raw(subscription.topic_name, data, callback),
+            qos, raw=True)
+        if self.recorder is not None:
+            self.recorder.add_topic(subscription.topic_name, msg_type, qos)
+        return subscription
+
+    def _add_robot(self, name):
+        """Create one robot's publishers and subscriptions."""
+        spec = self.world.robot_spec(name)
+        command_type, safe, nominal, kind = COMMANDS[spec.type]
+        odom = Odometry()
+        odom.header.frame_id = self.frame
+        odom.child_frame_id = f'{name}/base_link'
+        odom_pub = self._publisher(Odometry, f'{name}/odom', PUBLISHED_QOS)
+        obstacles_pub = self._publisher(MarkerArray, f'{name}/obstacles', LATCHED_QOS)
+        robot = _Robot(name=name, type=spec.type, kind=kind, odom_topic=odom_pub.topic_name,
+                       obstacles_topic=obstacles_pub.topic_name,
+                       command_topic=f'{name}/{safe}', odom_pub=odom_pub,
+                       obstacles_pub=obstacles_pub, odom=odom)
+        type_name = f'geometry_msgs/msg/{command_type.__name__}'
+        self._record_only(COMMAND_QOS, type_name, f'{name}/{safe}',
+                          lambda data: self._on_command(robot, command_type, data))
+        self._record_only(COMMAND_QOS, type_name, f'{name}/{nominal}')
+        self._record_only(COMMAND_QOS, 'visualization_msgs/msg/MarkerArray',
+                          f'{name}/safety_filter/markers')
+        return robot
+
+    def _classify_footprints(self):
+        """Split footprints into static markers (shared) and per-robot moving markers."""
+        static = []
+        moving = set()
+        for robot in self.robots:
+            for index, footprint in enumerate(self.world.obstacle_footprints(robot.name)):
+                if footprint.robot:
+                    marker = self._robot_marker(footprint)
+                elif np.any(footprint.velocity):
+                    marker = self._outline_marker(footprint, index, 'moving')
+                    moving.add(index)
+                else:
+                    if robot is self.robots[0]:
+                        static.append(self._outline_marker(footprint, index, 'static'))
+                    continue
+                robot.dynamic.append((index, marker))
+        return static, moving
+
+    def _outline_marker(self, footprint, index, kind):
+        """LINE_STRIP outline at z_min, height in scale.z; moving ones relative to their pose."""
+        centre = footprint.polygon.mean(axis=0) if kind == 'moving' else np.zeros(2)
+        ring = np.vstack([footprint.polygon, footprint.polygon[:1]]) - centre
+        marker = Marker(ns='obstacles', id=index, type=Marker.LINE_STRIP, action=Marker.ADD,
+                        color=COLORS[kind], points=[_point(x, y) for x, y in ring])
+        marker.header.frame_id = self.frame
+        marker.scale.x = LINE_WIDTH
+        marker.scale.z = footprint.z_max - footprint.z_min
+        marker.pose.position = _point(*centre, footprint.z_min)
+        marker.pose.orientation.w = 1.0
+        return marker
+
+    def _robot_marker(self, footprint):
+        """CYLINDER of the robot's footprint radius over its z range."""
+        names = self.world.robot_names
+        marker = Marker(ns='robots', id=names.index(footprint.name), type=Marker.CYLINDER,
+                        action=Marker.ADD, color=COLORS['robot'], text=footprint.name)
+        marker.header.frame_id = self.frame
+        diameter = 2.0 * self.world.robot_spec(footprint.name).radius
+        marker.scale.x = marker.scale.y = diameter
+        marker.scale.z = footprint.z_max - footprint.z_min
+        marker.pose.orientation.w = 1.0
+        return marker
+
+    # -- messages -----------------------------------------------------------------------------
+
+    def _send(self, publisher, topic, data):
+        """Publish CDR ``data`` and record the same bytes at sim time."""
+        if publisher is not None:
+            publisher.publish(data)
+        if self.recorder is not None:
+            self.recorder.write_serialized(topic, data, self._now_ns)
+
+    def _on_raw(self, topic, data, callback):
+        """Record a received message, then handle it."""
+        if self.recorder is not None:
+            self.recorder.write_serialized(topic, data, self._now_ns)
+        if callback is not None:
+            callback(data)
+
+    def _on_command(self, robot, command_type, data):
+        """Take a safe command: in lockstep only the one stamped with the current period."""
+        msg = deserialize_message(data, command_type)
+        if command_type is TwistStamped:
+            values = (msg.twist.linear.x, msg.twist.angular.z)
+        else:
+            force, torque = msg.wrench.force, msg.wrench.torque
+            values = (force.z, torque.x, torque.y, torque.z)
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if (self.lockstep and stamp_ns != self._now_ns) or not all(map(math.isfinite, values)):
+            robot.stray += 1
+            return
+        robot.command = values
+        robot.command_time = self.world.time
+        robot.answered_ns = stamp_ns
+        robot.waited = True
+        robot.commands += 1
+
+    def _publish_period(self, full):
+        """Publish clock, tf, obstacles (moving only unless ``full``) and odometry at sim time."""
+        time_msg = stamp(self._now_ns)
+        self._send(self._clock_pub, '/clock', serialize_message(Clock(clock=time_msg)))
+        transforms = []
+        for robot in self.robots:
+            position, quaternion = self.world.robot_pose(robot.name)
+            transforms.append((time_msg.sec, time_msg.nanosec, self.frame,
+                               robot.odom.child_frame_id, position.tolist(), quaternion.tolist()))
+            self._send_obstacles(robot, time_msg, full)
+            self._send_odometry(robot, time_msg, position, quaternion)
+        if self._tf_pub is not None or self.recorder is not None:
+            self._send(self._tf_pub, '/tf', tf_message_cdr(transforms))
+
+    def _send_obstacles(self, robot, time_msg, full):
+        """Move and stamp the robot's dynamic markers; send them (plus static ones if full)."""
+        footprints = self.world.obstacle_footprints(robot.name)
+        markers = list(self._static) if full else []
+        for index, marker in robot.dynamic:
+            footprint = footprints[index]
+            x, y = footprint.polygon.mean(axis=0).tolist()
+            position = marker.pose.position
+            position.x, position.y = x, y
+            if marker.type == Marker.CYLINDER:
+                position.z = 0.5 * (footprint.z_min + footprint.z_max)
+            markers.append(marker)
+        if not markers:
+            return
+        for marker in markers:
+            marker.header.stamp = time_msg
+        self._send(robot.obstacles_pub, robot.obstacles_topic,
+                   serialize_message(MarkerArray(markers=markers)))
+
+    def _send_odometry(self, robot, time_msg, position, quaternion):
+        """Fill and send ``<ns>/odom``: world pose, body-frame twist."""
+        odom = robot.odom
+        odom.header.stamp = time_msg
+        pose, twist = odom.pose.pose, odom.twist.twist
+        pose.position.x, pose.position.y, pose.position.z = position.tolist()
+        q = pose.orientation
+        q.x, q.y, q.z, q.w = quaternion.tolist()
+        state = self.world.robot_state(robot.name)
+        if robot.type == 'quadruped':
+            twist.linear.x, twist.angular.z = float(state[3]), float(state[4])
+        else:
+            rotation = conversions.quaternion_matrix(q)
+            twist.linear.x, twist.linear.y, twist.linear.z = (rotation.T @ state[3:6]).tolist()
+            twist.angular.x, twist.angular.y, twist.angular.z = state[9:12].tolist()
+        self._send(robot.odom_pub, robot.odom_topic, serialize_message(odom))
+
+    # -- loop ---------------------------------------------------------------------------------
+
+    def _apply_commands(self):
+        """Hold each robot's command, or brake when it has none fresh enough."""
+        timeout = self.params['command_timeout']
+        for robot in self.robots:
+            if robot.command is not None and self.world.time - robot.command_time <= timeout:
+                self.world.set_command(robot.name, robot.command, robot.kind)
+            elif robot.type == 'quadruped':
+                self.world.set_command(robot.name, (0.0, 0.0), 'velocity')
+            else:
+                state = self.world.robot_state(robot.name)
+                self.world.set_command(robot.name, self._brake_model.braking_input(state),
+                                       'thrusts')
+
+    def _spin_until(self, done, deadline):
+        """Handle callbacks until ``done()`` or the monotonic ``deadline``; return done()."""
+        while not done():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                return done()
+            self._executor.spin_once(timeout_sec=remaining)
+        return True
+
+    def _pending(self):
+        """Robots taking part in lockstep that have not answered the current period."""
+        return [r for r in self.robots if r.waited and r.answered_ns != self._now_ns]
+
+    def _wait_startup(self):
+        """Re-send the t = 0 topics until every robot has answered or the startup timeout."""
+        deadline = time.monotonic() + self.params['startup_timeout']
+        unanswered = [r for r in self.robots if r.answered_ns != self._now_ns]
+        while unanswered and time.monotonic() < deadline:
+            self._spin_until(lambda: all(r.answered_ns == self._now_ns for r in self.robots),
+                             min(deadline, time.monotonic() + STARTUP_RESEND))
+            unanswered = [r for r in self.robots if r.answered_ns != self._now_ns]
+            if unanswered:
+                self._publish_period(full=True)
+        for robot in unanswered:
+            self.get_logger().warning(f'{robot.name}: no command on {robot.command_topic} '
+                                      'after startup_timeout; it brakes until one arrives')
+
+    def _wait_commands(self):
+        """Lockstep: wait for the current period's commands; drop robots that time out."""
+        deadline = time.monotonic() + self.params['lockstep_timeout']
+        if self._spin_until(lambda: not self._pending(), deadline):
+            self._executor.spin_once(timeout_sec=0.0)
+            return
+        for robot in self._pending():
+            robot.waited = False
+            robot.timeouts += 1
+            self.get_logger().warning(
+                f'{robot.name}: no command for t = {self._now_ns * 1e-9:.3f} s within '
+                f'lockstep_timeout; stepping without it', throttle_duration_sec=1.0)
+
+    def run(self):
+        """Run the scenario to its duration; return True when it was reached."""
+        world = self.world
+        duration = self.scenario.duration
+        refresh_every = max(1, round(self.params['obstacles_refresh'] / self.period))
+        pace = self.period / self.params['real_time_factor']
+        self._wall_start = time.monotonic()
+        period = 0
+        self._publish_period(full=True)
+        if self.lockstep:
+            self._wait_startup()
+            self._wall_start = time.monotonic()
+        while world.time < duration - 0.5 * world.dt:
+            if self.lockstep:
+                self._wait_commands()
+            else:
+                deadline = self._wall_start + (period + 1) * pace
+                self._spin_until(lambda: False, deadline)
+                self._executor.spin_once(timeout_sec=0.0)
+            self._apply_commands()
+            for _ in range(self.steps_per_period):
+                world.step()
+            self.metrics.update()
+            period += 1
+            self._now_ns = round(world.time * 1e9)
+            self._publish_period(full=period % refresh_every == 0)
+        return True
+
+    # -- end ----------------------------------------------------------------------------------
+
+    def summary(self, completed):
+        """Return the run summary (also the metrics JSON)."""
+        wall = time.monotonic() - self._wall_start if self._wall_start is not None else 0.0
+        sim = self.world.time
+        return {
+            'scenario': self.scenario.name, 'seed': self.scenario.seed,
+            'completed': completed, 'lockstep': self.lockstep,
+            'duration_s': self.scenario.duration, 'sim_time_s': round(sim, 6),
+            'wall_time_s': round(wall, 3),
+            'real_time_factor': round(sim / wall, 3) if wall > 0 else None,
+            'physics_rate': self.scenario.physics_rate, 'control_rate': 1.0 / self.period,
+            'bag': str(self.bag_path) if self.bag_path else None,
+            'lockstep_timeouts': {r.name: r.timeouts for r in self.robots},
+            'commands': {r.name: r.commands for r in self.robots},
+            'robots': self.metrics.to_json(),
+        }
+
+    def finish(self, completed):
+        """Close the bag, write the metrics JSON once and print a short summary."""
+        if self.recorder is not None:
+            self.recorder.close()
+        if self._metrics_written:
+            return
+        self._metrics_written = True
+        summary = self.summary(completed)
+        if self.metrics_path is not None:
+            self.metrics_path.parent.mkdir(parents=True, exist_ok=True)
+            self.metrics_path.write_text(json.dumps(summary, indent=1) + '\n')
+        print(f"sim_bridge: {summary['scenario']} {'completed' if completed else 'stopped'} at "
+              f"t = {summary['sim_time_s']:.2f} s in {summary['wall_time_s']:.2f} s wall "
+              f"(x{summary['real_time_factor'] or 0:.1f})", flush=True)
+        for name, robot in summary['robots'].items():
+            print(f'  {name}: goal {robot["goal_reached"]} at {robot["time_to_goal_s"]} s, '
+                  f'collision {robot["collision"]}, min clearance {robot["min_clearance_m"]} m, '
+                  f'path {robot["path_length_m"]} m', flush=True)
+        self.world.close()
+
+
+def main(args=None):
+    """Run the bridge until the scenario ends (0) or a signal; 1 on a configuration error."""
+    # The bag path is a parameter, so the recorder exists only after init: rclpy's signal
+    # handlers stay off and close_on_signals closes the bag, then raises KeyboardInterrupt
+    # (SIGINT) or SystemExit (SIGTERM) here.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        node = BridgeNode()
+    except (ValueError, OSError) as exc:
+        rclpy.logging.get_logger('sim_bridge').fatal(f'invalid configuration: {exc}')
+        rclpy.try_shutdown()
+        return 1
+    if node.recorder is not None:
+        close_on_signals(node.recorder)
+    else:
+        signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
+    completed = False
+    try:
+        completed = node.run()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.finish(completed)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,124 @@
+"""``nominal_controller``: a go-to-goal reference controller per robot; it ignores obstacles.
+
+One node per robot namespace.  On every ``odom`` (nav_msgs/Odometry) it answers
+at once with the go-to-goal command of ``polyc2bf_ros.core.nominal``:
+
+- ``robot_type: quadruped``: ``cmd_vel_in`` (geometry_msgs/TwistStamped),
+  ``linear.x = v``, ``angular.z = omega`` from
+  ``UnicycleGoalController.velocity_command``;
+- ``robot_type: crazyflie``: ``wrench_in`` (geometry_msgs/WrenchStamped),
+  collective thrust on ``force.z`` and body torques from
+  ``QuadrotorGoalController.wrench`` (gravity compensated).
+
+The command's header stamp is the stamp of the odometry it answers (the
+bridge's lockstep mode matches commands to periods by it) and its frame the
+odometry's ``child_frame_id``.  Without a filter, remap the output straight to
+the robot: ``-r cmd_vel_in:=cmd_vel_out``.  Gains are ``gains.<field>`` of the
+controller dataclass.
+"""
+import dataclasses
+import sys
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import TwistStamped, WrenchStamped
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from polyc2bf_ros import conversions
+from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+
+# robot_type: (controller class, core model name for the odometry state, goal size).
+ROBOT_TYPES = {
+    'quadruped': (UnicycleGoalController, 'unicycle', 2),
+    'crazyflie': (QuadrotorGoalController, 'quadrotor', 3),
+}
+COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+ODOM_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+class NominalControllerNode(Node):
+    """Answer each odometry message with the reference controller's command."""
+
+    def __init__(self, **kwargs):
+        """Declare ``robot_type``, ``goal`` and ``gains.*``; wire odom -> command."""
+        super().__init__('nominal_controller', **kwargs)
+        robot_type = self.declare_parameter('robot_type', 'quadruped', ParameterDescriptor(
+            description='quadruped (TwistStamped on cmd_vel_in) or crazyflie (WrenchStamped '
+            'on wrench_in)', read_only=True)).value
+        if robot_type not in ROBOT_TYPES:
+            raise ValueError(f"parameter 'robot_type' must be one of {', '.join(ROBOT_TYPES)}, "
+                             f'got {robot_type!r}')
+        controller_class, self._model, goal_size = ROBOT_TYPES[robot_type]
+        goal = self.declare_parameter('goal', [0.0] * goal_size, ParameterDescriptor(
+            description=f'goal position, {goal_size} numbers [m] in the odometry frame')).value
+        self._goal = np.array(goal, dtype=float)
+        if self._goal.shape != (goal_size,) or not np.isfinite(self._goal).all():
+            raise ValueError(f"parameter 'goal' must be {goal_size} finite numbers for a "
+                             f'{robot_type}, got {list(goal)}')
+        gains = {}
+        for field in dataclasses.fields(controller_class):
+            gains[field.name] = self.declare_parameter(
+                f'gains.{field.name}', float(field.default), ParameterDescriptor(
+                    description=f'{controller_class.__name__}.{field.name}', read_only=True,
+                    floating_point_range=[FloatingPointRange(from_value=0.0,
+                                                             to_value=1000.0)])).value
+        self._controller = controller_class(**gains)
+        self._state = np.zeros(5 if robot_type == 'quadruped' else 12)
+        if robot_type == 'quadruped':
+            self._out = TwistStamped()
+            self._publisher = self.create_publisher(TwistStamped, 'cmd_vel_in', COMMAND_QOS)
+            self._fill = self._fill_twist
+        else:
+            self._out = WrenchStamped()
+            self._publisher = self.create_publisher(WrenchStamped, 'wrench_in', COMMAND_QOS)
+            self._fill = self._fill_wrench
+        self.create_subscription(Odometry, 'odom', self._on_odom, ODOM_QOS)
+        self.get_logger().info(f'{robot_type} to goal {self._goal.tolist()}')
+
+    def _on_odom(self, msg):
+        """Publish the command for this odometry, stamped with its stamp."""
+        conversions.odometry_to_state(msg, self._model, self._state)
+        if not np.isfinite(self._state).all():
+            return
+        self._fill()
+        self._out.header.stamp = msg.header.stamp
+        self._out.header.frame_id = msg.child_frame_id
+        self._publisher.publish(self._out)
+
+    def _fill_twist(self):
+        """Velocity command [v, omega] of the unicycle go-to-goal law."""
+        conversions.fill_twist(self._out.twist, 'unicycle',
+                               self._controller.velocity_command(self._state, self._goal), 0.0)
+
+    def _fill_wrench(self):
+        """Wrench [T, tau] of the quadrotor position/attitude PD."""
+        thrust, tx, ty, tz = self._controller.wrench(self._state, self._goal).tolist()
+        wrench = self._out.wrench
+        wrench.force.z = thrust
+        wrench.torque.x, wrench.torque.y, wrench.torque.z = tx, ty, tz
+
+
+def main(args=None):
+    """Run the controller until shutdown; exit status 1 on a configuration error."""
+    rclpy.init(args=args)
+    try:
+        node = NominalControllerNode()
+    except ValueError as exc:
+        rclpy.logging.get_logger('nominal_controller').fatal(f'invalid configuration: {exc}')
+        rclpy.try_shutdown()
+        return 1
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    sys.exit(main())
