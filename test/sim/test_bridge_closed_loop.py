@@ -1,0 +1,284 @@
+"""sim_bridge + nominal_controller + safety_filter as separate processes over real DDS.
+
+Every run records a bag that is read back with ``rosbags`` (an independent
+reader, deserializing from the bag's own schemas) and writes the metrics JSON.
+Children inherit the per-worker ROS_DOMAIN_ID of test/conftest.py and are
+always stopped.
+"""
+import contextlib
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from rosbags.highlevel import AnyReader
+
+REPO = Path(__file__).resolve().parents[2]
+# Children run from a temporary directory and import this checkout.
+ENV = {**os.environ, 'PYTHONUNBUFFERED': '1', 'PYTHONPATH': os.pathsep.join(
+    filter(None, [str(REPO), os.environ.get('PYTHONPATH')]))}
+METRIC_KEYS = {'collision', 'min_clearance_m', 'goal_reached', 'time_to_goal_s',
+               'path_length_m'}
+
+
+def _ros_args(params, remaps=(), namespace=None, params_file=None):
+    args = ['--ros-args']
+    if namespace:
+        args += ['-r', f'__ns:=/{namespace}']
+    for remap in remaps:
+        args += ['-r', remap]
+    if params_file:
+        args += ['--params-file', str(REPO / 'config' / params_file)]
+    for name, value in params.items():
+        text = str(value).lower() if isinstance(value, bool) else str(value)
+        args += ['-p', f'{name}:={text}']
+    return args
+
+
+@contextlib.contextmanager
+def processes(tmp_path, *commands):
+    """Start ``(name, module, ros_args)`` children; SIGINT then SIGKILL them on exit."""
+    procs = []
+    try:
+        for name, module, args in commands:
+            log = open(tmp_path / f'{name}.log', 'w')
+            procs.append(subprocess.Popen(
+                [sys.executable, '-m', module, *args], cwd=tmp_path,
+                env={**ENV, 'ROS_LOG_DIR': str(tmp_path / 'ros_log')},
+                stdout=log, stderr=subprocess.STDOUT))
+            procs[-1].log_path = tmp_path / f'{name}.log'
+        yield procs
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        for proc in procs:
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def controllers(robot, robot_type, goal, with_filter=True):
+    """Return the nominal controller (and filter) commands for one robot namespace."""
+    goal_text = '[' + ','.join(f'{g:.1f}' for g in goal) + ']'
+    nominal = {'robot_type': robot_type, 'goal': goal_text}
+    if not with_filter:
+        remap = ['cmd_vel_in:=cmd_vel_out' if robot_type == 'quadruped'
+                 else 'wrench_in:=wrench_out']
+        return [('nominal', 'sim_bridge.nominal_controller_node',
+                 _ros_args(nominal, remap, robot))]
+    if robot_type == 'quadruped':
+        filter_params = {'trigger': 'command', 'stamped': True, 'rate': 120.0}
+        params_file = 'quadruped.yaml'
+    else:
+        filter_params = {'rate': 120.0}
+        params_file = 'crazyflie_thrust.yaml'
+    return [('nominal', 'sim_bridge.nominal_controller_node', _ros_args(nominal, (), robot)),
+            ('filter', 'polyc2bf_ros.safety_filter_node',
+             _ros_args(filter_params, (), robot, params_file))]
+
+
+def bridge(**params):
+    """Return the sim_bridge command."""
+    return ('bridge', 'sim_bridge.bridge_node', _ros_args(params))
+
+
+def run_to_end(tmp_path, bridge_params, *others, timeout=60.0):
+    """Run the bridge to the end of its scenario; return its log text."""
+    with processes(tmp_path, bridge(**bridge_params), *others) as procs:
+        try:
+            status = procs[0].wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f'bridge still running after {timeout} s:\n'
+                        + procs[0].log_path.read_text())
+        log = procs[0].log_path.read_text()
+        assert status == 0, log
+    return log
+
+
+def read_bag(path):
+    """Return ``({topic: (type, count, qos profiles)}, {topic: [(log_ns, msg)]})`` via rosbags."""
+    with AnyReader([Path(path)]) as reader:
+        topics = {c.topic: (c.msgtype, c.msgcount, c.ext.offered_qos_profiles)
+                  for c in reader.connections}
+        messages = {}
+        for connection, log_ns, raw in reader.messages():
+            messages.setdefault(connection.topic, []).append(
+                (log_ns, reader.deserialize(raw, connection.msgtype)))
+    return topics, messages
+
+
+def odometry(messages, topic='/a1/odom'):
+    """Return the recorded odometry as (stamp ns, x, y, yaw-quaternion z, v) tuples."""
+    return [(m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec, m.pose.pose.position.x,
+             m.pose.pose.position.y, m.pose.pose.orientation.z, m.twist.twist.linear.x)
+            for _, m in messages[topic]]
+
+
+@pytest.fixture(scope='module')
+def quadruped_run(tmp_path_factory):
+    """One lockstep long_wall run (3 s of sim) with nominal controller and filter."""
+    tmp_path = tmp_path_factory.mktemp('quadruped')
+    log = run_to_end(tmp_path, {'scenario': 'long_wall', 'duration': 3.0, 'record': True,
+                                'bag_path': 'bag/run'},
+                     *controllers('a1', 'quadruped', (6.0, 12.0)))
+    return tmp_path, log
+
+
+@pytest.mark.slow
+def test_quadruped_lockstep_bag_and_metrics(quadruped_run):
+    """The run ends by itself; the bag has every topic with types, counts and QoS."""
+    tmp_path, log = quadruped_run
+    assert 'long_wall completed at t = 3.00 s' in log
+    topics, messages = read_bag(tmp_path / 'bag' / 'run')
+    expected = {
+        '/clock': 'rosgraph_msgs/msg/Clock', '/tf': 'tf2_msgs/msg/TFMessage',
+        '/a1/odom': 'nav_msgs/msg/Odometry', '/a1/obstacles': 'visualization_msgs/msg/MarkerArray',
+        '/a1/cmd_vel_in': 'geometry_msgs/msg/TwistStamped',
+        '/a1/cmd_vel_out': 'geometry_msgs/msg/TwistStamped',
+        '/a1/safety_filter/markers': 'visualization_msgs/msg/MarkerArray',
+        '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'}
+    for topic, type_name in expected.items():
+        msgtype, count, qos = topics[topic]
+        assert msgtype == type_name and count > 0 and qos, topic
+    assert topics['/a1/obstacles'][2][0].durability.name == 'TRANSIENT_LOCAL'
+    # One odom/clock/tf per 120 Hz period (t = 0 re-sent until the controllers answered).
+    assert topics['/a1/odom'][1] == topics['/clock'][1] == topics['/tf'][1]
+    assert len({s for s, *_ in odometry(messages)}) == 3 * 120 + 1
+    # Every period's command was answered: one safe command per stamp 0 .. t_end - T.
+    stamps = [m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec
+              for _, m in messages['/a1/cmd_vel_out']]
+    odom_stamps = [s for s, *_ in odometry(messages)]
+    assert set(odom_stamps[:-1]) <= set(stamps)
+    # Odometry: world frame, body child frame, sim-time stamps = log times; the robot moved.
+    log_ns, first = messages['/a1/odom'][0]
+    assert first.header.frame_id == 'world' and first.child_frame_id == 'a1/base_link'
+    assert all(t == m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec
+               for t, m in messages['/a1/odom'])
+    transform = messages['/tf'][-1][1].transforms[0]
+    assert transform.header.frame_id == 'world' and transform.child_frame_id == 'a1/base_link'
+    # The wall is a LINE_STRIP prism: height in scale.z, outline at z_min, world frame.
+    wall = messages['/a1/obstacles'][0][1].markers[0]
+    assert wall.type == 4 and wall.header.frame_id == 'world'  # LINE_STRIP
+    assert math.isclose(wall.scale.z, 1.5) and wall.ns == 'obstacles'
+    metrics = json.loads((tmp_path / 'bag' / 'metrics.json').read_text())
+    assert metrics['completed'] and metrics['lockstep_timeouts'] == {'a1': 0}
+    assert METRIC_KEYS <= set(metrics['robots']['a1'])
+    assert metrics['robots']['a1']['collision'] is False
+    assert metrics['robots']['a1']['path_length_m'] > 1.0
+
+
+@pytest.mark.slow
+def test_lockstep_runs_are_deterministic(tmp_path):
+    """Two identical lockstep runs (nominal controller straight to the robot) match exactly.
+
+    Without a filter: ``safety_filter`` with ``trigger: command`` steps with the
+    latest odometry it has, which under load can be the previous period's (see
+    the bridge's module docstring), so filtered runs are not bitwise repeatable.
+    """
+    runs = []
+    for name in ('first', 'second'):
+        (tmp_path / name).mkdir()
+        run_to_end(tmp_path / name, {'scenario': 'long_wall', 'duration': 2.0, 'record': True,
+                                     'bag_path': 'bag/run'},
+                   *controllers('a1', 'quadruped', (6.0, 12.0), with_filter=False))
+        runs.append(odometry(read_bag(tmp_path / name / 'bag' / 'run')[1]))
+    assert len({p[0] for p in runs[0]}) == 2 * 120 + 1
+    assert runs[0][-1][1] > 0.5
+    assert runs[0] == runs[1]
+
+
+@pytest.mark.slow
+def test_lockstep_without_controller_brakes_and_completes(tmp_path):
+    """Lockstep, nobody answers: after startup_timeout the run goes on, the robot stays put."""
+    log = run_to_end(tmp_path, {'scenario': 'long_wall', 'duration': 1.0, 'record': True,
+                                'bag_path': 'bag/run', 'startup_timeout': 0.3})
+    assert 'no command on a1/cmd_vel_out' in log and 'completed at t = 1.00 s' in log
+    poses = odometry(read_bag(tmp_path / 'bag' / 'run')[1])
+    assert len({p[0] for p in poses}) == 121
+    assert all(p[1:] == poses[0][1:] for p in poses)
+
+
+@pytest.mark.slow
+def test_sigint_leaves_a_readable_bag_and_metrics(tmp_path):
+    """SIGINT mid-run (real-time mode): exit 0, the bag reads in rosbags, metrics written."""
+    params = {'scenario': 'long_wall', 'lockstep': False, 'record': True, 'bag_path': 'bag/run'}
+    with processes(tmp_path, bridge(**params)) as procs:
+        bag = tmp_path / 'bag' / 'run' / 'run_0.mcap'
+        deadline = time.monotonic() + 20.0
+        while not bag.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.5)
+        procs[0].send_signal(signal.SIGINT)
+        assert procs[0].wait(timeout=15) == 0, procs[0].log_path.read_text()
+    assert 'stopped at' in procs[0].log_path.read_text()
+    topics, messages = read_bag(tmp_path / 'bag' / 'run')
+    assert topics['/a1/odom'][1] > 10 and len(messages['/a1/odom']) == topics['/a1/odom'][1]
+    assert (tmp_path / 'bag' / 'run' / 'metadata.yaml').is_file()
+    metrics = json.loads((tmp_path / 'bag' / 'metrics.json').read_text())
+    assert metrics['completed'] is False and 0 < metrics['sim_time_s'] < 30.0
+
+
+@pytest.mark.slow
+def test_real_time_command_timeout_brakes(tmp_path):
+    """Real-time mode: a command that stops coming is dropped after command_timeout."""
+    import rclpy
+    from geometry_msgs.msg import TwistStamped
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    params = {'scenario': 'long_wall', 'lockstep': False, 'duration': 3.0,
+              'command_timeout': 0.2, 'record': True, 'bag_path': 'bag/run'}
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node = rclpy.create_node('teleop', context=context)
+        publisher = node.create_publisher(TwistStamped, '/a1/cmd_vel_out', QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE))
+        with processes(tmp_path, bridge(**params)) as procs:
+            deadline = time.monotonic() + 20.0
+            while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                msg = TwistStamped()
+                msg.twist.linear.x = 1.0
+                publisher.publish(msg)
+                time.sleep(0.01)
+            assert procs[0].wait(timeout=20) == 0, procs[0].log_path.read_text()
+    finally:
+        rclpy.try_shutdown(context=context)
+    speeds = [p[4] for p in odometry(read_bag(tmp_path / 'bag' / 'run')[1])]
+    assert max(speeds) > 0.9
+    assert speeds[-1] == 0.0
+
+
+@pytest.mark.slow
+def test_crazyflie_wrench_path_hovers_without_crash(tmp_path):
+    """quadrotor_pillars, 2 s: nominal wrench -> filter -> bridge; it flies, does not fall."""
+    params = {'scenario': 'quadrotor_pillars', 'duration': 2.0, 'record': True,
+              'bag_path': 'bag/run'}
+    run_to_end(tmp_path, params, *controllers('cf', 'crazyflie', (8.0, -0.2, 1.0)))
+    topics, messages = read_bag(tmp_path / 'bag' / 'run')
+    for topic in ('/cf/wrench_in', '/cf/wrench_out'):
+        assert topics[topic][0] == 'geometry_msgs/msg/WrenchStamped' and topics[topic][1] > 200
+    heights = [m.pose.pose.position.z for _, m in messages['/cf/odom']]
+    assert min(heights) > 0.7 and max(heights) < 1.3
+    metrics = json.loads((tmp_path / 'bag' / 'metrics.json').read_text())
+    assert metrics['robots']['cf']['collision'] is False
+
+
+def test_missing_or_unknown_scenario_is_a_clear_error(tmp_path):
+    """No scenario, or an unknown one, exits 1 naming the problem."""
+    for params, text in (({}, "parameter 'scenario' is required"),
+                         ({'scenario': 'no_such_world'}, "no scenario named 'no_such_world'")):
+        result = subprocess.run([sys.executable, '-m', 'sim_bridge.bridge_node',
+                                 *_ros_args(params)], cwd=tmp_path, env=ENV, capture_output=True,
+                                text=True, timeout=30)
+        assert result.returncode == 1 and text in result.stderr, result.stderr
