@@ -46,6 +46,9 @@ lint: $(PKG_STAMP)
 # Benchmarks print a table and write JSON under bench/results/ (DESIGN.md section 8).
 bench: $(PKG_STAMP)
 	$(PY) bench/bench_core.py
+	$(PY) bench/bench_clutter.py
+	$(PY) bench/bench_node.py
+	$(PY) bench/bench_sim.py
 
 demo:
 	@echo "make demo: the closed-loop demo is not built yet; see the open 'make demo' issue." >&2

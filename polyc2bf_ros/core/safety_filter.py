@@ -175,6 +175,11 @@ class _Prepared:
     moving: bool
     finite: bool
 
+    @property
+    def count(self):
+        """Return the number of obstacle parts."""
+        return self.velocities.shape[1]
+
 
 class SafetyFilter:
     """PolyC2BF / C3BF safety filter for one robot model."""
@@ -202,6 +207,10 @@ class SafetyFilter:
                 and np.isfinite(obstacle_age) and prepared.finite):
             return self._brake(state, FilterStatus.INVALID_INPUT, start,
                                'non-finite state, nominal input or obstacle')
+        if not prepared.count:
+            # No obstacle, no row: the QP's solution is u_nom clipped to the box.
+            return self.model.clip_input(u_nom), FilterInfo(
+                status=FilterStatus.OK, solve_time_s=time.perf_counter() - start)
         ref = self.model.reference(state)
         evaluation = self._evaluate(prepared, ref, obstacle_age)
         terms, inside, cones = evaluation.terms, evaluation.inside, evaluation.cones
