@@ -32,12 +32,16 @@ takes part has sent a command whose header stamp equals t (the nominal
 controller copies the odometry stamp, the filter the command's header; commands
 with other stamps, e.g. the filter's watchdog stops, are recorded but not
 applied), and only then steps physics to t + T.  Runs are deterministic and as
-fast as the processes allow.  At start the t = 0 topics are re-sent every
-0.25 s (wall) until every robot has answered or ``startup_timeout`` passes; a
-robot takes part once it has answered, and one that does not answer within
-``lockstep_timeout`` (wall) is dropped from the wait with a warning (it brakes
-after ``command_timeout`` and rejoins with its next matching command).  A robot
-that never gets a command simply brakes, without slowing the run.
+fast as the processes allow.  (Bitwise only if every consumer pairs the
+command with the same-stamp odometry: ``safety_filter`` with ``trigger:
+command`` steps with the newest odometry it holds, which under load can still
+be t - T, so filtered runs can differ by one period's velocity step.)  At
+start the t = 0 topics are re-sent every 0.25 s (wall) until every robot has
+answered or ``startup_timeout`` passes; a robot takes part once it has
+answered, and one that does not answer within ``lockstep_timeout`` (wall) is
+dropped from the wait with a warning (it brakes after ``command_timeout`` and
+rejoins with its next matching command).  A robot that never gets a command
+simply brakes, without slowing the run.
 
 Real time (``lockstep: false``): periods are paced at ``real_time_factor`` times
 wall time; the latest command is applied whenever it arrives.
