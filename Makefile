@@ -49,6 +49,7 @@ bench: $(PKG_STAMP)
 	$(PY) bench/bench_clutter.py
 	$(PY) bench/bench_node.py
 	$(PY) bench/bench_sim.py
+	$(PY) bench/bench_sim_closed_loop.py  # merges its closed-loop records into sim.json
 
 demo:
 	@echo "make demo: the closed-loop demo is not built yet; see the open 'make demo' issue." >&2
