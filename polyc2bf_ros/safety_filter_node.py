@@ -29,7 +29,6 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped, WrenchStamped
 from nav_msgs.msg import Odometry
@@ -40,7 +39,6 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import SetBool
@@ -54,6 +52,7 @@ from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
 from polyc2bf_ros.core.stats import LatencyRing, RateMeter
 from polyc2bf_ros.core.watchdog import Watchdog
+from polyc2bf_ros.node_main import run_node
 
 # name: (default, (min, max) or None, description, read-only)
 NODE_PARAMETERS = {
@@ -498,20 +497,7 @@ class SafetyFilterNode(Node):
 
 def main(args=None):
     """Run the safety filter node until shutdown; exit status 1 on a configuration error."""
-    rclpy.init(args=args)
-    try:
-        node = SafetyFilterNode()
-    except ValueError as exc:
-        rclpy.logging.get_logger('safety_filter').fatal(f'invalid configuration: {exc}')
-        rclpy.try_shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(SafetyFilterNode, 'safety_filter', args)
 
 
 if __name__ == '__main__':

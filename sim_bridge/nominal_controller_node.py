@@ -20,16 +20,15 @@ import dataclasses
 import sys
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import TwistStamped, WrenchStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from polyc2bf_ros import conversions
 from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+from polyc2bf_ros.node_main import run_node
 
 # robot_type: (controller class, core model name for the odometry state, goal size).
 ROBOT_TYPES = {
@@ -104,20 +103,7 @@ class NominalControllerNode(Node):
 
 def main(args=None):
     """Run the controller until shutdown; exit status 1 on a configuration error."""
-    rclpy.init(args=args)
-    try:
-        node = NominalControllerNode()
-    except ValueError as exc:
-        rclpy.logging.get_logger('nominal_controller').fatal(f'invalid configuration: {exc}')
-        rclpy.try_shutdown()
-        return 1
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+    return run_node(NominalControllerNode, 'nominal_controller', args)
 
 
 if __name__ == '__main__':
