@@ -60,6 +60,10 @@ NODE_PARAMETERS = {
     'stamped': (False, None, 'cmd_vel_in / cmd_vel_out are TwistStamped instead of Twist', True),
     'trigger': ('timer', None, "'timer': step every 1/rate s; 'command': one step per "
                 'nominal command', True),
+    'match_stamps': (False, None, "with trigger 'command': answer a stamped command only once "
+                     'odometry stamped no earlier than it has arrived (lockstep simulation, '
+                     'repeatable runs); leave off when commands and odometry use different '
+                     'clocks', True),
     'rate': (100.0, (1.0, 2000.0), 'control rate [Hz]: timer rate, and T = 1/rate in '
              'v_safe = v + u_safe T', False),
     'velocity_tau': (0.0, (0.0, 10.0), 'tau [s] in u_nom = (v_cmd - v) / tau; 0 = one '
@@ -128,6 +132,9 @@ class SafetyFilterNode(Node):
         if trigger not in ('timer', 'command'):
             raise ValueError(f"parameter 'trigger' must be 'timer' or 'command', got {trigger!r}")
         self._per_command = trigger == 'command'
+        self._match_stamps = self._per_command and self.get_parameter('match_stamps').value
+        self._cmd_stamp = 0.0
+        self._waiting_for_odom = False
         self._model = make_model(self._model_name, **{
             name: self.get_parameter(f'model_params.{name}').value
             for name in self._model_parameter_names})
@@ -291,6 +298,9 @@ class SafetyFilterNode(Node):
         if frame != self._odom_frame:
             self._odom_frame = frame
             self._rebuild_obstacles()
+        if self._waiting_for_odom and self._odom_stamp >= self._cmd_stamp:
+            self._waiting_for_odom = False
+            self._step(time.monotonic())
 
     def _on_command(self, msg):
         """Store the nominal command; with ``trigger:=command`` answer it right away."""
@@ -302,6 +312,11 @@ class SafetyFilterNode(Node):
         self._cmd_valid = all(map(math.isfinite, values))
         if not self._cmd_valid:
             self._bad_message('nominal command')
+        if self._match_stamps and hasattr(msg, 'header'):
+            self._cmd_stamp = conversions.stamp_seconds(msg.header.stamp)
+            if self._cmd_stamp > self._odom_stamp:
+                self._waiting_for_odom = True  # answered by _on_odom with matching state
+                return
         if self._per_command:
             self._step(now)
 

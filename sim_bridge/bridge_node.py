@@ -32,10 +32,10 @@ takes part has sent a command whose header stamp equals t (the nominal
 controller copies the odometry stamp, the filter the command's header; commands
 with other stamps, e.g. the filter's watchdog stops, are recorded but not
 applied), and only then steps physics to t + T.  Runs are deterministic and as
-fast as the processes allow.  (Bitwise only if every consumer pairs the
-command with the same-stamp odometry: ``safety_filter`` with ``trigger:
-command`` steps with the newest odometry it holds, which under load can still
-be t - T, so filtered runs can differ by one period's velocity step.)  At
+fast as the processes allow; bitwise so when every consumer pairs the
+command with the same-stamp odometry, which ``safety_filter`` does with
+``trigger: command`` and ``match_stamps: true`` (without it, it steps with the
+newest odometry it holds, under load possibly t - T).  At
 start the t = 0 topics are re-sent every 0.25 s (wall) until every robot has
 answered or ``startup_timeout`` passes; a robot takes part once it has
 answered, and one that does not answer within ``lockstep_timeout`` (wall) is
