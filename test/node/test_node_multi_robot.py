@@ -77,6 +77,7 @@ def test_two_holonomic_robots_driven_head_on_never_touch():
             distances.append(math.dist(robots[0]['position'], robots[1]['position']))
             h.spin_until(lambda: time.monotonic() - now >= 1.0 / RATE, 0.1)
 
-        assert all(len(r['safe']) > 100 for r in robots), [node_log(p) for p in procs]
+        # ~300 answers on an idle machine; a starved one still answers a few dozen.
+        assert all(len(r['safe']) > 30 for r in robots), [node_log(p) for p in procs]
         assert min(distances) > 2.0 * RADIUS, f'bodies touched: {min(distances):.3f} m apart'
         assert min(distances) < 2.5, 'robots never approached each other: nothing was tested'

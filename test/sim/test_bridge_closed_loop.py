@@ -87,7 +87,13 @@ def controllers(robot, robot_type, goal, with_filter=True):
 
 
 def bridge(**params):
-    """Return the sim_bridge command."""
+    """Return the sim_bridge command.
+
+    Tests wait up to 30 s (wall) per lockstep period by default: on a starved
+    2-core machine the 2 s default could drop a robot from the wait, and the
+    tests below rely on every period being answered.
+    """
+    params.setdefault('lockstep_timeout', 30.0)
     return ('bridge', 'sim_bridge.bridge_node', _ros_args(params))
 
 
