@@ -74,12 +74,15 @@ def controllers(robot, robot_type, goal, with_filter=True):
                  else 'wrench_in:=wrench_out']
         return [('nominal', 'sim_bridge.nominal_controller_node',
                  _ros_args(nominal, remap, robot))]
+    # Lockstep: one answer per stamped command, with the same-stamp odometry; the
+    # steady-clock watchdogs must outlast a period on a starved machine (a stop is
+    # stamped 'now', answers no period and would stall the lockstep).
+    filter_params = {'trigger': 'command', 'rate': 120.0, 'match_stamps': True,
+                     'odom_timeout': 10.0, 'cmd_timeout': 10.0}
     if robot_type == 'quadruped':
-        filter_params = {'trigger': 'command', 'stamped': True, 'rate': 120.0,
-                         'match_stamps': True}
+        filter_params['stamped'] = True
         params_file = 'quadruped.yaml'
     else:
-        filter_params = {'rate': 120.0}
         params_file = 'crazyflie_thrust.yaml'
     return [('nominal', 'sim_bridge.nominal_controller_node', _ros_args(nominal, (), robot)),
             ('filter', 'polyc2bf_ros.safety_filter_node',
@@ -89,10 +92,12 @@ def controllers(robot, robot_type, goal, with_filter=True):
 def bridge(**params):
     """Return the sim_bridge command.
 
-    Tests wait up to 30 s (wall) per lockstep period by default: on a starved
-    2-core machine the 2 s default could drop a robot from the wait, and the
-    tests below rely on every period being answered.
+    Tests wait up to 30 s (wall) for the first answers and per lockstep period by
+    default: on a starved 2-core machine, three Python processes can take longer
+    than the 10 s / 2 s defaults to start or answer, which would leave a robot out
+    of the wait, and the tests below rely on every period being answered.
     """
+    params.setdefault('startup_timeout', 30.0)
     params.setdefault('lockstep_timeout', 30.0)
     return ('bridge', 'sim_bridge.bridge_node', _ros_args(params))
 
