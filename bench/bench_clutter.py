@@ -6,11 +6,10 @@ Same setup as test/core/test_closed_loop.py::test_clutter_zero_collisions (unicy
 and 2-D point mass, 50 Hz control, 20 s, robot radius 0.3 m), for every barrier.
 """
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
+from bench_io import write_records
 
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.nominal import PointMassGoalController, UnicycleGoalController
@@ -67,10 +66,7 @@ def main(argv=None):
                   f'{record["goal_reached"]:>6} {record["min_clearance_m"]:>9.4f} '
                   f'{record["non_ok_step_frac"]:>7.3f} {time.perf_counter() - start:>5.0f}',
                   flush=True)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(records, indent=1) + '\n')
-    print(f'wrote {out}')
+    write_records(records, args.out)
 
 
 if __name__ == '__main__':

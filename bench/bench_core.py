@@ -9,12 +9,11 @@ ok / slack steps is the one the filter meets in operation.  The obstacle set
 is built once per case, as the node does once per obstacle message.
 """
 import argparse
-import json
 import os
 import time
-from pathlib import Path
 
 import numpy as np
+from bench_io import write_records
 
 from polyc2bf_ros.core.geometry import convex_hull
 from polyc2bf_ros.core.models import make_model
@@ -97,10 +96,7 @@ def main(argv=None):
                 print(f'{model_name:<10} {backend:<10} {count:>4} {record["p50_us"]:>8.1f} '
                       f'{record["p99_us"]:>8.1f} {record["max_us"]:>8.1f}  '
                       f'{record["statuses"]}', flush=True)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(records, indent=1) + '\n')
-    print(f'wrote {out}')
+    write_records(records, args.out)
 
 
 if __name__ == '__main__':

@@ -12,12 +12,11 @@ resident set of the process so far (cases run in the order listed).
 """
 import argparse
 import dataclasses
-import json
 import resource
 import time
-from pathlib import Path
 
 import numpy as np
+from bench_io import write_records
 
 from polyc2bf_ros.core import crazyflie as cf
 from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
@@ -136,10 +135,7 @@ def main(argv=None):
         print(f'{name:<24} {record["robots"]:>6} {record["real_time_factor"]:>9.1f} '
               f'{record["cpu_real_time_factor"]:>8.1f} {record["physics_share"]:>8.0%} '
               f'{record["rss_mb"]:>7.0f} {record["build_s"]:>8.2f}', flush=True)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(records, indent=1) + '\n')
-    print(f'wrote {out}')
+    write_records(records, args.out)
     return records
 
 
