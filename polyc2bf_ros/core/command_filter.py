@@ -1,0 +1,73 @@
+"""One filtered command, in the robot's own command units: what the node decides per step.
+
+The barrier functions act on each model's input ``u`` (accelerations, or rotor
+thrusts for the quadrotor).  Robots take commands in other units; this module
+is the single place that converts, so the ``safety_filter`` node, offline bag
+replay and the in-process evaluation make the same decision for the same
+inputs.
+
+Command vectors per model:
+
+- velocity models (``core.command_interface``): ``unicycle`` ``[v, omega]``,
+  ``point_mass_2d`` ``[vx, vy]``, ``point_mass_3d`` ``[vx, vy, vz]`` (heading
+  frame)::
+
+      u_nom  = (Rz(yaw) v_cmd - v) / tau,     v_safe = Rz(yaw)^T (v + u_safe T)
+
+- ``quadrotor``: the wrench ``[T, tau_x, tau_y, tau_z]`` (collective thrust and
+  body torques), mixed into rotor thrusts and back (``core.crazyflie``)::
+
+      f_nom = M^-1 w_nom,                    w_safe = M f_safe
+
+A stop is the zero velocity command, or the wrench of the quadrotor's braking
+(hover) input.  Non-finite input of any kind yields the stop and the
+``invalid_input`` status, never NaN.
+"""
+import math
+
+import numpy as np
+
+from polyc2bf_ros.core import crazyflie
+from polyc2bf_ros.core.command_interface import VELOCITY_MODELS, VelocityCommandInterface
+from polyc2bf_ros.core.safety_filter import FilterInfo, FilterStatus, SafetyFilter
+
+
+class CommandFilter:
+    """``SafetyFilter`` behind the robot's command interface (see the module docstring)."""
+
+    def __init__(self, model, config, velocity_tau=0.0):
+        """Filter ``model``'s commands with ``config``; ``velocity_tau`` 0 means one period."""
+        self.model = model
+        self.safety_filter = SafetyFilter(model, config)
+        self.velocity = model.name in VELOCITY_MODELS
+        self.interface = None
+        if self.velocity:
+            period = config.control_period
+            self.interface = VelocityCommandInterface(model.name, velocity_tau or period, period)
+            self.command_dim = self.interface.velocity_dim
+        else:
+            self.command_dim = 4
+
+    def filter(self, state, yaw, command, obstacles, obstacle_age=0.0):
+        """Return ``(safe command, FilterInfo)`` for a nominal ``command`` at ``state``."""
+        command = np.asarray(command, dtype=float)
+        if not (np.isfinite(command).all() and math.isfinite(yaw)):
+            info = FilterInfo(status=FilterStatus.INVALID_INPUT,
+                              message='non-finite nominal command or yaw')
+            return self.stop(state), info
+        if self.velocity:
+            u_nom = self.interface.nominal_input(state, command, yaw)
+        else:
+            u_nom = crazyflie.thrusts_from_wrench(command)
+        u_safe, info = self.safety_filter.step(state, obstacles, u_nom, obstacle_age)
+        if info.status == FilterStatus.INVALID_INPUT:
+            return self.stop(state), info
+        if self.velocity:
+            return self.interface.safe_command(state, u_safe, yaw), info
+        return crazyflie.wrench_from_thrusts(u_safe), info
+
+    def stop(self, state):
+        """Return the stop command: zero velocity, or the quadrotor's braking wrench."""
+        if self.velocity:
+            return np.zeros(self.command_dim)
+        return crazyflie.wrench_from_thrusts(self.model.braking_input(state))
