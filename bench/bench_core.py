@@ -1,15 +1,25 @@
 """Benchmark one SafetyFilter.step: p50/p99/max latency vs obstacle count and backend.
 
 Usage: python bench/bench_core.py [--steps N] [--out bench/results/core.json]
+       [--models unicycle ...] [--backends daqp ...] [--counts 1 10 ...] [--no-startup]
 
 Every step of a closed-loop numpy rollout is timed: the robot starts at rest
 and its nominal controller drives it through N random 8-gons (2-20 m around
 the start, drifting at up to 0.1 m/s) towards a goal 15 m away, so the mix of
 ok / slack steps is the one the filter meets in operation.  The obstacle set
 is built once per case, as the node does once per obstacle message.
+
+Start-up: the filter's kernels are compiled by numba on first use and cached
+on disk; two fresh processes sharing an empty cache directory time the import
+and the construction of a filter for every model and barrier, once compiling
+(``cold``) and once loading the cache (``warm``).
 """
 import argparse
+import json
 import os
+import subprocess
+import sys
+import tempfile
 import time
 
 import numpy as np
@@ -78,24 +88,59 @@ def time_case(model_name, backend, count, steps, rng):
             'load_avg_1min': round(os.getloadavg()[0], 2)}
 
 
+STARTUP_SCRIPT = """
+import json, time
+start = time.perf_counter()
+from polyc2bf_ros.core.safety_filter import compile_kernels
+imported = time.perf_counter()
+compile_kernels()
+print(json.dumps([imported - start, time.perf_counter() - imported]))
+"""
+
+
+def startup_records():
+    """Return cold- and warm-cache start-up records, each from a fresh process."""
+    records = []
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        for label in ('cold', 'warm'):
+            result = subprocess.run([sys.executable, '-c', STARTUP_SCRIPT], env=env, check=True,
+                                    capture_output=True, text=True)
+            import_s, construct_s = json.loads(result.stdout.splitlines()[-1])
+            records.append({'bench': 'core_startup', 'cache': label,
+                            'import_s': round(import_s, 3),
+                            'construct_all_s': round(construct_s, 3),
+                            'load_avg_1min': round(os.getloadavg()[0], 2)})
+            print(f'start-up, {label} cache: import {import_s:.2f} s, one filter per model '
+                  f'and barrier {construct_s:.2f} s', flush=True)
+    return records
+
+
 def main(argv=None):
     """Run all cases, print a table and write the JSON records."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--steps', type=int, default=2000)
     parser.add_argument('--out', default='bench/results/core.json')
+    parser.add_argument('--models', nargs='+', choices=MODELS, default=MODELS)
+    parser.add_argument('--backends', nargs='+', choices=BACKENDS, default=BACKENDS)
+    parser.add_argument('--counts', nargs='+', type=int, default=OBSTACLE_COUNTS)
+    parser.add_argument('--no-startup', action='store_true', help='skip the start-up timing')
     args = parser.parse_args(argv)
-    rng = np.random.default_rng(7)
-    records = []
+    print(f'load average at start: {" ".join(f"{v:.2f}" for v in os.getloadavg())}')
+    records = [] if args.no_startup else startup_records()
     print(f'{"model":<10} {"backend":<10} {"N":>4} {"p50 us":>8} {"p99 us":>8} {"max us":>8}  '
           'statuses')
-    for model_name in MODELS:
-        for backend in BACKENDS:
-            for count in OBSTACLE_COUNTS:
+    for model_name in args.models:
+        for backend in args.backends:
+            for count in args.counts:
+                # One seed per case: a case's obstacles do not depend on which others ran.
+                rng = np.random.default_rng([7, MODELS.index(model_name), count])
                 record = time_case(model_name, backend, count, args.steps, rng)
                 records.append(record)
                 print(f'{model_name:<10} {backend:<10} {count:>4} {record["p50_us"]:>8.1f} '
                       f'{record["p99_us"]:>8.1f} {record["max_us"]:>8.1f}  '
                       f'{record["statuses"]}', flush=True)
+    print(f'load average at end: {" ".join(f"{v:.2f}" for v in os.getloadavg())}')
     write_records(records, args.out)
 
 

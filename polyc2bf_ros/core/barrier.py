@@ -14,19 +14,26 @@ Partial derivatives::
     dh/dp = v + |v|_e ds/dp
     dh/dv = p + (s / |v|_e) v
 
-With p_dot = v and v_dot = a_drift + B u (both relative, projected into the
-cone's plane), the CBF condition's terms are (paper eq. 2)::
+Relative kinematics in the cone's plane (paper eq. 17-19): each obstacle n
+has a constant projection P_n (2 x d) onto its plane, translates at c_dot_n,
+and the robot's reference point moves with r_dot and r_ddot = drift + B u, so
+p_dot = v and::
 
-    Lf h = <dh/dp, v> + <dh/dv, a_drift>,     Lg h = (dh/dv)^T B
+    v = P_n (c_dot_n - r_dot),     v_dot = a + B_n u,   a = -P_n drift,   B_n = -P_n B
+
+With these the CBF condition's terms are (paper eq. 2)::
+
+    Lf h = <dh/dp, v> + <dh/dv, a>,     Lg h = B_n^T dh/dv
 """
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from polyc2bf_ros.core.cones import dot2
+from polyc2bf_ros.core.jit import kernel
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class BarrierTerms:
     """h (N,), Lf h (N,) and Lg h (m, N) for N cones (obstacle index last)."""
 
@@ -34,20 +41,52 @@ class BarrierTerms:
     lf_h: np.ndarray
     lg_h: np.ndarray
 
+    @classmethod
+    def from_block(cls, block):
+        """Return terms viewing a (2 + m, N) block: rows h, Lf h, Lg h (no copy)."""
+        return cls(h=block[0], lf_h=block[1], lg_h=block[2:])
 
-def barrier_terms(cones, v_rel, a_drift, b_rel, velocity_epsilon) -> BarrierTerms:
-    """Evaluate h, Lf h, Lg h from planar (2, N) v_rel and a_drift and input map b_rel.
 
-    ``a_drift`` may be (2, 1) (shared by all obstacles); ``b_rel`` is (2, m) shared,
-    or (N, 2, m) per obstacle.
+@kernel
+def _barrier_terms(p, s, ds_dp, projections, velocities, position_rate, drift, input_matrix,
+                   velocity_epsilon, out):
+    """Write h, Lf h, Lg h of every obstacle into the rows of ``out`` (see module docstring)."""
+    dim, inputs = input_matrix.shape
+    eps_sq = velocity_epsilon * velocity_epsilon
+    for n in range(s.shape[0]):
+        projection = projections[n]
+        vx = vy = ax = ay = 0.0
+        for d in range(dim):
+            rate = velocities[n, d] - position_rate[d]
+            vx += projection[0, d] * rate
+            vy += projection[1, d] * rate
+            ax += projection[0, d] * drift[d]
+            ay += projection[1, d] * drift[d]
+        ax, ay = -ax, -ay
+        speed = math.sqrt(vx * vx + vy * vy + eps_sq)
+        px, py, shape = p[0, n], p[1, n], s[n]
+        dh_dpx, dh_dpy = vx + speed * ds_dp[0, n], vy + speed * ds_dp[1, n]
+        dh_dvx, dh_dvy = px + (shape / speed) * vx, py + (shape / speed) * vy
+        out[0, n] = px * vx + py * vy + speed * shape
+        out[1, n] = dh_dpx * vx + dh_dpy * vy + (dh_dvx * ax + dh_dvy * ay)
+        for j in range(inputs):
+            bx = by = 0.0
+            for d in range(dim):
+                bx += projection[0, d] * input_matrix[d, j]
+                by += projection[1, d] * input_matrix[d, j]
+            out[2 + j, n] = -(bx * dh_dvx + by * dh_dvy)
+
+
+def barrier_terms(cones, projections, velocities, reference, velocity_epsilon,
+                  block=None) -> BarrierTerms:
+    """Evaluate h, Lf h, Lg h for N cones seen through per-obstacle projections.
+
+    ``projections`` (N, 2, d) are the P_n, ``velocities`` (N, d) the obstacles' c_dot
+    and ``reference`` the robot's ``ReferenceKinematics`` (d-dimensional); the terms are
+    written into ``block`` (2 + m, N) if given.
     """
-    speed = np.sqrt(dot2(v_rel, v_rel) + velocity_epsilon ** 2)
-    h = dot2(cones.p, v_rel) + speed * cones.s
-    dh_dp = v_rel + speed * cones.ds_dp
-    dh_dv = cones.p + (cones.s / speed) * v_rel
-    lf_h = dot2(dh_dp, v_rel) + dot2(dh_dv, a_drift)
-    if b_rel.ndim == 2:
-        lg_h = b_rel.T @ dh_dv
-    else:
-        lg_h = np.einsum('in,nij->jn', dh_dv, b_rel)
-    return BarrierTerms(h=h, lf_h=lf_h, lg_h=lg_h)
+    if block is None:
+        block = np.empty((2 + reference.input_matrix.shape[1], cones.s.shape[0]))
+    _barrier_terms(cones.p, cones.s, cones.ds_dp, projections, velocities, reference.velocity,
+                   reference.drift, reference.input_matrix, velocity_epsilon, block)
+    return BarrierTerms.from_block(block)

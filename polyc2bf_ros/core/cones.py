@@ -25,18 +25,17 @@ delta constant in the obstacle frame, so ds/dp = k_hat + (p - s k_hat)/||k||.
   robot radius.
 """
 import abc
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from polyc2bf_ros.core.geometry import (
-    inflate_polygon,
-    minimum_enclosing_circle,
-    PolygonBatch,
-    signed_distance_batch,
-)
+from polyc2bf_ros.core.geometry import inflate_polygon, minimum_enclosing_circle, PolygonBatch
+from polyc2bf_ros.core.jit import kernel
 
 _TINY = 1e-12
+CONE_ROWS = 7
+"""Rows of a cone block: p (2), k (2), s (1), ds_dp (2), one column per obstacle."""
 
 
 def dot2(a, b):
@@ -44,7 +43,7 @@ def dot2(a, b):
     return a[0] * b[0] + a[1] * b[1]
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Cones:
     """Per-obstacle cones as (2, N) planar vectors (rows x, y) and (N,) scalars.
 
@@ -59,6 +58,11 @@ class Cones:
     ds_dp: np.ndarray
     valid: np.ndarray
 
+    @classmethod
+    def from_block(cls, block, valid):
+        """Return cones viewing the rows of a (``CONE_ROWS``, N) block (no copy)."""
+        return cls(p=block[0:2], k=block[2:4], s=block[4], ds_dp=block[5:7], valid=valid)
+
     @property
     def k_norm(self):
         """Return ||k||, the distance to the cone's boundary point."""
@@ -67,27 +71,25 @@ class Cones:
 
 @dataclass(frozen=True)
 class PlanarPolygons:
-    """Convex polygons laid out for the hot path: vertices (2, V, N), edges (V, N) each.
+    """Convex polygons laid out for the cone kernel: (N, V) arrays, one row per polygon.
 
-    ``previous`` indexes the edge before each vertex slot; padding slots repeat the
-    last vertex and the closing edge, so chains of edges never break in the padding.
+    Vertex coordinates ``x``, ``y``, edges ``edge_x``, ``edge_y`` (from each vertex to
+    the next) and their ``inv_sq`` = 1 / |e|^2, each polygon's first ``counts[n]`` slots.
     """
 
     batch: PolygonBatch
-    vertices: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
     edge_x: np.ndarray
     edge_y: np.ndarray
-    previous: np.ndarray
-    columns: np.ndarray
+    inv_sq: np.ndarray
+    counts: np.ndarray
 
     @classmethod
     def from_batch(cls, batch):
-        """Precompute the layout once per obstacle update."""
-        edge_x, edge_y, _ = batch.edge_table
-        slots = batch.x.shape[0]
-        return cls(batch=batch, vertices=np.stack([batch.x, batch.y]), edge_x=edge_x,
-                   edge_y=edge_y, previous=np.roll(np.arange(slots), 1),
-                   columns=np.arange(len(batch)))
+        """Lay out a batch once per obstacle update."""
+        rows = [np.ascontiguousarray(a.T) for a in (batch.x, batch.y, *batch.edge_table)]
+        return cls(batch, *rows, counts=batch.counts)
 
     def __len__(self):
         """Return the number of polygons."""
@@ -103,46 +105,104 @@ class ConeModel(abc.ABC):
     def prepare(self, batch: PolygonBatch):
         """Precompute per-obstacle geometry once per obstacle update (not per step)."""
 
-    @abc.abstractmethod
     def cones(self, prepared, viewpoints) -> Cones:
         """Return the cones seen from ``viewpoints``: (2, N), or (2,) shared by all."""
+        viewpoints = np.ascontiguousarray(viewpoints, dtype=np.float64).reshape(2, -1)
+        block = np.empty((CONE_ROWS, len(prepared)))
+        valid = np.empty(len(prepared), dtype=np.bool_)
+        self.fill(prepared, viewpoints, block, valid)
+        return Cones.from_block(block, valid)
+
+    @abc.abstractmethod
+    def fill(self, prepared, viewpoints, block, valid):
+        """Write the cones seen from ``viewpoints`` (2, 1 or N) into ``block`` and ``valid``."""
 
 
-def _column(viewpoints):
-    """Return viewpoints shaped (2, 1, N) or (2, 1, 1) to broadcast against (2, V, N)."""
-    return viewpoints.reshape(2, 1, -1)
+@kernel
+def _square_distance(x, y, edge_x, edge_y, inv_sq, count, qx, qy):
+    """Return min_k |r_k - t_k e_k|^2, r_k = q - v_k, t_k = clip(<r_k, e_k> / |e_k|^2, 0, 1)."""
+    best = math.inf
+    for k in range(count):
+        rx, ry = -(x[k] - qx), -(y[k] - qy)
+        t = min(max((rx * edge_x[k] + ry * edge_y[k]) * inv_sq[k], 0.0), 1.0)
+        dx, dy = rx - t * edge_x[k], ry - t * edge_y[k]
+        best = min(best, dx * dx + dy * dy)
+    return best
 
 
-def _polygon_cones(polygons, viewpoints, extension):
+@kernel
+def _polygon_cones(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, extension, out, valid):
     """Build PolyC2BF cones from silhouette vertices (see module docstring).
 
     Edge k faces the viewpoint q when q is strictly right of it, cross(e_k, v_k - q) > 0;
-    the facing edges form one chain whose end vertices are the tangent vertices.
+    the facing edges form one chain: A is the vertex where it ends (the first whose
+    incoming edge faces and outgoing edge does not), B the one where it starts.  With
+    ``extension`` > 0 the cone is only valid when q is farther than it from the polygon.
     """
-    rel = polygons.vertices - _column(viewpoints)
-    facing = polygons.edge_x * rel[1] > polygons.edge_y * rel[0]
-    incoming = facing[polygons.previous]
-    ends = np.stack([(incoming > facing).argmax(axis=0), (facing > incoming).argmax(axis=0)])
-    ab = rel[:, ends, polygons.columns]  # (2 coords, 2 vertices, N)
-    p = 0.5 * (ab[:, 0] + ab[:, 1])
-    if extension:
-        along = ab[:, 1] - ab[:, 0]
-        along *= extension / np.maximum(np.sqrt(dot2(along, along)), _TINY)
-        ab[:, 0] -= along
-        ab[:, 1] += along
-    norms = np.maximum(np.sqrt(ab[0] * ab[0] + ab[1] * ab[1]), _TINY)
-    cosines = (p[0] * ab[0] + p[1] * ab[1]) / norms  # <p, a_hat>, <p, b_hat>
-    first = cosines[0] < cosines[1]  # the closer vertex makes the larger angle with p
-    s = np.where(first, cosines[0], cosines[1])
-    k_norm = np.where(first, norms[0], norms[1])
-    k = np.where(first, ab[:, 0], ab[:, 1])
-    k_hat = k / k_norm
-    ds_dp = k_hat + (p - s * k_hat) / k_norm
-    return Cones(p=p, k=k, s=s, ds_dp=ds_dp, valid=facing.any(axis=0))
+    shared = viewpoints.shape[1] == 1
+    for n in range(counts.shape[0]):
+        j = 0 if shared else n
+        qx = viewpoints[0, j]
+        qy = viewpoints[1, j]
+        last = counts[n] - 1
+        incoming = edge_x[n, last] * (y[n, last] - qy) > edge_y[n, last] * (x[n, last] - qx)
+        a = b = -1
+        seen = False
+        for k in range(counts[n]):
+            facing = edge_x[n, k] * (y[n, k] - qy) > edge_y[n, k] * (x[n, k] - qx)
+            if incoming and not facing and a < 0:
+                a = k
+            if facing and not incoming and b < 0:
+                b = k
+            seen = seen or facing
+            incoming = facing
+            if a >= 0 and b >= 0:
+                break  # both ends of the (single) facing chain found
+        a, b = max(a, 0), max(b, 0)
+        ax, ay = x[n, a] - qx, y[n, a] - qy
+        bx, by = x[n, b] - qx, y[n, b] - qy
+        px, py = 0.5 * (ax + bx), 0.5 * (ay + by)
+        if extension != 0.0:
+            ux, uy = bx - ax, by - ay
+            scale = extension / max(math.sqrt(ux * ux + uy * uy), _TINY)
+            ux *= scale
+            uy *= scale
+            ax, ay, bx, by = ax - ux, ay - uy, bx + ux, by + uy
+        a_norm = max(math.sqrt(ax * ax + ay * ay), _TINY)
+        b_norm = max(math.sqrt(bx * bx + by * by), _TINY)
+        a_cos = (px * ax + py * ay) / a_norm
+        b_cos = (px * bx + py * by) / b_norm
+        if a_cos < b_cos:  # the closer vertex makes the larger angle with p
+            s, k_norm, kx, ky = a_cos, a_norm, ax, ay
+        else:
+            s, k_norm, kx, ky = b_cos, b_norm, bx, by
+        hx, hy = kx / k_norm, ky / k_norm
+        out[0, n], out[1, n], out[2, n], out[3, n], out[4, n] = px, py, kx, ky, s
+        out[5, n] = hx + (px - s * hx) / k_norm
+        out[6, n] = hy + (py - s * hy) / k_norm
+        if seen and extension > 0.0:
+            seen = math.sqrt(_square_distance(x[n], y[n], edge_x[n], edge_y[n], inv_sq[n],
+                                              counts[n], qx, qy)) > extension
+        valid[n] = seen
 
 
-class PaperCone(ConeModel):
-    """PolyC2BF with the paper's width rule: silhouette segment extended by w/2."""
+class _PolygonCone(ConeModel):
+    """PolyC2BF cones of (prepared) polygons, silhouette segment extended by ``extension``."""
+
+    extension = 0.0
+
+    def fill(self, prepared, viewpoints, block, valid):
+        """Run the silhouette kernel."""
+        _polygon_cones(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                       prepared.inv_sq, prepared.counts, viewpoints, self.extension, block,
+                       valid)
+
+
+class PaperCone(_PolygonCone):
+    """PolyC2BF with the paper's width rule: silhouette segment extended by w/2.
+
+    Inside (no cone) means within w/2 of the polygon.
+    """
 
     name = 'polyc2bf_paper'
 
@@ -154,17 +214,8 @@ class PaperCone(ConeModel):
         """Use the polygons as they are."""
         return PlanarPolygons.from_batch(batch)
 
-    def cones(self, prepared, viewpoints):
-        """Return paper cones; inside means within w/2 of the polygon."""
-        cones = _polygon_cones(prepared, viewpoints, self.extension)
-        if self.extension > 0.0:
-            offsets = -np.broadcast_to(viewpoints.reshape(2, -1), (2, len(prepared))).T
-            distance = signed_distance_batch(np.zeros(2), prepared.batch.translated(offsets))
-            cones.valid[:] &= distance > self.extension
-        return cones
 
-
-class InflatedCone(ConeModel):
+class InflatedCone(_PolygonCone):
     """PolyC2BF on the polygon inflated by the robot radius (exact silhouette variant)."""
 
     name = 'polyc2bf_inflated'
@@ -180,10 +231,6 @@ class InflatedCone(ConeModel):
         return PlanarPolygons.from_batch(PolygonBatch.from_polygons(
             [inflate_polygon(poly, self.radius, self.segments) for poly in polygons]))
 
-    def cones(self, prepared, viewpoints):
-        """Return tangent cones of the inflated polygons, no extension."""
-        return _polygon_cones(prepared, viewpoints, 0.0)
-
 
 @dataclass(frozen=True)
 class Circles:
@@ -195,6 +242,29 @@ class Circles:
     def __len__(self):
         """Return the number of circles."""
         return self.radii.size
+
+
+@kernel
+def _circle_cones(centres, radii, viewpoints, out, valid):
+    """Build C3BF cones: s = sqrt(|p|^2 - R^2), ds/dp = p / s.
+
+    The boundary ray k is p rotated by the half-angle phi (cos phi = s / |p|,
+    sin phi = R / |p|) and scaled to the tangent length s.
+    """
+    shared = viewpoints.shape[1] == 1
+    for n in range(radii.shape[0]):
+        j = 0 if shared else n
+        px, py = centres[0, n] - viewpoints[0, j], centres[1, n] - viewpoints[1, j]
+        distance_sq = px * px + py * py
+        clearance_sq = distance_sq - radii[n] * radii[n]
+        s = math.sqrt(max(clearance_sq, _TINY))
+        distance = math.sqrt(max(distance_sq, _TINY))
+        cos_phi, sin_phi = s / distance, radii[n] / distance
+        out[0, n], out[1, n], out[4, n] = px, py, s
+        out[2, n] = cos_phi * (cos_phi * px - sin_phi * py)
+        out[3, n] = cos_phi * (sin_phi * px + cos_phi * py)
+        out[5, n], out[6, n] = px / s, py / s
+        valid[n] = clearance_sq > 0.0
 
 
 class CircleCone(ConeModel):
@@ -214,17 +284,9 @@ class CircleCone(ConeModel):
         radii = np.array([r for _, r in circles], dtype=float) + self.radius
         return Circles(np.ascontiguousarray(centres), radii)
 
-    def cones(self, prepared, viewpoints):
-        """Return C3BF cones: s = sqrt(|p|^2 - R^2), ds/dp = p / s."""
-        p = prepared.centres - viewpoints.reshape(2, -1)
-        distance_sq = dot2(p, p)
-        clearance_sq = distance_sq - prepared.radii ** 2
-        s = np.sqrt(np.maximum(clearance_sq, _TINY))
-        # Boundary ray: p rotated by the half-angle phi, scaled to the tangent length s.
-        cos_phi = s / np.sqrt(np.maximum(distance_sq, _TINY))
-        sin_phi = prepared.radii / np.sqrt(np.maximum(distance_sq, _TINY))
-        k = cos_phi * np.stack([cos_phi * p[0] - sin_phi * p[1], sin_phi * p[0] + cos_phi * p[1]])
-        return Cones(p=p, k=k, s=s, ds_dp=p / s, valid=clearance_sq > 0.0)
+    def fill(self, prepared, viewpoints, block, valid):
+        """Run the circle kernel."""
+        _circle_cones(prepared.centres, prepared.radii, viewpoints, block, valid)
 
 
 CONE_MODELS = {cls.name: cls for cls in (PaperCone, InflatedCone, CircleCone)}

@@ -9,9 +9,10 @@ Every backend solves, for n = 2..6 variables and m = 0..~200 rows::
 ``QPSolver.solve`` does the work the backends share: shape and weight checks, the exact fast
 path (``x_ref`` feasible => it is the unconstrained minimiser), all-zero rows (dropped if
 ``b <= 0``, infeasible if ``b > 0``, to ``FAST_PATH_TOL``), ``m = 0`` (the minimiser is
-``clip(x_ref, lower, upper)`` because the weights are diagonal) and a final primal check of
-every answer reported optimal (finite, rows and bounds to ``FEASIBILITY_TOL``).  Non-optimal
-results carry ``x = clip(x_ref, lower, upper)`` with NaN replaced, never NaN.
+``clip(x_ref, lower, upper)`` because the weights are diagonal), the one-constraint shortcut
+(``_single_active``) and a final primal check of every answer reported optimal (finite, rows
+and bounds to ``FEASIBILITY_TOL``).  Non-optimal results carry ``x = clip(x_ref, lower,
+upper)`` with NaN replaced, never NaN.
 
 Backends: ``daqp`` (dual active set, exact; the default, one persistent ``daqp.Model`` per
 problem size), ``proxsuite`` (dense proximal ALM with the duality-gap test on, then polished to
@@ -29,6 +30,8 @@ import daqp
 import numpy as np
 from proxsuite import proxqp
 
+from polyc2bf_ros.core.jit import kernel
+
 FAST_PATH_TOL = 1e-12
 """``x_ref`` is returned as is when ``A x_ref >= b - FAST_PATH_TOL`` and it lies in the box."""
 FEASIBILITY_TOL = 1e-9
@@ -41,6 +44,7 @@ _PROXSUITE_EPS = 1e-10  # residuals and duality gap, absolute
 _PROXSUITE_EPS_INFEASIBLE = 0.0  # off: its test misfires on feasible problems (phase 1 decides)
 _PROXSUITE_MAX_ITER = 100  # outer (ALM) iterations; they bound the time spent on an infeasible
 _PROXSUITE_MAX_ITER_IN = 50  # problem (inner: semismooth Newton steps per outer iteration)
+_PHASE1_PROXIMAL = 1e-6  # curvature on x in the phase-1 problem (see ProxsuiteSolver)
 _POLISH_GAP = 1e-4  # constraints this close to active at proxsuite's answer may be active
 _POLISH_POOL = 12  # at most this many candidates (the closest to active) are tried
 _MULTIPLIER_TOL = 1e-9  # a certifying multiplier is >= -_MULTIPLIER_TOL (1 + max|w x_ref|)
@@ -73,6 +77,133 @@ def _fallback(x_ref, lower, upper):
     return x
 
 
+@kernel
+def row_residuals(A, x, b, out):
+    """Write ``A x - b`` into ``out``; return its smallest entry (inf without rows, NaN if any)."""
+    smallest = math.inf
+    for i in range(b.shape[0]):
+        value = 0.0
+        for j in range(x.shape[0]):
+            value += A[i, j] * x[j]
+        out[i] = value - b[i]
+        if out[i] < smallest or out[i] != out[i]:
+            smallest = out[i]
+    return smallest
+
+
+@kernel
+def _single_active(x_ref, weights, A, b, lower, upper, x):
+    """Try the optima with few active constraints; True if ``x`` is the optimum.
+
+    For this strictly convex problem a point meeting the KKT conditions is the optimum.
+    Candidates, in turn: the bounds S that x_ref violates held at their values plus at
+    most one row; no bound and one row; no bound and two rows.  A row is made active
+    when it is the one violated farthest in the W-norm (over the free coordinates F)::
+
+        one row i:   x_F = x_ref_F + lam W_F^-1 a_iF,   lam = (b_i - a_i x) / (a_iF W_F^-1 a_iF')
+        rows i, j:   x = x_ref + W^-1 A_S' lam,   (A_S W^-1 A_S') lam = b_S - A_S x_ref
+
+    (j is the row violated farthest after projecting onto i.)  A candidate is the
+    optimum when every row holds (to ``FAST_PATH_TOL``), x lies in the box and the
+    multipliers are >= 0: lam, and mu_j = +-(w_j (x_j - x_ref_j) - lam a_ij) for a held
+    bound (+ at a lower, - at an upper one).  The usual filter step (one or two active
+    obstacles, the nominal input perhaps beyond its bounds) then needs no backend solve.
+    """
+    clipped = False
+    for j in range(x_ref.shape[0]):
+        if not (math.isfinite(x_ref[j]) and lower[j] <= upper[j]):
+            return False  # NaN, inf or an empty box: the general path decides
+        clipped = clipped or not lower[j] <= x_ref[j] <= upper[j]
+    if _one_row_candidate(x_ref, weights, A, b, lower, upper, True, x):
+        return True
+    if clipped and _one_row_candidate(x_ref, weights, A, b, lower, upper, False, x):
+        return True
+    return _two_row_candidate(x_ref, weights, A, b, lower, upper, x)
+
+
+@kernel
+def _farthest_row(point, x_ref, weights, A, b, skip):
+    """Return (row, lam) of the row violated farthest at ``point`` in the W-norm, or -1.
+
+    Only coordinates where ``point`` equals ``x_ref`` are free to move; lam is the step
+    (b_i - a_i point) / (a_iF W_F^-1 a_iF') onto the row.
+    """
+    best, row, lam = 0.0, -1, 0.0
+    for i in range(b.shape[0]):
+        gap, norm_sq = b[i], 0.0
+        for j in range(point.shape[0]):
+            gap -= A[i, j] * point[j]
+            if point[j] == x_ref[j]:
+                norm_sq += A[i, j] * A[i, j] / weights[j]
+        if i != skip and gap > FAST_PATH_TOL and norm_sq > 0.0 and gap / math.sqrt(
+                norm_sq) > best:
+            best, row, lam = gap / math.sqrt(norm_sq), i, gap / norm_sq
+    return row, lam
+
+
+@kernel
+def _meets_rows(A, b, x):
+    """Return True when every row holds at x to ``FAST_PATH_TOL``."""
+    for i in range(b.shape[0]):
+        value = -b[i]
+        for j in range(x.shape[0]):
+            value += A[i, j] * x[j]
+        if not value >= -FAST_PATH_TOL:
+            return False
+    return True
+
+
+@kernel
+def _one_row_candidate(x_ref, weights, A, b, lower, upper, hold, x):
+    """Build and check a held-bounds-plus-one-row candidate of ``_single_active``."""
+    for j in range(x_ref.shape[0]):
+        x[j] = min(max(x_ref[j], lower[j]), upper[j]) if hold else x_ref[j]
+    row, lam = _farthest_row(x, x_ref, weights, A, b, -1)
+    for j in range(x_ref.shape[0]):
+        if x[j] != x_ref[j]:  # held: its multiplier must have the right sign
+            if row >= 0 and not (x[j] - x_ref[j]) * (
+                    weights[j] * (x[j] - x_ref[j]) - lam * A[row, j]) >= 0.0:
+                return False
+        elif row >= 0:
+            x[j] = x_ref[j] + lam * A[row, j] / weights[j]
+        if not lower[j] <= x[j] <= upper[j]:
+            return False
+    return _meets_rows(A, b, x)
+
+
+@kernel
+def _two_row_candidate(x_ref, weights, A, b, lower, upper, x):
+    """Build and check the two-row, no-bound candidate of ``_single_active``."""
+    n = x_ref.shape[0]
+    first, lam = _farthest_row(x_ref, x_ref, weights, A, b, -1)
+    if first < 0:
+        return False
+    for j in range(n):
+        x[j] = x_ref[j] + lam * A[first, j] / weights[j]
+    second, _ = _farthest_row(x, x, weights, A, b, first)
+    if second < 0:
+        return False
+    g11 = g12 = g22 = 0.0
+    r1, r2 = b[first], b[second]
+    for j in range(n):
+        g11 += A[first, j] * A[first, j] / weights[j]
+        g12 += A[first, j] * A[second, j] / weights[j]
+        g22 += A[second, j] * A[second, j] / weights[j]
+        r1 -= A[first, j] * x_ref[j]
+        r2 -= A[second, j] * x_ref[j]
+    det = g11 * g22 - g12 * g12
+    if not det > 1e-9 * g11 * g22:
+        return False  # (nearly) parallel rows: leave them to the backend
+    lam1, lam2 = (g22 * r1 - g12 * r2) / det, (g11 * r2 - g12 * r1) / det
+    if not (lam1 >= 0.0 and lam2 >= 0.0):
+        return False
+    for j in range(n):
+        x[j] = x_ref[j] + (lam1 * A[first, j] + lam2 * A[second, j]) / weights[j]
+        if not lower[j] <= x[j] <= upper[j]:
+            return False
+    return _meets_rows(A, b, x)
+
+
 def _feasible(x, A, b, lower, upper):
     """Check that x is finite and meets rows and box to ``FEASIBILITY_TOL``; clip x to the box."""
     clip = False
@@ -82,17 +213,15 @@ def _feasible(x, A, b, lower, upper):
         clip = clip or value < low or value > high
     if clip:
         np.minimum(np.maximum(x, lower, out=x), upper, out=x)
-    if b.shape[0]:
-        residual = np.dot(A, x)
-        residual -= b
-        return residual.item(residual.argmin()) >= -FEASIBILITY_TOL
-    return True
+    return row_residuals(A, x, b, np.empty(b.shape[0])) >= -FEASIBILITY_TOL
 
 
 class QPSolver(abc.ABC):
     """Backend-independent front end; subclasses implement ``_solve``."""
 
     name: str
+    shortcut = True
+    """Try ``_single_active`` before the backend (off for the reference, the tests' oracle)."""
 
     def solve(self, x_ref, weights, A, b, lower, upper) -> QPResult:
         """Minimise ``sum w (x - x_ref)^2`` s.t. ``A x >= b``, ``lower <= x <= upper``.
@@ -102,8 +231,8 @@ class QPSolver(abc.ABC):
         """
         x_ref = np.asarray(x_ref, dtype=np.float64)
         weights = np.asarray(weights, dtype=np.float64)
-        A = np.asarray(A, dtype=np.float64)
-        b = np.asarray(b, dtype=np.float64)
+        A = np.ascontiguousarray(A, dtype=np.float64)
+        b = np.ascontiguousarray(b, dtype=np.float64)
         lower = np.asarray(lower, dtype=np.float64)
         upper = np.asarray(upper, dtype=np.float64)
         n = x_ref.shape[0] if x_ref.ndim == 1 else 0
@@ -118,14 +247,21 @@ class QPSolver(abc.ABC):
         for w in weights.tolist():
             if not 0.0 < w < math.inf:
                 raise ValueError(f'weights must be positive and finite, got {weights}')
+        return self.solve_checked(np.ascontiguousarray(x_ref), weights, A, b,
+                                  np.ascontiguousarray(lower), np.ascontiguousarray(upper))
 
+    def solve_checked(self, x_ref, weights, A, b, lower, upper) -> QPResult:
+        """``solve`` for arguments it would accept as they are, without checking them again.
+
+        That is: C-contiguous float64 arrays of consistent shapes, weights positive and
+        finite.  The safety filter calls this on every step.
+        """
+        n, m = x_ref.shape[0], b.shape[0]
         values, lows, highs = x_ref.tolist(), lower.tolist(), upper.tolist()
         if all(map(operator.le, lows, values)) and all(map(operator.le, values, highs)):
             if m == 0:
                 return QPResult(x_ref.copy(), QPStatus.OPTIMAL, 0)
-            residual = np.dot(A, x_ref)
-            residual -= b
-            if residual.item(residual.argmin()) >= -FAST_PATH_TOL:
+            if row_residuals(A, x_ref, b, np.empty(m)) >= -FAST_PATH_TOL:
                 return QPResult(x_ref.copy(), QPStatus.OPTIMAL, 0)
         elif any(map(operator.gt, lows, highs)):
             return QPResult(_fallback(x_ref, lower, upper), QPStatus.INFEASIBLE, 0)
@@ -138,6 +274,9 @@ class QPSolver(abc.ABC):
             A, b = A[nonzero], b[nonzero]
             m = b.shape[0]
 
+        x = np.empty(n)
+        if self.shortcut and _single_active(x_ref, weights, A, b, lower, upper, x):
+            return QPResult(x, QPStatus.OPTIMAL, 0)
         if m == 0:
             x, status, iterations = np.minimum(np.maximum(x_ref, lower), upper), \
                 QPStatus.OPTIMAL, 0
@@ -336,7 +475,13 @@ class ProxsuiteSolver(QPSolver):
 
         minimise t + t^2 / 2  s.t.  A x + t >= b,  lower <= x <= upper,  t >= 0
 
-    is always feasible, and the problem is infeasible iff ``t* > _INFEASIBILITY_TOL``.
+    is always feasible, and the problem is infeasible iff ``t* > _INFEASIBILITY_TOL``.  x has
+    no curvature there and can drift along recession directions; when proxsuite stalls on it,
+    a second attempt scales the rows to unit norm (the same feasible set) and adds a small
+    proximal term rho |x - x_ref|^2 / 2 (rho = ``_PHASE1_PROXIMAL``), which makes it strongly
+    convex.  The term only raises t*, so an infeasible problem is never reported feasible; a
+    feasible one on which the main solve failed may be reported infeasible (t* <=
+    rho |x_feasible - x_ref|^2 / 2) rather than failed, which callers treat alike.
     """
 
     name = 'proxsuite'
@@ -354,19 +499,32 @@ class ProxsuiteSolver(QPSolver):
         if x is not None:
             return x, QPStatus.OPTIMAL, iterations
 
-        phase1 = _proxsuite_qp(n + 1, m)
-        hessian = np.zeros((n + 1, n + 1))
-        hessian[n, n] = 1.0
-        gradient = np.zeros(n + 1)
-        gradient[n] = 1.0
-        phase1.init(hessian, gradient, None, None, np.hstack([A, np.ones((m, 1))]), b, row_upper,
-                    l_box=np.append(lower, 0.0), u_box=np.append(upper, np.inf))
-        phase1.solve()
-        result = phase1.results
-        iterations += result.info.iter
-        if result.info.status == proxqp.PROXQP_SOLVED and result.x[n] > _INFEASIBILITY_TOL:
-            return x_ref, QPStatus.INFEASIBLE, iterations
+        for proximal in (0.0, _PHASE1_PROXIMAL):
+            solved, t, steps = _phase1(x_ref, A, b, lower, upper, proximal)
+            iterations += steps
+            if solved:
+                status = QPStatus.INFEASIBLE if t > _INFEASIBILITY_TOL else QPStatus.FAILED
+                return x_ref, status, iterations
         return x_ref, QPStatus.FAILED, iterations
+
+
+def _phase1(x_ref, A, b, lower, upper, proximal):
+    """Solve the phase-1 problem (``ProxsuiteSolver``); return (solved, t*, iterations).
+
+    With ``proximal`` > 0 the rows are scaled to unit norm and x gets that curvature.
+    """
+    n, m = x_ref.shape[0], b.shape[0]
+    if proximal:
+        scale = 1.0 / np.linalg.norm(A, axis=1)  # the front end dropped all-zero rows
+        A, b = A * scale[:, None], b * scale
+    phase1 = _proxsuite_qp(n + 1, m)
+    phase1.init(np.diag(np.append(np.full(n, proximal), 1.0)),
+                np.append(-proximal * x_ref, 1.0), None, None, np.hstack([A, np.ones((m, 1))]),
+                b, np.full(m, np.inf), l_box=np.append(lower, 0.0),
+                u_box=np.append(upper, np.inf))
+    phase1.solve()
+    result = phase1.results
+    return result.info.status == proxqp.PROXQP_SOLVED, result.x[n], result.info.iter
 
 
 class ReferenceSolver(QPSolver):
@@ -378,6 +536,7 @@ class ReferenceSolver(QPSolver):
     """
 
     name = 'reference'
+    shortcut = False
 
     def _solve(self, x_ref, weights, A, b, lower, upper):
         """Enumerate; ``iterations`` is the number of candidates."""

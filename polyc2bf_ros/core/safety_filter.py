@@ -17,13 +17,18 @@ at the node's rates.
 3-D models see each obstacle (a vertical prism) in two planes (paper
 section III, quadrotor): the horizontal plane (footprint polygon) and the
 vertical plane spanned by the footprint's thin axis and z (the prism's shadow
-rectangle).  Projections are constant, as the paper assumes, and
-conservative: a point outside either shadow is outside the prism.  The plane
-whose cone has the smaller ||k|| is used.
+rectangle); ``polyc2bf_ros.core.views`` says which plane is used where.
 
 Pruning: a row whose left side is >= m for *every* u in the input box can
 never be active; dropping it leaves the feasible set unchanged, so the
-solution is exactly the same.
+solution is exactly the same.  The QP front end answers most steps without a
+solver run: u_ref (u_nom, or the escape input) itself when it lies in the box
+and meets every row, or its projection onto one row (``qp._single_active``).
+
+Hot path: per step, a handful of compiled kernels (``polyc2bf_ros.core.jit``)
+compute viewpoints, cones, barrier terms and the QP rows for all obstacles;
+``SafetyFilter`` compiles them on construction (``warm_up``) so that the first
+real step is as fast as the others.
 
 Fallbacks, always flagged in ``FilterInfo.status``:
 
@@ -38,18 +43,29 @@ Fallbacks, always flagged in ``FilterInfo.status``:
 * ``invalid_input``: NaN/Inf in state, nominal input or obstacles; brake.
 """
 import enum
+import math
 import time
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
-from polyc2bf_ros.core.barrier import barrier_terms
-from polyc2bf_ros.core.cones import CONE_MODELS, dot2, make_cone_model
-from polyc2bf_ros.core.geometry import PolygonBatch, thin_axis, vertical_shadow
-from polyc2bf_ros.core.obstacles import ObstacleSet
-from polyc2bf_ros.core.qp import make_solver, QPStatus, solve_with_shared_slack, SOLVERS
+from polyc2bf_ros.core.barrier import barrier_terms, BarrierTerms
+from polyc2bf_ros.core.cones import CONE_MODELS, CONE_ROWS, Cones, make_cone_model
+from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.models import make_model, MODEL_NAMES
+from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.qp import (
+    make_solver,
+    QPStatus,
+    row_residuals,
+    solve_with_shared_slack,
+    SOLVERS,
+)
+from polyc2bf_ros.core.views import choose_planes, prepare_views
 
 ACTIVE_TOLERANCE = 1e-7
+_MIN_ROW_NORM = 1e-12
 
 
 class FilterStatus(str, enum.Enum):
@@ -67,8 +83,9 @@ class FilterConfig:
     """Filter parameters; ``validate`` explains any bad value.
 
     The default barrier is the inflated-silhouette PolyC2BF: in the clutter
-    test (30 random polygons, 50 seeds) the paper's w/2 width rule let the
-    unicycle graze obstacles in 2 seeds, the inflated variant in none.
+    benchmark (30 random polygons, 50 seeds) the paper's w/2 width rule let the
+    unicycle graze an obstacle (seed 18, clearance -0.039 m), the inflated
+    variant never.
     """
 
     barrier: str = 'polyc2bf_inflated'
@@ -130,81 +147,176 @@ class FilterInfo:
         return float(finite.min()) if finite.size else float('inf')
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Evaluation:
-    """Per obstacle part: cones, barrier terms, inside flag, outward direction, plane used.
+    """Per obstacle part: cones and barrier terms in the plane used, and which are usable.
 
-    ``plane`` is 0 for the horizontal plane, 1 for the vertical one (3-D models);
-    ``outward`` (d, N) points from each obstacle's centroid to the robot, in world axes.
+    ``vertical`` (N,) tells where a 3-D model uses the vertical plane (None for planar
+    models); ``viewpoints`` (2, 1 or N) and ``centroids`` (2, N) are the horizontal
+    plane's, for the escape direction; ``dim`` is the robot's position dimension.
     """
 
-    cones: object
-    terms: object
-    inside: np.ndarray
-    outward: np.ndarray
-    plane: np.ndarray
-    rank: np.ndarray
+    cones: Cones
+    terms: BarrierTerms
+    usable: np.ndarray
+    vertical: Optional[np.ndarray]
+    viewpoints: np.ndarray
+    centroids: np.ndarray
+    dim: int
+
+    @property
+    def inside(self):
+        """Return where no cone exists: the reference point is inside the (inflated) part."""
+        return ~self.usable
+
+    @property
+    def plane(self):
+        """Return the plane used per obstacle: 0 horizontal, 1 vertical."""
+        if self.vertical is None:
+            return np.zeros(self.usable.shape, dtype=int)
+        return self.vertical.astype(int)
 
     def escape_direction(self):
-        """Return the unit sum of outward directions of the obstacles we are inside."""
-        direction = self.outward[:, self.inside].sum(axis=1)
+        """Return the unit sum of (viewpoint - centroid) over the parts we are inside.
+
+        In world axes; horizontal (z = 0) for 3-D models, where inside means inside
+        in both planes and the horizontal one is kept.
+        """
+        planar = (self.viewpoints - self.centroids)[:, self.inside].sum(axis=1)
+        direction = np.append(planar, np.zeros(self.dim - 2))
         norm = np.linalg.norm(direction)
         return direction / norm if norm > 1e-9 else np.zeros_like(direction)
 
 
 @dataclass(frozen=True)
-class _View:
-    """Obstacles seen in one plane: prepared cone geometry, centroids (2, N), enabled (N,).
-
-    ``axes`` is None for the horizontal plane (world x, y) and (2, N) unit horizontal
-    axes for the vertical planes (axis, world z).
-    """
-
-    prepared: object
-    axes: object
-    centroids: np.ndarray
-    enabled: np.ndarray
-
-
-@dataclass(frozen=True)
 class _Prepared:
-    """Everything per obstacle set that does not change between steps."""
+    """Everything per obstacle set that does not change between steps, and row buffers.
+
+    ``velocities`` (N, d) are the obstacles' c_dot in the robot's d dimensions;
+    ``rows_a`` (N, m), ``rows_b``, ``index`` and ``residual`` (N,) are scratch space
+    for the QP rows (the first ``count`` entries of a step are valid).
+    """
 
     views: tuple
     velocities: np.ndarray
-    moving: bool
     finite: bool
+    rows_a: np.ndarray
+    rows_b: np.ndarray
+    index: np.ndarray
+    residual: np.ndarray
 
     @property
     def count(self):
         """Return the number of obstacle parts."""
-        return self.velocities.shape[1]
+        return self.velocities.shape[0]
+
+
+@kernel
+def _assemble_rows(h, lf_h, lg_h, usable, margin, gamma, lower, upper, prune, rows_a, rows_b,
+                   index, h_out):
+    """Write the unit-norm QP rows of the needed obstacle parts; return (rows, unusable parts).
+
+    Row of part n: Lg h_n u >= b_n = m - Lf h_n - gamma h_n, divided by |Lg h_n| (the same
+    feasible set, but a well-scaled QP: row norms span 1e1..1e4 for the quadrotor, and a
+    slack measured in input units).  With ``prune``, a row that holds for every u in the
+    box, sum_j min(a_j lower_j, a_j upper_j) >= b_n, is dropped.  ``h_out`` gets h, NaN
+    where no cone is usable (the part is left out: the escape input handles it).
+    """
+    count = inside = 0
+    for n in range(h.shape[0]):
+        if not usable[n]:
+            h_out[n] = math.nan
+            inside += 1
+            continue
+        h_out[n] = h[n]
+        b = margin - lf_h[n] - gamma * h[n]
+        if prune:
+            worst = 0.0
+            for j in range(lower.shape[0]):
+                if lg_h[j, n] != 0.0:
+                    worst += min(lg_h[j, n] * lower[j], lg_h[j, n] * upper[j])
+            if worst >= b:
+                continue
+        norm_sq = 0.0
+        for j in range(lower.shape[0]):
+            norm_sq += lg_h[j, n] * lg_h[j, n]
+        scale = 1.0 / max(math.sqrt(norm_sq), _MIN_ROW_NORM)
+        for j in range(lower.shape[0]):
+            rows_a[count, j] = lg_h[j, n] * scale
+        rows_b[count] = b * scale
+        index[count] = n
+        count += 1
+    return count, inside
+
+
+def compile_kernels():
+    """Build one filter per model and barrier: every kernel is compiled into numba's cache.
+
+    Worth running once after installing (a cold cache costs a first filter ~5 s).
+    """
+    for model in MODEL_NAMES:
+        for barrier in CONE_MODELS:
+            SafetyFilter(make_model(model), FilterConfig(barrier=barrier))
+
+
+def _all_finite(array):
+    """Return True when every entry of a float array is finite."""
+    return all(map(math.isfinite, array.ravel().tolist()))
 
 
 class SafetyFilter:
-    """PolyC2BF / C3BF safety filter for one robot model."""
+    """PolyC2BF / C3BF safety filter for one robot model.
+
+    Holds per-obstacle-set scratch buffers and the solver's workspaces: use one per thread.
+    """
 
     def __init__(self, model, config=None):
-        """Bind a model and a (validated) configuration."""
+        """Bind a model and a (validated) configuration, and compile the hot path."""
         self.model = model
         self.config = (config or FilterConfig()).validate()
         self.cone_model = make_cone_model(self.config.barrier, self.config.robot_radius,
                                           self.config.inflation_segments)
         self.solver = make_solver(self.config.solver)
         self._weights = np.ones(model.input_dim)
-        self._lower_column = model.input_lower[:, None]
-        self._upper_column = model.input_upper[:, None]
+        self._lower = np.ascontiguousarray(model.input_lower, dtype=np.float64)
+        self._upper = np.ascontiguousarray(model.input_upper, dtype=np.float64)
+        # Plain floats and bools, so every filter shares one compiled version of each kernel.
+        self._row_settings = (float(self.config.margin), float(self.config.gamma),
+                              self._lower, self._upper, bool(self.config.prune))
+        self._epsilon = float(self.config.velocity_epsilon)
         self._cache_key = None
         self._cache = None
+        self.warm_up()
+
+    def warm_up(self):
+        """Run the hot path once on a made-up scene, so its kernels compile (or load) now.
+
+        Numba compiles a kernel on its first call (seconds without the on-disk cache,
+        milliseconds with it); doing that here keeps it out of the first real step.
+        """
+        square = np.array([[2.0, -0.5], [3.0, -0.5], [3.0, 0.5], [2.0, 0.5]])
+        scene = ObstacleSet.from_obstacles([
+            Obstacle(polygon=square, velocity=np.array([-0.1, 0.0, 0.0]), z_min=0.0, z_max=2.0),
+            Obstacle(polygon=square + [-1.0, 2.0])])
+        state = np.zeros(self.model.state_dim)
+        self.step(state, scene, (self._lower + self._upper) / 2, 0.01)
+        self.evaluate(state, scene)
+        # And the QP front end's shortcut, which a step the fast path answers skips.
+        self.solver.solve(self._upper + 1.0, self._weights, np.eye(self.model.input_dim)[:1],
+                          self._lower[:1], self._lower, self._upper)
 
     def step(self, state, obstacles, u_nom, obstacle_age=0.0):
         """Return (u_safe, FilterInfo); obstacles are extrapolated by ``obstacle_age`` s."""
         start = time.perf_counter()
         state = np.asarray(state, dtype=float)
-        u_nom = np.asarray(u_nom, dtype=float)
+        u_nom = np.ascontiguousarray(u_nom, dtype=float)
+        if state.shape != (self.model.state_dim,) or u_nom.shape != (self.model.input_dim,):
+            raise ValueError(f'{self.model.name}: state must have shape '
+                             f'({self.model.state_dim},) and u_nom ({self.model.input_dim},), '
+                             f'got {state.shape} and {u_nom.shape}')
         prepared = self._prepare(obstacles)
-        if not (np.isfinite(state).all() and np.isfinite(u_nom).all()
-                and np.isfinite(obstacle_age) and prepared.finite):
+        if not (_all_finite(state) and _all_finite(u_nom) and math.isfinite(obstacle_age)
+                and prepared.finite):
             return self._brake(state, FilterStatus.INVALID_INPUT, start,
                                'non-finite state, nominal input or obstacle')
         if not prepared.count:
@@ -213,52 +325,42 @@ class SafetyFilter:
                 status=FilterStatus.OK, solve_time_s=time.perf_counter() - start)
         ref = self.model.reference(state)
         evaluation = self._evaluate(prepared, ref, obstacle_age)
-        terms, inside, cones = evaluation.terms, evaluation.inside, evaluation.cones
-        config = self.config
+        terms = evaluation.terms
+        h = np.empty(prepared.count)
+        count, inside = _assemble_rows(terms.h, terms.lf_h, terms.lg_h, evaluation.usable,
+                                       *self._row_settings, prepared.rows_a, prepared.rows_b,
+                                       prepared.index, h)
         u_ref, status, message = u_nom, FilterStatus.OK, ''
-        if inside.any():
+        if inside:
             u_ref = self._escape_input(ref, evaluation.escape_direction())
             status = FilterStatus.ESCAPE
-            message = (f'reference point inside {int(inside.sum())} (inflated) obstacle '
-                       'part(s); escaping along the outward direction')
-        rows_b = config.margin - terms.lf_h - config.gamma * terms.h
-        needed = ~inside
-        if config.prune:
-            worst = np.minimum(terms.lg_h * self._lower_column,
-                               terms.lg_h * self._upper_column).sum(axis=0)
-            needed &= worst < rows_b
-        index = np.flatnonzero(needed)
-        # Unit-norm rows: the same feasible set, but a well-scaled QP (row norms span
-        # 1e1..1e4 for the quadrotor) and a slack measured in input units.
-        rows_a = terms.lg_h[:, index]
-        scale = 1.0 / np.maximum(np.sqrt((rows_a * rows_a).sum(axis=0)), 1e-12)
-        rows_b = rows_b[index] * scale
-        rows_a = np.ascontiguousarray((rows_a * scale).T)
-        lower, upper = self.model.input_lower, self.model.input_upper
-        result = self.solver.solve(u_ref, self._weights, rows_a, rows_b, lower, upper)
-        slack = 0.0
-        u = result.x
+            message = (f'reference point inside {inside} (inflated) obstacle part(s); '
+                       'escaping along the outward direction')
+        rows_a, rows_b = prepared.rows_a[:count], prepared.rows_b[:count]
+        result = self.solver.solve_checked(u_ref, self._weights, rows_a, rows_b, self._lower,
+                                           self._upper)
+        u, slack = result.x, 0.0
         if result.status != QPStatus.OPTIMAL:
             u, slack, slack_result = solve_with_shared_slack(
-                self.solver, u_ref, self._weights, rows_a, rows_b, lower, upper,
-                config.slack_weight, plain=result)
+                self.solver, u_ref, self._weights, rows_a, rows_b, self._lower, self._upper,
+                self.config.slack_weight, plain=result)
             if slack_result.status != QPStatus.OPTIMAL:
-                return self._brake(state, FilterStatus.BRAKE, start,
-                                   'QP and slack QP failed', terms.h, inside, cones)
+                return self._brake(state, FilterStatus.BRAKE, start, 'QP and slack QP failed',
+                                   h, evaluation.cones)
             if status == FilterStatus.OK:
                 status = FilterStatus.SLACK
-        residual = rows_a @ u - rows_b
-        h = np.where(inside, np.nan, terms.h)
+        residual = prepared.residual[:count]
+        row_residuals(rows_a, u, rows_b, residual)
+        active = prepared.index[:count][residual <= ACTIVE_TOLERANCE + slack]
         return u, FilterInfo(
-            status=status, h=h, active=index[residual <= ACTIVE_TOLERANCE + slack],
-            solve_time_s=time.perf_counter() - start, num_obstacles=len(h),
-            num_constraints=int(index.size), slack=float(slack), message=message,
-            cones=cones)
+            status=status, h=h, active=active, solve_time_s=time.perf_counter() - start,
+            num_obstacles=prepared.count, num_constraints=count, slack=float(slack),
+            message=message, cones=evaluation.cones)
 
-    def _brake(self, state, status, start, message, h=None, inside=None, cones=None):
+    def _brake(self, state, status, start, message, h=None, cones=None):
         """Return the braking input with a flagged status."""
         u = np.nan_to_num(self.model.braking_input(state), nan=0.0, posinf=0.0, neginf=0.0)
-        h = np.zeros(0) if h is None else np.where(inside, np.nan, h)
+        h = np.zeros(0) if h is None else h
         return self.model.clip_input(u), FilterInfo(
             status=status, h=h, solve_time_s=time.perf_counter() - start,
             num_obstacles=len(h), message=message, cones=cones)
@@ -279,23 +381,33 @@ class SafetyFilter:
             np.asarray(state, dtype=float)), obstacle_age)
 
     def _evaluate(self, prepared, ref, age):
-        """Evaluate cones and barrier terms in every plane, keep the smaller-||k|| plane."""
-        best = None
-        for plane, view in enumerate(prepared.views):
-            viewpoint, v_rel, a_drift, b_rel = _in_plane(view.axes, ref, prepared, age)
-            cones = self.cone_model.cones(view.prepared, viewpoint)
-            terms = barrier_terms(cones, v_rel, a_drift, b_rel, self.config.velocity_epsilon)
-            usable = cones.valid & view.enabled
-            candidate = Evaluation(
-                cones=cones, terms=terms, inside=~usable,
-                outward=_to_world(view.axes, viewpoint.reshape(2, -1) - view.centroids,
-                                  ref.position.size),
-                plane=np.full(usable.size, plane),
-                rank=np.where(usable, cones.k_norm, np.inf) if len(prepared.views) > 1
-                else None)
-            best = candidate if best is None else _select(candidate.rank < best.rank,
-                                                          best, candidate)
-        return best
+        """Evaluate cones and barrier terms in every plane; 3-D: pick the plane per part."""
+        seen = [self._view_terms(view, prepared, ref, age) for view in prepared.views]
+        viewpoints, cone_block, valid, term_block = seen[0]
+        vertical, usable = None, valid
+        if len(seen) > 1:
+            _, cone_vertical, valid_vertical, term_vertical = seen[1]
+            vertical, usable = choose_planes(valid, cone_block[2:4], valid_vertical,
+                                             cone_vertical[2:4], prepared.views[1],
+                                             ref.position, prepared.velocities, age)
+            cone_block = np.where(vertical, cone_vertical, cone_block)
+            valid = np.where(vertical, valid_vertical, valid)
+            term_block = np.where(vertical, term_vertical, term_block)
+        return Evaluation(cones=Cones.from_block(cone_block, valid),
+                          terms=BarrierTerms.from_block(term_block), usable=usable,
+                          vertical=vertical, viewpoints=viewpoints,
+                          centroids=prepared.views[0].centroids, dim=ref.position.size)
+
+    def _view_terms(self, view, prepared, ref, age):
+        """Return viewpoints, cone block, validity and barrier-term block of one plane."""
+        viewpoints = view.viewpoints(ref.position, prepared.velocities, age)
+        cone_block = np.empty((CONE_ROWS, prepared.count))
+        valid = np.empty(prepared.count, dtype=np.bool_)
+        self.cone_model.fill(view.prepared, viewpoints, cone_block, valid)
+        term_block = np.empty((2 + self.model.input_dim, prepared.count))
+        barrier_terms(Cones.from_block(cone_block, valid), view.projections,
+                      prepared.velocities, ref, self._epsilon, term_block)
+        return viewpoints, cone_block, valid, term_block
 
     def _prepare(self, obstacles):
         """Build (and cache per obstacle set) the planar views of the obstacles."""
@@ -304,72 +416,11 @@ class SafetyFilter:
         finite = obstacles.is_finite()
         if not finite:
             obstacles = ObstacleSet.empty()
-        batch = obstacles.footprints
-        views = [self._view(batch, None, np.ones(len(batch), dtype=bool))]
-        if self.model.position_dim == 3 and len(batch):
-            views.append(self._vertical_view(obstacles))
-        velocities = np.ascontiguousarray(obstacles.velocities.T)
+        dim, count = self.model.position_dim, len(obstacles)
         self._cache_key = obstacles if finite else None
-        self._cache = _Prepared(views=tuple(views), velocities=velocities,
-                                moving=bool(velocities.any()), finite=finite)
+        self._cache = _Prepared(
+            views=prepare_views(obstacles, self.cone_model, dim, self.config.robot_radius),
+            velocities=np.ascontiguousarray(obstacles.velocities[:, :dim]), finite=finite,
+            rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
+            index=np.empty(count, dtype=np.intp), residual=np.empty(count))
         return self._cache
-
-    def _view(self, batch, axes, enabled):
-        """Prepare one plane's geometry for the cone model."""
-        return _View(prepared=self.cone_model.prepare(batch), axes=axes,
-                     centroids=np.ascontiguousarray(batch.centroids().T), enabled=enabled)
-
-    def _vertical_view(self, obstacles):
-        """Project each prism onto the vertical plane through its footprint's thin axis."""
-        batch = obstacles.footprints
-        shadows, axes = [], []
-        enabled = np.isfinite(obstacles.z_ranges).all(axis=1)
-        for i in range(len(batch)):
-            footprint = batch.vertices[i, :batch.counts[i]]
-            axis = thin_axis(footprint)
-            z_min, z_max = obstacles.z_ranges[i] if enabled[i] else (-1.0, 1.0)
-            shadows.append(vertical_shadow(footprint, z_min, z_max, axis))
-            axes.append(axis)
-        return self._view(PolygonBatch.from_polygons(shadows), np.array(axes).T, enabled)
-
-
-def _in_plane(axes, ref, prepared, age):
-    """Return viewpoint, v_rel, a_drift (relative) and B_rel projected into one plane.
-
-    Obstacles are extrapolated by ``age`` seconds: seen from the obstacle frame the
-    viewpoint moves by -age c_dot.  Horizontal plane: the x, y rows.  Vertical plane
-    n: rows (axis_n . xy, z), constant per obstacle (the paper's constant projection).
-    """
-    position, velocities = ref.position, prepared.velocities
-    dim = position.size
-    if axes is None:
-        viewpoint = position[:2]
-        if prepared.moving and age:
-            viewpoint = viewpoint[:, None] - age * velocities[:2]
-        v_rel = velocities[:2] - ref.velocity[:2, None]
-        return viewpoint, v_rel, -ref.drift[:2, None], -ref.input_matrix[:2]
-    viewpoint_3d = position[:, None] - age * velocities[:dim]
-    v_rel_3d = velocities[:dim] - ref.velocity[:, None]
-    viewpoint = np.stack([dot2(axes, viewpoint_3d), viewpoint_3d[2]])
-    v_rel = np.stack([dot2(axes, v_rel_3d), v_rel_3d[2]])
-    a_drift = -np.stack([axes[0] * ref.drift[0] + axes[1] * ref.drift[1],
-                         np.full(axes.shape[1], ref.drift[2])])
-    b_horizontal = -(axes[0][:, None] * ref.input_matrix[0] + axes[1][:, None]
-                     * ref.input_matrix[1])
-    b_rel = np.stack([b_horizontal, np.broadcast_to(-ref.input_matrix[2],
-                                                    b_horizontal.shape)], axis=1)
-    return viewpoint, v_rel, a_drift, b_rel
-
-
-def _to_world(axes, planar, dim):
-    """Map planar (2, N) directions back to ``dim`` world axes."""
-    if axes is None:
-        return planar if dim == 2 else np.vstack([planar, np.zeros_like(planar[:1])])
-    return np.stack([axes[0] * planar[0], axes[1] * planar[0], planar[1]])
-
-
-def _select(take, a, b):
-    """Per obstacle (last axis) choose b where take else a, also inside dataclasses."""
-    if isinstance(a, np.ndarray):
-        return np.where(take, b, a)
-    return type(a)(**{k: _select(take, v, getattr(b, k)) for k, v in vars(a).items()})

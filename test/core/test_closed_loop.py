@@ -97,18 +97,27 @@ QUAD_WORLD = [
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize('barrier', ['polyc2bf_paper', 'polyc2bf_inflated'])
+@pytest.mark.parametrize('barrier', [
+    'polyc2bf_inflated',
+    pytest.param('polyc2bf_paper', marks=pytest.mark.xfail(strict=True, reason=(
+        "the paper's w/2 rule is no inflation: rounding the wall's end, the drone's disk "
+        'grazes its corner by 7 mm, as the unicycle grazes clutter (README)'))),
+])
 def test_quadrotor_avoids_wall_and_pillar(barrier):
-    """Full 12-state quadrotor dynamics, rotor-thrust inputs: no contact with wall or pillar."""
+    """Full 12-state quadrotor dynamics, rotor-thrust inputs: no contact with wall or pillar.
+
+    The drone flies around the wall's end to the goal behind it.
+    """
     model = make_model('quadrotor')
     filt = SafetyFilter(model, FilterConfig(barrier=barrier, robot_radius=0.1,
                                             control_period=0.005))
     start = np.zeros(12)
     start[2] = 1.0
-    run = rollout(model, filt, QuadrotorGoalController(), start, np.array([5.0, 1.5, 1.0]),
+    goal = np.array([5.0, 1.5, 1.0])
+    run = rollout(model, filt, QuadrotorGoalController(), start, goal,
                   ObstacleSet.from_obstacles(QUAD_WORLD), duration=10.0, physics_step=0.001)
     assert run.min_clearance > 0.0
     assert np.isfinite(run.states).all()
-    # Not vacuous: the drone closed in on the wall and the filter changed the thrusts.
-    assert run.states[:, 0].max() > 0.8
+    # Not vacuous: the drone got past the wall and the filter changed the thrusts.
+    assert np.linalg.norm(run.states[-1, :3] - goal) < 0.5
     assert np.abs(run.inputs - run.nominal).max() > 1e-3

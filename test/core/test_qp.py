@@ -176,6 +176,7 @@ def test_shared_slack_reuses_the_plain_result_given():
     problem = ([3.0, 1.0], [1.0, 1.0], [[1.0, 0.0], [-1.0, 0.0]], [1.0, 0.0],
                [-5.0, -5.0], [5.0, 5.0])
     solver = DaqpSolver()
+    solver.shortcut = False  # so that the relaxed problem, too, is solved by DAQP
     plain = solver.solve(*problem)
     assert plain.status is QPStatus.INFEASIBLE
     x, s, result = solve_with_shared_slack(solver, *problem, 100.0, plain=plain)

@@ -5,7 +5,7 @@ from hypothesis import given, HealthCheck, settings, strategies as st
 
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.qp import QPResult, QPStatus
+from polyc2bf_ros.core.qp import QPSolver, QPStatus
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
 from strategies import convex_polygons, random_state
 
@@ -128,14 +128,15 @@ def test_infeasible_rows_fall_back_to_shared_slack():
     np.testing.assert_allclose(u, 0.0, atol=1e-9)  # symmetric room: stay put
 
 
-class _FailingSolver:
-    """A QP backend that always fails, to drive the last fallback."""
+class _FailingSolver(QPSolver):
+    """A QP backend that always fails, to drive the last fallback (front end shortcut off)."""
 
     name = 'failing'
+    shortcut = False
 
-    def solve(self, x_ref, weights, A, b, lower, upper):
+    def _solve(self, x_ref, weights, A, b, lower, upper):
         """Fail."""
-        return QPResult(x=np.clip(x_ref, lower, upper), status=QPStatus.FAILED, iterations=0)
+        return x_ref, QPStatus.FAILED, 0
 
 
 def test_solver_failure_brakes_and_says_so():
@@ -185,3 +186,18 @@ def test_config_validation_names_the_field():
                          ('control_period', -1.0), ('robot_radius', np.nan)):
         with pytest.raises(ValueError, match=field):
             FilterConfig(**{field: value}).validate()
+
+
+@pytest.mark.parametrize('model_name', MODEL_NAMES)
+def test_wrong_shapes_are_refused_with_the_expected_shapes(model_name):
+    """A state or nominal input of the wrong length is a clear error, never read past."""
+    model = make_model(model_name)
+    filt = SafetyFilter(model, FilterConfig())
+    obstacles = ObstacleSet.from_obstacles([Obstacle(polygon=WALL)])
+    state, u_nom = np.zeros(model.state_dim), np.zeros(model.input_dim)
+    with pytest.raises(ValueError, match=rf'\({model.state_dim},\)'):
+        filt.step(state[:-1], obstacles, u_nom)
+    with pytest.raises(ValueError, match=rf'\({model.input_dim},\)'):
+        filt.step(state, obstacles, np.zeros(model.input_dim + 1))
+    with pytest.raises(ValueError, match='state must have shape'):
+        model.reference(np.zeros(model.state_dim + 2))

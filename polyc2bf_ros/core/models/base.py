@@ -27,14 +27,24 @@ def register_model(cls):
     return cls
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class ReferenceKinematics:
-    """Position, velocity and acceleration r_ddot = drift + input_matrix @ u of the point."""
+    """Position, velocity and acceleration r_ddot = drift + input_matrix @ u of the point.
+
+    ``position``, ``velocity`` and ``drift`` are (d,), ``input_matrix`` is (d, m), all
+    float64 and C-contiguous (the barrier kernel reads them directly).
+    """
 
     position: np.ndarray
     velocity: np.ndarray
     drift: np.ndarray
     input_matrix: np.ndarray
+
+    @classmethod
+    def empty(cls, dim, inputs):
+        """Return kinematics with uninitialised arrays, for a kernel to fill."""
+        return cls(position=np.empty(dim), velocity=np.empty(dim), drift=np.empty(dim),
+                   input_matrix=np.empty((dim, inputs)))
 
 
 class RobotModel(abc.ABC):
@@ -63,6 +73,14 @@ class RobotModel(abc.ABC):
     @abc.abstractmethod
     def braking_input(self, x):
         """Return the input that brings the robot to rest fastest (defined for any x)."""
+
+    def as_state(self, x):
+        """Return x as a C-contiguous float64 state vector; ValueError on a wrong shape."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        if x.shape != (self.state_dim,):
+            raise ValueError(f'{self.name} state must have shape ({self.state_dim},), '
+                             f'got {x.shape}')
+        return x
 
     def state_derivative(self, x, u):
         """Return x_dot = f(x) + g(x) u."""

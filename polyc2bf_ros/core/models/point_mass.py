@@ -24,6 +24,7 @@ class PointMass(RobotModel):
         self.input_lower = -self.input_upper
         self.brake_time_constant = float(brake_time_constant)
         self._g = np.vstack([np.zeros((d, d)), np.eye(d)])
+        self._drift, self._input_matrix = np.zeros(d), np.eye(d)  # shared: never written
 
     def f(self, x):
         """Return [v, 0]."""
@@ -37,9 +38,9 @@ class PointMass(RobotModel):
     def reference(self, x):
         """Return the point's own position and velocity, r_ddot = u."""
         d = self.position_dim
-        return ReferenceKinematics(position=np.asarray(x[:d], dtype=float),
-                                   velocity=np.asarray(x[d:], dtype=float),
-                                   drift=np.zeros(d), input_matrix=np.eye(d))
+        x = self.as_state(x)
+        return ReferenceKinematics(position=x[:d], velocity=x[d:], drift=self._drift,
+                                   input_matrix=self._input_matrix)
 
     def braking_input(self, x):
         """Decelerate each axis to rest at the acceleration limit."""

@@ -18,23 +18,28 @@ The guarded point is b = [0, 0, l] in the body frame (paper eq. 17)::
       B     = R e_z 1^T / m - R [b]x I^-1 M_tau
 
 (using w_dot x b = -[b]x w_dot); this is the paper's eq. 19 for the X layout.
+``reference`` evaluates these in one compiled kernel.
 """
+import math
+
 import numpy as np
 
 from polyc2bf_ros.core import crazyflie as cf
+from polyc2bf_ros.core.jit import kernel
 from polyc2bf_ros.core.models.base import ReferenceKinematics, register_model, RobotModel
 
 
+@kernel
 def rotation_matrix(roll, pitch, yaw):
     """Return R = Rz(yaw) Ry(pitch) Rx(roll), body to world."""
-    cr, sr = np.cos(roll), np.sin(roll)
-    cp, sp = np.cos(pitch), np.sin(pitch)
-    cy, sy = np.cos(yaw), np.sin(yaw)
-    return np.array([
-        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-        [-sp, cp * sr, cp * cr],
-    ])
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    rot = np.empty((3, 3))
+    rot[0, 0], rot[0, 1], rot[0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    rot[1, 0], rot[1, 1], rot[1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    rot[2, 0], rot[2, 1], rot[2, 2] = -sp, cp * sr, cp * cr
+    return rot
 
 
 def euler_rate_matrix(roll, pitch):
@@ -48,9 +53,40 @@ def euler_rate_matrix(roll, pitch):
     ])
 
 
-def skew(a):
-    """Return [a]x, the matrix with [a]x b = a x b."""
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+@kernel
+def _cross(a, b):
+    """Return a x b for 3-tuples."""
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+
+
+@kernel
+def _times(matrix, v):
+    """Return matrix @ v for a 3 x 3 array and a 3-tuple, as a tuple."""
+    return (matrix[0, 0] * v[0] + matrix[0, 1] * v[1] + matrix[0, 2] * v[2],
+            matrix[1, 0] * v[0] + matrix[1, 1] * v[1] + matrix[1, 2] * v[2],
+            matrix[2, 0] * v[0] + matrix[2, 1] * v[1] + matrix[2, 2] * v[2])
+
+
+@kernel
+def _body_point(x, b, inertia, inertia_inv, torque_map, mass, gravity, position, velocity,
+                drift, input_matrix):
+    """Write r, r_dot, drift and B of the body point b (module docstring) into the outputs."""
+    rot = rotation_matrix(x[6], x[7], x[8])
+    w, b = (x[9], x[10], x[11]), (b[0], b[1], b[2])
+    w_b = _cross(w, b)
+    gyro = _times(inertia_inv, _cross(w, _times(inertia, w)))
+    spin, tilt = _cross(w, w_b), _cross(b, gyro)
+    offset, offset_rate = _times(rot, b), _times(rot, w_b)
+    acceleration = _times(rot, (spin[0] + tilt[0], spin[1] + tilt[1], spin[2] + tilt[2]))
+    for i in range(3):
+        position[i] = x[i] + offset[i]
+        velocity[i] = x[3 + i] + offset_rate[i]
+        drift[i] = acceleration[i]
+    drift[2] -= gravity
+    for j in range(torque_map.shape[1]):
+        arm = _times(rot, _cross(b, (torque_map[0, j], torque_map[1, j], torque_map[2, j])))
+        for i in range(3):
+            input_matrix[i, j] = rot[i, 2] / mass - arm[i]
 
 
 @register_model
@@ -92,18 +128,11 @@ class Quadrotor(RobotModel):
 
     def reference(self, x):
         """Return the kinematics of the body point b = [0, 0, l]."""
-        rot = rotation_matrix(*x[6:9])
-        w = x[9:12]
-        b = self._b
-        gyro = np.cross(w, self.inertia @ w)
-        b_skew = skew(b)
-        return ReferenceKinematics(
-            position=x[0:3] + rot @ b,
-            velocity=x[3:6] + rot @ np.cross(w, b),
-            drift=self._gravity + rot @ (np.cross(w, np.cross(w, b))
-                                         + b_skew @ (self.inertia_inv @ gyro)),
-            input_matrix=(np.outer(rot[:, 2], np.ones(4)) / self.mass
-                          - rot @ b_skew @ self._torque_map))
+        ref = ReferenceKinematics.empty(3, 4)
+        _body_point(self.as_state(x), self._b, self.inertia, self.inertia_inv,
+                    self._torque_map, self.mass, cf.GRAVITY, ref.position, ref.velocity,
+                    ref.drift, ref.input_matrix)
+        return ref
 
     def braking_input(self, x):
         """Level the attitude and cancel vertical speed (a hover brake).

@@ -17,14 +17,31 @@ l = 0 the steering column of Lgh vanishes::
 
 which is minus the paper's v_rel_dot expression.
 """
+import math
+
 import numpy as np
 
+from polyc2bf_ros.core.jit import kernel
 from polyc2bf_ros.core.models.base import (
     damped_brake,
     ReferenceKinematics,
     register_model,
     RobotModel,
 )
+
+
+@kernel
+def _offset_point(x, offset, position, velocity, drift, input_matrix):
+    """Write r, r_dot, drift and B of the point ``offset`` ahead of the axle (module docstring)."""
+    px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
+    c, s = math.cos(theta), math.sin(theta)
+    position[0], position[1] = px + offset * c, py + offset * s
+    velocity[0] = v * c - offset * omega * s
+    velocity[1] = v * s + offset * omega * c
+    drift[0] = -v * omega * s - offset * omega ** 2 * c
+    drift[1] = v * omega * c - offset * omega ** 2 * s
+    input_matrix[0, 0], input_matrix[0, 1] = c, -offset * s
+    input_matrix[1, 0], input_matrix[1, 1] = s, offset * c
 
 
 @register_model
@@ -57,15 +74,10 @@ class Unicycle(RobotModel):
 
     def reference(self, x):
         """Return the kinematics of the point l ahead of the axle."""
-        px, py, theta, v, omega = x
-        c, s = np.cos(theta), np.sin(theta)
-        l_ = self.offset_l
-        return ReferenceKinematics(
-            position=np.array([px + l_ * c, py + l_ * s]),
-            velocity=np.array([v * c - l_ * omega * s, v * s + l_ * omega * c]),
-            drift=np.array([-v * omega * s - l_ * omega ** 2 * c,
-                            v * omega * c - l_ * omega ** 2 * s]),
-            input_matrix=np.array([[c, -l_ * s], [s, l_ * c]]))
+        ref = ReferenceKinematics.empty(2, 2)
+        _offset_point(self.as_state(x), self.offset_l, ref.position, ref.velocity, ref.drift,
+                      ref.input_matrix)
+        return ref
 
     def braking_input(self, x):
         """Decelerate v and omega to zero at the input limits."""
