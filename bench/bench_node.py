@@ -1,31 +1,45 @@
 """Node benchmark: end-to-end latency and sustained rate of ``safety_filter`` over real DDS.
 
-A driver process (this one) starts ``safety_filter`` as a subprocess with
-``trigger:=command`` and ``stamped:=true`` and, every 1/rate s (from a sender
-thread, on a fixed schedule), publishes an odometry message and a stamped
-nominal command whose ``header.frame_id`` carries a sequence number.  The
-node answers each command with a safe command carrying the same header, so
-every answer is matched to its input::
+Three processes per measurement, so the driver cannot be the bottleneck:
 
-    latency   = receipt time (driver) - input stamp      (same system clock)
-    answered  = matched answers / commands sent           (after warm-up)
-    rate      = answers per second over the measured window
-    rss       = VmRSS of the node process at the end (VmHWM = peak)
+- the **subject**: ``safety_filter`` (unicycle, ``stamped:=true``, 50 latched
+  obstacles), with ``trigger:=command`` (one step per command) or
+  ``trigger:=timer`` (steps at ``rate`` from its steady timer); or a bare
+  **echo** node that republishes each command (the floor: DDS plus Python),
+  spun by this package's ``LeanExecutor`` (``echo``) or by ``rclpy.spin``
+  (``echo_rclpy``);
+- the **sender** (this file, ``--role sender``): publishes odometry and a
+  stamped command, both serialized in advance, every ``1/rate`` s on a fixed
+  schedule; the command's ``header.frame_id`` is its sequence number and both
+  stamps are the send time on CLOCK_MONOTONIC;
+- the **receiver** (this process): takes the answers serialized and records,
+  per sequence number, ``latency = receipt time - stamp`` (same clock).
 
-Each record also carries the node's own step latency (from its diagnostics),
-the load average and the CPU time stolen by the hypervisor during the run, so
-numbers from a shared or virtualised machine can be read for what they are.
+Per run::
 
-The obstacles (octagons of radius 0.3 m, 3-8 m around the robot) are
-published once, latched.  Results: a table on stdout and
-``bench/results/node.json`` (DESIGN.md section 8).  DDS stays on loopback
-(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
+    answered  = commands answered at least once / commands sent (measured window)
+    achieved  = answers per second (trigger:=timer: one per tick, whatever it answers)
+    latency   = p50 / p99 / max over the first answer to each command
+    rss       = VmRSS (VmHWM = peak) of the subject at the end
+    cpu/cycle = subject CPU time (user + system) / commands sent
+    node step = median over the 1 s diagnostics windows of the node's own step p50 / p99
+
+plus the sender's lateness against its schedule, the load average and the CPU
+share stolen by the hypervisor.  With ``trigger:=timer`` at the command rate
+a command can be overtaken by the next before a tick answers it, so its
+``answered`` is below 1 by design; its latency includes the wait for the tick.
+Results: a table on stdout and ``bench/results/node.json`` (DESIGN.md
+section 8).  DDS stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
 
     .venv/bin/python bench/bench_node.py [--rate 1000] [--obstacles 50] [--duration 10]
+        [--subjects echo echo_rclpy command timer]
 """
 import argparse
 import json
 import os
+import signal
+import statistics
+import struct
 import subprocess
 import sys
 import tempfile
@@ -35,20 +49,27 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from bench_io import write_records
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point, TwistStamped
 from nav_msgs.msg import Odometry
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message, serialize_message
 from visualization_msgs.msg import Marker, MarkerArray
+
+from polyc2bf_ros.lean_executor import LeanExecutor
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / 'bench' / 'results' / 'node.json'
 NAMESPACE = '/bench_node'
-RELIABLE = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+COMMANDS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 ANSWERS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+SEQ_DIGITS = 10  # fixed-width sequence numbers keep the serialized layout fixed
+STAMP = struct.Struct('<iI')
+SUBJECTS = ('echo', 'echo_rclpy', 'command', 'timer')
 
 
 def obstacle_markers(count, seed=0):
@@ -74,6 +95,12 @@ def cpu_times():
     return fields[7], sum(fields)
 
 
+def process_cpu_s(pid):
+    """User + system CPU seconds used so far by ``pid``."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
 def rss_mb(pid):
     """``(VmRSS, VmHWM)`` of ``pid`` in MB."""
     fields = dict(line.split(':', 1) for line in Path(f'/proc/{pid}/status').read_text()
@@ -81,178 +108,277 @@ def rss_mb(pid):
     return tuple(int(fields[k].split()[0]) / 1024.0 for k in ('VmRSS', 'VmHWM'))
 
 
-def start_node(rate, log):
-    """Start ``safety_filter`` (unicycle, one step per stamped command), output to ``log``."""
-    args = [sys.executable, '-m', 'polyc2bf_ros.safety_filter_node', '--ros-args',
-            '-r', f'__ns:={NAMESPACE}', '-p', 'model:=unicycle', '-p', 'trigger:=command',
+def percentiles(values, qs):
+    """Percentiles of ``values`` (NaN each when empty)."""
+    return np.percentile(values, qs) if len(values) else np.full(len(qs), np.nan)
+
+
+# -- subjects ----------------------------------------------------------------------------------
+
+def subject_args(subject, rate):
+    """Command line of the process under test."""
+    if subject.startswith('echo'):
+        return [sys.executable, __file__, '--role', subject]
+    return [sys.executable, '-m', 'polyc2bf_ros.safety_filter_node', '--ros-args',
+            '-r', f'__ns:={NAMESPACE}', '-p', 'model:=unicycle', '-p', f'trigger:={subject}',
             '-p', 'stamped:=true', '-p', f'rate:={float(rate)}',
-            '-p', 'obstacles_timeout:=0.0', '-p', 'cmd_timeout:=0.5',
-            '--log-level', 'warn']
-    return subprocess.Popen(args, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
+            '-p', 'obstacles_timeout:=0.0', '-p', 'cmd_timeout:=0.5', '--log-level', 'warn']
 
 
-class Driver:
-    """Publishes odometry + stamped commands at a fixed rate and matches the answers."""
-
-    def __init__(self, node):
-        """Create publishers and the answer subscription on ``node``."""
-        self.node = node
-        self.odom_pub = node.create_publisher(Odometry, f'{NAMESPACE}/odom', RELIABLE)
-        self.cmd_pub = node.create_publisher(TwistStamped, f'{NAMESPACE}/cmd_vel_in', RELIABLE)
-        self.obstacles_pub = node.create_publisher(MarkerArray, f'{NAMESPACE}/obstacles', LATCHED)
-        self.sent = {}
-        self.latency = {}
-        node.create_subscription(TwistStamped, f'{NAMESPACE}/cmd_vel_out', self._on_answer,
-                                 ANSWERS)
-        self.step_latency = None
-        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
-        self.odom = Odometry()
-        self.odom.header.frame_id = 'odom'
-        self.odom.pose.pose.orientation.w = 1.0
-        self.odom.twist.twist.linear.x = 0.5
-        self.cmd = TwistStamped()
-        self.cmd.twist.linear.x = 1.0
-        self.clock = node.get_clock()
-
-    def _on_answer(self, msg):
-        now = self.clock.now().nanoseconds
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        seq = int(msg.header.frame_id) if msg.header.frame_id.isdigit() else -1
-        if seq in self.sent and seq not in self.latency:
-            self.latency[seq] = (now - stamp) * 1e-6
-
-    def _on_diagnostics(self, msg):
-        for status in msg.status:
-            if status.name.startswith(f'{NAMESPACE}/safety_filter'):
-                values = {kv.key: kv.value for kv in status.values}
-                self.step_latency = (float(values['latency_p50_ms']),
-                                     float(values['latency_p99_ms']))
-
-    def publish(self, seq):
-        """Publish odometry and command number ``seq``, both stamped now."""
-        stamp = self.clock.now().to_msg()
-        self.odom.header.stamp = stamp
-        self.odom_pub.publish(self.odom)
-        self.cmd.header.stamp = stamp
-        self.cmd.header.frame_id = str(seq)
-        self.sent[seq] = time.monotonic()
-        self.cmd_pub.publish(self.cmd)
-
-
-class Schedule:
-    """Sends command ``seq`` at ``start + seq / rate`` from its own thread (no bursts, no drift).
-
-    The driver's executor only receives, so its own cost cannot delay the sends.
-    """
-
-    def __init__(self, driver, rate, warmup, duration):
-        """Plan ``warmup`` s of unmeasured sends, then ``duration`` s of measured ones."""
-        self.driver, self.rate = driver, rate
-        self.warmup, self.end = round(warmup * rate), round((warmup + duration) * rate)
-        self.measured = (self.warmup, self.end)
-
-    def run(self):
-        """Publish every command on time (sleeping in between)."""
-        start = time.monotonic()
-        for seq in range(self.end):
-            delay = start + seq / self.rate - time.monotonic()
-            if delay > 0.0:
-                time.sleep(delay)
-            self.driver.publish(seq)
-
-
-def run(rate, obstacles, duration, warmup):
-    """Benchmark one (rate, obstacle count); return a flat result record."""
-    log = tempfile.TemporaryFile()
-    proc = start_node(rate, log)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    node = rclpy.create_node('bench_driver', context=context)
-    executor = SingleThreadedExecutor(context=context)
+def run_echo(lean):
+    """Bare echo: every command is republished as it came (plus an idle odometry subscription)."""
+    rclpy.init()
+    node = rclpy.create_node('safety_filter', namespace=NAMESPACE)
+    if lean:  # serialized in and out, like the filter node
+        publisher = node.create_publisher(TwistStamped, 'cmd_vel_out', COMMANDS)
+        node.create_subscription(Odometry, 'odom', lambda data: None, 1, raw=True)
+        node.create_subscription(TwistStamped, 'cmd_vel_in', publisher.publish, COMMANDS,
+                                 raw=True)
+        executor = LeanExecutor()
+    else:  # typed messages and rclpy's stock executor
+        publisher = node.create_publisher(TwistStamped, 'cmd_vel_out', COMMANDS)
+        node.create_subscription(Odometry, 'odom', lambda msg: None, 1)
+        node.create_subscription(TwistStamped, 'cmd_vel_in', publisher.publish, COMMANDS)
+        executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        driver = Driver(node)
-        pubs = (driver.odom_pub, driver.cmd_pub, driver.obstacles_pub)
-        deadline = time.monotonic() + 30.0
-        while not all(p.get_subscription_count() for p in pubs):
-            if proc.poll() is not None:
-                log.seek(0)
-                raise RuntimeError(f'safety_filter exited:\n{log.read().decode()}')
-            if time.monotonic() > deadline:
-                raise RuntimeError('safety_filter did not subscribe within 30 s')
-            executor.spin_once(timeout_sec=0.05)
-        driver.obstacles_pub.publish(obstacle_markers(obstacles))
-        schedule = Schedule(driver, rate, warmup, duration)
-        sender = threading.Thread(target=schedule.run)
-        steal_before, total_before = cpu_times()
-        sender.start()
-        while sender.is_alive():
-            executor.spin_once(timeout_sec=0.01)
-        drain = time.monotonic() + 0.2
-        while time.monotonic() < drain:
-            executor.spin_once(timeout_sec=0.01)
-        first_measured, last_measured = schedule.measured
-        steal_after, total_after = cpu_times()
-        measured = range(first_measured, last_measured)
-        latencies = np.array([driver.latency[s] for s in measured if s in driver.latency])
-        elapsed = driver.sent[last_measured - 1] - driver.sent[first_measured]
-        rss, rss_peak = rss_mb(proc.pid)
-        p50, p99 = np.percentile(latencies, (50, 99)) if latencies.size else (np.nan,) * 2
-        step = driver.step_latency or (float('nan'),) * 2
-        return {
-            'bench': 'node', 'rate_hz': int(rate) if float(rate).is_integer() else rate,
-            'obstacles': obstacles, 'model': 'unicycle',
-            'trigger': 'command', 'duration_s': duration,
-            'p50_ms': round(float(p50), 4), 'p99_ms': round(float(p99), 4),
-            'max_ms': round(float(latencies.max()), 4) if latencies.size else None,
-            'answered_frac': round(latencies.size / len(measured), 5),
-            'achieved_hz': round(latencies.size / elapsed, 1),
-            'sent_hz': round((len(measured) - 1) / elapsed, 1),
-            'rss_mb': round(rss, 1), 'rss_peak_mb': round(rss_peak, 1),
-            'node_step_p50_ms': step[0], 'node_step_p99_ms': step[1],
-            'cpus': os.cpu_count(), 'load_avg_1min': round(os.getloadavg()[0], 2),
-            'cpu_steal_frac': round((steal_after - steal_before)
-                                    / max(total_after - total_before, 1), 4),
-        }
-    finally:
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=context)
-        proc.terminate()
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    return 0
+
+
+# -- sender ------------------------------------------------------------------------------------
+
+def run_sender(rate, count):
+    """Publish ``count`` odometry + command pairs at ``rate`` Hz; print the lateness as JSON.
+
+    Prints ``ready`` once both subscriptions are matched and waits for a line on
+    stdin before sending, so the receiver controls the start.
+    """
+    rclpy.init()
+    node = rclpy.create_node('bench_sender')
+    odom_pub = node.create_publisher(Odometry, f'{NAMESPACE}/odom', COMMANDS)
+    cmd_pub = node.create_publisher(TwistStamped, f'{NAMESPACE}/cmd_vel_in', COMMANDS)
+    odom = Odometry()
+    odom.header.frame_id = 'odom'
+    odom.child_frame_id = 'base_link'
+    odom.pose.pose.orientation.w = 1.0
+    odom.twist.twist.linear.x = 0.5
+    cmd = TwistStamped()
+    cmd.header.frame_id = '0' * SEQ_DIGITS
+    cmd.twist.linear.x = 1.0
+    odom_bytes, cmd_bytes = serialize_message(odom), serialize_message(cmd)
+    seq_at = 16  # frame_id characters follow stamp (8 bytes) and length (4 bytes)
+    while not (odom_pub.get_subscription_count() and cmd_pub.get_subscription_count()):
+        time.sleep(0.05)
+    print('ready', flush=True)
+    sys.stdin.readline()
+    lateness = np.zeros(count)
+    start = time.monotonic()
+    for seq in range(count):
+        due = start + seq / rate
+        delay = due - time.monotonic()
+        if delay > 0.0:
+            time.sleep(delay)
+        sent = time.monotonic_ns()
+        stamp = STAMP.pack(sent // 1_000_000_000, sent % 1_000_000_000)
+        odom_pub.publish(odom_bytes[:4] + stamp + odom_bytes[12:])
+        cmd_pub.publish(cmd_bytes[:4] + stamp + cmd_bytes[12:seq_at]
+                        + f'{seq:0{SEQ_DIGITS}d}'.encode() + cmd_bytes[seq_at + SEQ_DIGITS:])
+        lateness[seq] = sent * 1e-9 - due
+    print(json.dumps({'lateness_p50_ms': 1e3 * float(np.median(lateness)),
+                      'lateness_p99_ms': 1e3 * float(np.percentile(lateness, 99)),
+                      'elapsed_s': time.monotonic() - start}), flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+# -- receiver ----------------------------------------------------------------------------------
+
+class Receiver:
+    """Records the latency of the first answer to each command and the diagnostics."""
+
+    def __init__(self, node, count):
+        """Subscribe (serialized) to the answers and to ``/diagnostics``."""
+        self.latency_ns = np.full(count, -1, dtype=np.int64)
+        self.answers = 0
+        self.diagnostics = []
+        self.answers_sub = node.create_subscription(
+            TwistStamped, f'{NAMESPACE}/cmd_vel_out', self._on_answer, ANSWERS, raw=True)
+        node.create_subscription(DiagnosticArray, '/diagnostics', self.diagnostics.append, 10,
+                                 raw=True)
+
+    def _on_answer(self, data):
+        now = time.monotonic_ns()
+        self.answers += 1
+        sec, nanosec = STAMP.unpack_from(data, 4)
+        digits = data[16:16 + SEQ_DIGITS]
+        if not digits.isdigit():
+            return
+        seq = int(digits)
+        if seq < len(self.latency_ns) and self.latency_ns[seq] < 0:
+            self.latency_ns[seq] = now - (sec * 1_000_000_000 + nanosec)
+
+    def node_values(self):
+        """Per diagnostics message: ``{key: value}`` of the safety filter's status."""
+        result = []
+        for data in self.diagnostics:
+            for status in deserialize_message(data, DiagnosticArray).status:
+                if status.name.startswith(f'{NAMESPACE}/safety_filter'):
+                    result.append({kv.key: kv.value for kv in status.values})
+        return result
+
+
+def wait_for(predicate, proc, log, what, timeout=30.0):
+    """Sleep-poll ``predicate`` until true; fail with the subject's output if it dies or hangs."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            log.seek(0)
+            raise RuntimeError(f'{what} failed:\n{log.read().decode(errors="replace")}')
+        time.sleep(0.05)
+
+
+def stop(proc):
+    """SIGINT, then SIGKILL if it lingers."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
         try:
             proc.wait(5.0)
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def run(subject, rate, obstacles, duration, warmup):
+    """Benchmark one subject at ``rate`` Hz; return a flat result record."""
+    first, count = round(warmup * rate), round((warmup + duration) * rate)
+    log = tempfile.TemporaryFile()
+    proc = subprocess.Popen(subject_args(subject, rate), cwd=REPO, stdout=log,
+                            stderr=subprocess.STDOUT)
+    sender = None
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node('bench_receiver', context=context)
+    executor = LeanExecutor(context=context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    try:
+        receiver = Receiver(node, count)
+        obstacles_pub = node.create_publisher(MarkerArray, f'{NAMESPACE}/obstacles', LATCHED)
+        obstacles_pub.publish(obstacle_markers(obstacles))
+        spinner.start()
+        wait_for(lambda: receiver.answers_sub.get_publisher_count() > 0, proc, log,
+                 f'{subject} start')
+        if not subject.startswith('echo'):
+            wait_for(lambda: obstacles_pub.get_subscription_count() > 0, proc, log,
+                     'obstacles subscription')
+        sender = subprocess.Popen(
+            [sys.executable, __file__, '--role', 'sender', '--rate', str(rate),
+             '--count', str(count)], cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            text=True)
+        if sender.stdout.readline().strip() != 'ready':
+            raise RuntimeError('sender failed to start')
+        sender.stdin.write('go\n')
+        sender.stdin.flush()
+        time.sleep(warmup)
+        steal_before, total_before = cpu_times()
+        cpu_before, answers_before = process_cpu_s(proc.pid), receiver.answers
+        started = time.monotonic()
+        summary = json.loads(sender.stdout.readline())
+        elapsed = time.monotonic() - started
+        cpu_after, answers_after = process_cpu_s(proc.pid), receiver.answers
+        steal_after, total_after = cpu_times()
+        time.sleep(0.3)  # drain answers in flight
+        rss, rss_peak = rss_mb(proc.pid)
+        load = os.getloadavg()[0]
+    finally:
+        executor.shutdown()
+        spinner.join(2.0)
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        for p in (sender, proc):
+            if p is not None:
+                stop(p)
         log.close()
+    latency_ms = receiver.latency_ns[first:count] * 1e-6
+    answered = latency_ms[latency_ms >= 0.0]
+    p50, p99 = percentiles(answered, (50, 99))
+    windows = receiver.node_values()[1:]  # the first window includes start-up
+    step_p50 = [float(v['latency_p50_ms']) for v in windows if v['latency_p50_ms'] != 'nan']
+    step_p99 = [float(v['latency_p99_ms']) for v in windows if v['latency_p99_ms'] != 'nan']
+    return {
+        'bench': 'node', 'subject': subject, 'rate_hz': int(rate) if rate.is_integer() else rate,
+        'obstacles': 0 if subject.startswith('echo') else obstacles, 'model': 'unicycle',
+        'trigger': subject if not subject.startswith('echo') else None,
+        'duration_s': duration,
+        'p50_ms': round(float(p50), 4), 'p99_ms': round(float(p99), 4),
+        'max_ms': round(float(answered.max()), 4) if answered.size else None,
+        'answered_frac': round(answered.size / (count - first), 5),
+        'achieved_hz': round((answers_after - answers_before) / elapsed, 1),
+        'rss_mb': round(rss, 1), 'rss_peak_mb': round(rss_peak, 1),
+        'cpu_ms_per_cycle': round(1e3 * (cpu_after - cpu_before) / (elapsed * rate), 4),
+        'node_step_p50_ms': statistics.median(step_p50) if step_p50 else None,
+        'node_step_p99_ms': statistics.median(step_p99) if step_p99 else None,
+        'obstacles_in_use': int(windows[-1]['obstacles_in_use']) if windows else None,
+        # Stops instead of answers (stale or invalid input): 0 in a healthy run.
+        'node_stops': int(windows[-1]['steps_stale_stop']) + int(
+            windows[-1]['steps_invalid_input']) if windows else None,
+        'sender_late_p50_ms': round(summary['lateness_p50_ms'], 4),
+        'sender_late_p99_ms': round(summary['lateness_p99_ms'], 4),
+        'cpus': os.cpu_count(), 'load_avg_1min': round(load, 2),
+        'cpu_steal_frac': round((steal_after - steal_before)
+                                / max(total_after - total_before, 1), 4),
+    }
+
+
+def _cell(value, width, digits=3):
+    if value is None:
+        return f'{"-":>{width}}'
+    return f'{value:>{width}.{digits}f}' if isinstance(value, float) else f'{value:>{width}}'
+
+
+def print_table(records):
+    """One row per record."""
+    columns = (('subject', 'subject', 10), ('rate_hz', 'rate', 5), ('obstacles', 'obst', 4),
+               ('p50_ms', 'p50_ms', 7), ('p99_ms', 'p99_ms', 7), ('max_ms', 'max_ms', 7),
+               ('answered_frac', 'answered', 8), ('achieved_hz', 'ach_hz', 7),
+               ('rss_mb', 'rss_mb', 6), ('rss_peak_mb', 'hwm_mb', 6),
+               ('cpu_ms_per_cycle', 'cpu/cyc', 7), ('node_step_p50_ms', 'step50', 6),
+               ('node_step_p99_ms', 'step99', 6), ('sender_late_p99_ms', 'late99', 6),
+               ('load_avg_1min', 'load', 5), ('cpu_steal_frac', 'steal', 5))
+    print(' '.join(f'{title:>{width}}' for _, title, width in columns))
+    for r in records:
+        print(' '.join(_cell(r[key], width) for key, _, width in columns))
 
 
 def main(argv=None):
-    """Run the node benchmark for each ``--rate`` x ``--obstacles`` and write the JSON."""
+    """Run the node benchmark for each subject and rate; print the table and write the JSON."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    parser.add_argument('--role', choices=('bench', 'sender', 'echo', 'echo_rclpy'),
+                        default='bench', help=argparse.SUPPRESS)
+    parser.add_argument('--count', type=int, help=argparse.SUPPRESS)
     parser.add_argument('--rate', type=float, nargs='+', default=[1000.0], help='Hz')
-    parser.add_argument('--obstacles', type=int, nargs='+', default=[50])
+    parser.add_argument('--obstacles', type=int, default=50)
     parser.add_argument('--duration', type=float, default=10.0, help='measured seconds')
     parser.add_argument('--warmup', type=float, default=2.0, help='seconds before measuring')
-    parser.add_argument('--output', type=Path, default=RESULTS)
+    parser.add_argument('--subjects', nargs='+', choices=SUBJECTS, default=list(SUBJECTS))
+    parser.add_argument('--out', type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     # Above the test suite's usual domains (test/conftest.py), so parallel test runs
     # on the same machine do not share DDS discovery with the benchmark.
     os.environ.setdefault('ROS_DOMAIN_ID', str(95 + os.getpid() % 7))
-    records = [run(rate, count, args.duration, args.warmup)
-               for rate in args.rate for count in args.obstacles]
-    print(f'{"rate_hz":>8} {"obst":>5} {"p50_ms":>8} {"p99_ms":>8} {"max_ms":>8} '
-          f'{"answered":>9} {"achieved":>9} {"rss_mb":>7} {"step_p50":>9} {"step_p99":>9} '
-          f'{"steal":>6}')
-    for r in records:
-        print(f'{r["rate_hz"]:>8g} {r["obstacles"]:>5} {r["p50_ms"]:>8.3f} {r["p99_ms"]:>8.3f} '
-              f'{r["max_ms"]:>8.3f} {r["answered_frac"]:>9.4f} {r["achieved_hz"]:>9.1f} '
-              f'{r["rss_mb"]:>7.1f} {r["node_step_p50_ms"]:>9.3f} {r["node_step_p99_ms"]:>9.3f} '
-              f'{r["cpu_steal_frac"]:>6.3f}')
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(records, indent=2) + '\n')
-    print(f'wrote {args.output}')
+    if args.role == 'sender':
+        return run_sender(args.rate[0], args.count)
+    if args.role.startswith('echo'):
+        return run_echo(lean=args.role == 'echo')
+    records = [run(subject, rate, args.obstacles, args.duration, args.warmup)
+               for rate in args.rate for subject in args.subjects]
+    print_table(records)
+    write_records(records, args.out)
     return 0
 
 

@@ -12,7 +12,18 @@ the pose quaternion and ``(roll, pitch, yaw)`` its ZYX Euler angles
     quadrotor      [x, y, z, R twist.linear, roll, pitch, yaw, twist.angular]
 
 A non-unit quaternion is normalised; an all-zero one is read as identity (as
-RViz does).  Non-finite values are passed through so the caller can refuse them.
+RViz does).  Non-finite input is refused (``None`` / NaN), never normalised away.
+
+Commands.  ``core.command_filter`` works on command vectors; a Twist or Wrench
+carries them in its six numbers ``(linear|force xyz, angular|torque xyz)``::
+
+    unicycle       [v, omega]       = linear.x, angular.z
+    point_mass_2d  [vx, vy]         = linear.x, linear.y        (angular.z passed through)
+    point_mass_3d  [vx, vy, vz]     = linear.x, .y, .z          (angular.z passed through)
+    quadrotor      [T, tx, ty, tz]  = force.z, torque.x, .y, .z
+
+On the node's hot path odometry and commands stay serialized (CDR): see
+``read_odometry`` and ``SerializedCommand`` below.
 
 Markers -> obstacles (``apply_markers``).  Each marker becomes one or more
 polygons in its header frame plus a z range, after applying the marker pose
@@ -37,6 +48,7 @@ scale.z on lines), and otherwise an infinite extrusion (a wall).  The velocity r
 position is the pose, or the points' centroid when the pose is the identity.
 """
 import math
+import struct
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -44,7 +56,6 @@ from geometry_msgs.msg import Point, Vector3
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from polyc2bf_ros.core import crazyflie
 from polyc2bf_ros.core.geometry import convex_hull
 from polyc2bf_ros.core.obstacle_tracker import outline_polygon, POINT_TOLERANCE
 
@@ -63,125 +74,220 @@ def stamp_seconds(stamp):
     return stamp.sec + 1e-9 * stamp.nanosec
 
 
+# -- odometry -> state ------------------------------------------------------------------------
+
+def rotation(qx, qy, qz, qw):
+    """Row-major rotation matrix ``(r00, r01, ..., r22)`` of a quaternion, normalised.
+
+    An all-zero quaternion reads as identity.  Plain floats: this runs per
+    odometry message, where numpy's per-call overhead would dominate.
+    """
+    norm_sq = qx * qx + qy * qy + qz * qz + qw * qw
+    if norm_sq == 0.0:
+        return 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+    s = 2.0 / norm_sq
+    return (1.0 - s * (qy * qy + qz * qz), s * (qx * qy - qz * qw), s * (qx * qz + qy * qw),
+            s * (qx * qy + qz * qw), 1.0 - s * (qx * qx + qz * qz), s * (qy * qz - qx * qw),
+            s * (qx * qz - qy * qw), s * (qy * qz + qx * qw), 1.0 - s * (qx * qx + qy * qy))
+
+
 def quaternion_matrix(q):
     """Rotation matrix (3, 3) of Quaternion ``q``, normalised; all-zero reads as identity."""
-    x, y, z, w = q.x, q.y, q.z, q.w
-    norm_sq = x * x + y * y + z * z + w * w
-    if norm_sq == 0.0:
-        return np.eye(3)
-    s = 2.0 / norm_sq
-    return np.array([
-        [1.0 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
-        [s * (x * y + z * w), 1.0 - s * (x * x + z * z), s * (y * z - x * w)],
-        [s * (x * z - y * w), s * (y * z + x * w), 1.0 - s * (x * x + y * y)],
-    ])
+    return np.array(rotation(q.x, q.y, q.z, q.w)).reshape(3, 3)
 
 
-def _unicycle_state(pose, twist, rot):
-    return (pose.position.x, pose.position.y, math.atan2(rot[1, 0], rot[0, 0]),
-            twist.linear.x, twist.angular.z)
+def state_from_odometry(model_name, pose, twist):
+    """``(state tuple, yaw)`` of ``model_name`` from Odometry numbers; ``None`` if non-finite.
+
+    ``pose`` = (x, y, z, qx, qy, qz, qw) in the odometry frame, ``twist`` =
+    (vx, vy, vz, wx, wy, wz) in the body frame (the layout of the messages).
+    The yaw (of the body x axis in the odometry frame) rotates body-frame
+    velocity commands into the odometry frame.  Every input number is checked,
+    so a non-finite quaternion cannot hide behind the normalisation.
+    """
+    if not all(map(math.isfinite, pose)) or not all(map(math.isfinite, twist)):
+        return None
+    x, y, z, qx, qy, qz, qw = pose
+    vx, vy, vz, wx, wy, wz = twist
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation(qx, qy, qz, qw)
+    yaw = math.atan2(r10, r00)
+    if model_name == 'unicycle':
+        return (x, y, yaw, vx, wz), yaw
+    world_vx = r00 * vx + r01 * vy + r02 * vz
+    world_vy = r10 * vx + r11 * vy + r12 * vz
+    if model_name == 'point_mass_2d':
+        return (x, y, world_vx, world_vy), yaw
+    world_vz = r20 * vx + r21 * vy + r22 * vz
+    if model_name == 'point_mass_3d':
+        return (x, y, z, world_vx, world_vy, world_vz), yaw
+    roll = math.atan2(r21, r22)
+    pitch = math.asin(max(-1.0, min(1.0, -r20)))
+    return (x, y, z, world_vx, world_vy, world_vz, roll, pitch, yaw, wx, wy, wz), yaw
 
 
-def _world_velocity(twist, rot):
-    v = twist.linear
-    return rot @ (v.x, v.y, v.z)
-
-
-def _point_mass_2d_state(pose, twist, rot):
-    vx, vy, _ = _world_velocity(twist, rot)
-    return pose.position.x, pose.position.y, vx, vy
-
-
-def _point_mass_3d_state(pose, twist, rot):
-    p = pose.position
-    return (p.x, p.y, p.z, *_world_velocity(twist, rot))
-
-
-def _quadrotor_state(pose, twist, rot):
-    p, w = pose.position, twist.angular
-    roll = math.atan2(rot[2, 1], rot[2, 2])
-    pitch = math.asin(max(-1.0, min(1.0, -rot[2, 0])))
-    yaw = math.atan2(rot[1, 0], rot[0, 0])
-    return (p.x, p.y, p.z, *_world_velocity(twist, rot), roll, pitch, yaw, w.x, w.y, w.z)
-
-
-_STATE_FROM_ODOMETRY = {
-    'unicycle': _unicycle_state,
-    'point_mass_2d': _point_mass_2d_state,
-    'point_mass_3d': _point_mass_3d_state,
-    'quadrotor': _quadrotor_state,
-}
+def _vector(v):
+    return v.x, v.y, v.z
 
 
 def odometry_to_state(msg, model_name, out):
     """Fill ``out`` with the state of ``model_name`` from ``nav_msgs/Odometry``; return the yaw.
 
-    The yaw (of the body x axis in the odometry frame) rotates body-frame
-    velocity commands into the odometry frame.
+    Non-finite input fills ``out`` with NaN and returns NaN, for the caller to refuse.
     """
     pose, twist = msg.pose.pose, msg.twist.twist
-    rot = quaternion_matrix(pose.orientation)
-    out[:] = _STATE_FROM_ODOMETRY[model_name](pose, twist, rot)
-    return math.atan2(rot[1, 0], rot[0, 0])
+    q = pose.orientation
+    result = state_from_odometry(model_name, (*_vector(pose.position), q.x, q.y, q.z, q.w),
+                                 (*_vector(twist.linear), *_vector(twist.angular)))
+    if result is None:
+        out[:] = math.nan
+        return math.nan
+    out[:] = result[0]
+    return result[1]
 
 
-def twist_values(twist):
-    """All six numbers of a ``geometry_msgs/Twist`` (for finiteness checks)."""
-    lin, ang = twist.linear, twist.angular
-    return lin.x, lin.y, lin.z, ang.x, ang.y, ang.z
+# -- commands: the six numbers of a Twist or Wrench <-> the CommandFilter's vector -----------
+
+# Positions in (linear|force x, y, z, angular|torque x, y, z) of the command vector of each
+# model (core.command_filter), and of the numbers passed through from the nominal command:
+# point masses have no heading, so their nominal yaw rate passes unchanged (a holonomic base
+# turning in place does not move its centre).  Every other number of a safe command is 0.
+COMMAND_FIELDS = {
+    'unicycle': (0, 5),
+    'point_mass_2d': (0, 1),
+    'point_mass_3d': (0, 1, 2),
+    'quadrotor': (2, 3, 4, 5),
+}
+KEPT_FIELDS = {'point_mass_2d': (5,), 'point_mass_3d': (5,)}
 
 
-def twist_to_command(twist, model_name):
-    """Velocity command vector of ``model_name`` (see ``core.command_interface``)."""
-    if model_name == 'unicycle':
-        return twist.linear.x, twist.angular.z
-    if model_name == 'point_mass_2d':
-        return twist.linear.x, twist.linear.y
-    return twist.linear.x, twist.linear.y, twist.linear.z
+def command_from_values(values, model_name):
+    """Pick the command vector of ``model_name`` out of the six numbers of a Twist or Wrench."""
+    return tuple(values[i] for i in COMMAND_FIELDS[model_name])
 
 
-def fill_twist(out, model_name, command, yaw_rate):
-    """Write ``command`` into Twist ``out``; point masses get ``yaw_rate`` on angular.z.
+def six_values(msg):
+    """Return the six numbers of a Twist / TwistStamped or Wrench / WrenchStamped message."""
+    body = getattr(msg, 'twist', None) or getattr(msg, 'wrench', None) or msg
+    first, second = ((body.linear, body.angular) if hasattr(body, 'linear')
+                     else (body.force, body.torque))
+    return first.x, first.y, first.z, second.x, second.y, second.z
 
-    The point-mass models have no heading, so the nominal yaw rate passes
-    through unchanged (a holonomic base turning in place does not move its
-    centre).  Every other field is zero.
+
+def twist_to_command(msg, model_name):
+    """Command vector of ``model_name`` from a (stamped) Twist, or Wrench for the quadrotor."""
+    return command_from_values(six_values(msg), model_name)
+
+
+def values_from_command(command, model_name, nominal=None):
+    """Six numbers of the Twist/Wrench carrying ``command``; kept ones copied from ``nominal``."""
+    values = [0.0] * 6
+    if nominal is not None:
+        for i in KEPT_FIELDS.get(model_name, ()):
+            values[i] = nominal[i]
+    for i, value in zip(COMMAND_FIELDS[model_name], command):
+        values[i] = float(value)
+    return values
+
+
+def fill_twist(out, model_name, command, yaw_rate=0.0):
+    """Write ``command`` into Twist ``out``; point masses get ``yaw_rate`` on angular.z."""
+    values = values_from_command(command, model_name, (0.0,) * 5 + (float(yaw_rate),))
+    out.linear.x, out.linear.y, out.linear.z, out.angular.x, out.angular.y, out.angular.z = values
+
+
+# -- serialized messages (CDR) on the node's hot path -----------------------------------------
+#
+# rclpy turns every received message into Python objects field by field; for an Odometry
+# (two 36-double covariances) that costs more than the safety filter step.  The node takes
+# odometry and commands serialized and reads only the numbers it uses, and answers a command
+# by replacing the six numbers in a copy of its bytes, which copies the header for free.
+#
+# Layout (XCDR1, what ROS 2 rmw implementations publish): a 4-byte encapsulation header
+# (00 01 little endian, 00 00 big endian), then the fields, each aligned to its size counted
+# from the end of the encapsulation header.  std_msgs/Header = int32 sec, uint32 nanosec,
+# string frame_id (uint32 length including the NUL, bytes).
+
+class _Layout:
+    """Precompiled structs for one byte order."""
+
+    def __init__(self, order):
+        self.stamp = struct.Struct(order + 'iI')
+        self.length = struct.Struct(order + 'I')
+        self.pose = struct.Struct(order + '7d')
+        self.six = struct.Struct(order + '6d')
+
+
+_LAYOUTS = {b'\x00\x01': _Layout('<'), b'\x00\x00': _Layout('>')}
+_LITTLE = b'\x00\x01\x00\x00'
+
+
+def _layout(data):
+    layout = _LAYOUTS.get(data[:2])
+    if layout is None:
+        raise ValueError(f'unsupported CDR encapsulation {data[:2].hex()} (expected plain CDR)')
+    return layout
+
+
+def _aligned(offset, size):
+    """Absolute ``offset`` rounded up to ``size`` counted from the end of the 4-byte header."""
+    return offset + (-(offset - 4)) % size
+
+
+def _after_string(data, layout, offset):
+    """Offset just past the CDR string whose length field is at ``offset`` (4-aligned)."""
+    offset = _aligned(offset, 4)
+    return offset + 4 + layout.length.unpack_from(data, offset)[0]
+
+
+def _header(data, layout):
+    """``(stamp [s], frame_id bytes, offset after the header)`` of a serialized Header."""
+    sec, nanosec = layout.stamp.unpack_from(data, 4)
+    end = _after_string(data, layout, 12)
+    return sec + 1e-9 * nanosec, data[16:end - 1], end
+
+
+def read_odometry(data):
+    """``(stamp [s], frame_id bytes, pose (7,), twist (6,))`` of a serialized Odometry.
+
+    Raises ``ValueError`` for a malformed message.
     """
-    out.linear.x = float(command[0])
-    if model_name == 'unicycle':
-        out.linear.y = out.linear.z = 0.0
-        out.angular.z = float(command[1])
-    else:
-        out.linear.y = float(command[1])
-        out.linear.z = float(command[2]) if len(command) > 2 else 0.0
-        out.angular.z = float(yaw_rate)
-    out.angular.x = out.angular.y = 0.0
+    layout = _layout(data)
+    try:
+        stamp, frame, end = _header(data, layout)
+        pose_at = _aligned(_after_string(data, layout, end), 8)
+        pose = layout.pose.unpack_from(data, pose_at)
+        twist = layout.six.unpack_from(data, pose_at + 8 * (7 + 36))
+    except struct.error as exc:
+        raise ValueError(f'truncated Odometry: {exc}') from None
+    return stamp, frame, pose, twist
 
 
-def zero_twist(out):
-    """Set every field of Twist ``out`` to zero (the stop command)."""
-    fill_twist(out, 'unicycle', (0.0, 0.0), 0.0)
+class SerializedCommand:
+    """A received serialized Twist, TwistStamped or WrenchStamped and its six numbers."""
 
+    __slots__ = ('data', 'layout', 'at', 'values', 'stamp', 'finite')
 
-def wrench_values(wrench):
-    """All six numbers of a ``geometry_msgs/Wrench``."""
-    f, t = wrench.force, wrench.torque
-    return f.x, f.y, f.z, t.x, t.y, t.z
+    def __init__(self, data, stamped):
+        """Parse ``data``; ``stamped``: it starts with a Header.  ``ValueError`` if malformed."""
+        self.data = data
+        self.layout = _layout(data)
+        self.stamp = 0.0
+        self.at = 4
+        try:
+            if stamped:
+                self.stamp, _, end = _header(data, self.layout)
+                self.at = _aligned(end, 8)
+            self.values = self.layout.six.unpack_from(data, self.at)
+        except struct.error as exc:
+            raise ValueError(f'truncated command: {exc}') from None
+        self.finite = all(map(math.isfinite, self.values))
 
-
-def wrench_to_thrusts(wrench):
-    """Rotor thrusts (4,) from collective thrust ``force.z`` and body ``torque``: f = M^-1 w."""
-    t = wrench.torque
-    return crazyflie.thrusts_from_wrench((wrench.force.z, t.x, t.y, t.z))
-
-
-def fill_wrench(out, thrusts):
-    """Write the wrench ``[T, tau] = M f`` of rotor thrusts ``f`` into Wrench ``out``."""
-    thrust, tx, ty, tz = (float(v) for v in crazyflie.wrench_from_thrusts(thrusts))
-    out.force.x = out.force.y = 0.0
-    out.force.z = thrust
-    out.torque.x, out.torque.y, out.torque.z = tx, ty, tz
-
+    def replaced(self, values, stamp=None):
+        """Return a copy of the bytes with the six numbers (and the stamp (sec, nanosec)) set."""
+        at, layout = self.at, self.layout
+        head = self.data[:at] if stamp is None else (
+            self.data[:4] + layout.stamp.pack(*stamp) + self.data[12:at])
+        return head + layout.six.pack(*values) + self.data[at + 48:]
 
 def _points(points):
     return np.array([(p.x, p.y, p.z) for p in points], dtype=float).reshape(-1, 3)

@@ -14,13 +14,19 @@ with ``trigger:=command``)::
 
     stale odom / command / obstacles (steady clock)  -> stop
     NaN/Inf in odometry, command or obstacles        -> stop (brake)
-    otherwise  u_nom = (v_cmd - v) / tau   (velocity models; thrusts = M^-1 w for the quadrotor)
-               u_safe = SafetyFilter.step(state, obstacles, u_nom, obstacle_age)
-               v_safe = v + u_safe T                  (T = 1/rate)
+    otherwise  safe command = CommandFilter.filter(state, yaw, nominal command, obstacles, age)
 
-A stop is a zero twist, or the model's braking (hover) input for the
-quadrotor.  Nothing is published before the first nominal command; after it,
-every step publishes.
+``core.command_filter`` is the one decision path (shared with bag replay and
+the evaluation): velocity models ``u_nom = (Rz(yaw) v_cmd - v) / tau``,
+``v_safe = Rz(yaw)^T (v + u_safe T)`` with ``T = 1/rate``; the quadrotor mixes
+the wrench into rotor thrusts and back.  A stop is a zero twist, or the
+model's braking (hover) wrench.  Nothing is published before the first
+nominal command; after it, every step publishes.
+
+Hot path: odometry and commands are taken serialized and only the numbers
+used are read (``conversions``, CDR section); the answer is a copy of the
+command's bytes with its six numbers replaced, so its header is the input's.
+Diagnostics and markers are built on their own slow timers.
 """
 import dataclasses
 import inspect
@@ -45,11 +51,12 @@ from std_srvs.srv import SetBool
 from visualization_msgs.msg import MarkerArray
 
 from polyc2bf_ros import conversions
-from polyc2bf_ros.core.command_interface import VELOCITY_MODELS, VelocityCommandInterface
+from polyc2bf_ros.core.command_filter import CommandFilter
+from polyc2bf_ros.core.command_interface import VELOCITY_MODELS
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles import ObstacleSet
-from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
+from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus
 from polyc2bf_ros.core.stats import LatencyRing, RateMeter
 from polyc2bf_ros.core.watchdog import Watchdog
 from polyc2bf_ros.node_main import run_node
@@ -101,20 +108,20 @@ _DIAGNOSTICS_PERIOD = 1.0
 _MARKERS_PERIOD = 0.1
 _COMMAND_WATCHDOG_PERIOD = 0.02
 _FALLBACKS = ('slack', 'brake', 'escape')
+_INFEASIBLE = ('slack', 'brake')
 
 
 @dataclasses.dataclass
 class _Settings:
     """Everything derived from the mutable parameters (built and validated together)."""
 
-    config: FilterConfig
-    interface: object
+    command_filter: CommandFilter
     timeouts: dict
     period: float
 
 
 class SafetyFilterNode(Node):
-    """ROS shell around ``core.SafetyFilter``: messages, watchdogs, diagnostics, markers."""
+    """ROS shell around ``core.CommandFilter``: messages, watchdogs, diagnostics, markers."""
 
     def __init__(self, **kwargs):
         """Declare parameters, build the model and filter, wire topics, timers and service."""
@@ -138,7 +145,9 @@ class SafetyFilterNode(Node):
         self._model = make_model(self._model_name, **{
             name: self.get_parameter(f'model_params.{name}').value
             for name in self._model_parameter_names})
-        self._velocity = self._model_name in VELOCITY_MODELS
+        velocity = self._model_name in VELOCITY_MODELS
+        # Command messages with a header: TwistStamped (stamped:=true) and WrenchStamped.
+        self._has_header = self._stamped or not velocity
 
         settings = self._settings(self._parameter_values())
         self._watchdog = Watchdog(settings.timeouts)
@@ -149,21 +158,22 @@ class SafetyFilterNode(Node):
         self._wrong_frame = {}
         self._t_ref = math.nan
 
-        # State, latest inputs and preallocated outputs.
+        # State (the last finite odometry) and the latest nominal command.
         self._state = np.zeros(self._model.state_dim)
-        self._scratch = np.zeros(self._model.state_dim)
         self._yaw = 0.0
         self._odom_stamp = 0.0
         self._odom_frame = None
+        self._odom_frame_raw = None
         self._odom_valid = False
-        self._have_state = False
         self._cmd = None
         self._cmd_valid = False
         self._enabled = True
         self._last_info = None
         self._counts = dict.fromkeys([s.value for s in FilterStatus] + ['stale_stop'], 0)
+        self._status_names = {s: s.value for s in FilterStatus}
         self._reported = dict(self._counts)
         self._invalid_messages = 0
+        self._last_invalid = 'none'
         self._min_h = math.inf
         self._latency = LatencyRing()
         steady = Clock(clock_type=_STEADY)
@@ -174,16 +184,18 @@ class SafetyFilterNode(Node):
         command_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
         latched_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        if self._velocity:
+        if velocity:
             command_type = TwistStamped if self._stamped else Twist
             command_in, command_out = 'cmd_vel_in', 'cmd_vel_out'
         else:
             command_type = WrenchStamped
             command_in, command_out = 'wrench_in', 'wrench_out'
-        self._out = command_type()
         self._publisher = self.create_publisher(command_type, command_out, command_qos)
-        self.create_subscription(Odometry, 'odom', self._on_odom, sensor_qos)
-        self.create_subscription(command_type, command_in, self._on_command, command_qos)
+        # Odometry before commands: an executor serving both in one wake-up steps on fresh
+        # odometry.  Both are taken serialized (raw), see the module docstring.
+        self.create_subscription(Odometry, 'odom', self._on_odom, sensor_qos, raw=True)
+        self.create_subscription(command_type, command_in, self._on_command, command_qos,
+                                 raw=True)
         self.create_subscription(MarkerArray, 'obstacles', self._on_obstacles, latched_qos)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 1)
@@ -196,7 +208,7 @@ class SafetyFilterNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._parameters_changed)
         self.get_logger().info(
-            f'model {self._model_name}, barrier {settings.config.barrier}, trigger {trigger} '
+            f'model {self._model_name}, barrier {self._barrier}, trigger {trigger} '
             f'at {1.0 / settings.period:g} Hz, listening on {command_in}')
 
     # -- parameters ------------------------------------------------------------------------
@@ -243,16 +255,13 @@ class SafetyFilterNode(Node):
             if 0.0 < timeout <= period:
                 raise ValueError(f'{name}_timeout ({timeout:g} s) must exceed the control '
                                  f'period 1/rate ({period:g} s)')
-        interface = None
-        if self._velocity:
-            interface = VelocityCommandInterface(
-                self._model_name, values['velocity_tau'] or period, period)
-        return _Settings(config, interface, timeouts, period)
+        command_filter = CommandFilter(self._model, config, values['velocity_tau'])
+        return _Settings(command_filter, timeouts, period)
 
     def _apply(self, settings):
         """Swap in a validated configuration."""
-        self._filter = SafetyFilter(self._model, settings.config)
-        self._interface = settings.interface
+        self._filter = settings.command_filter
+        self._barrier = self._filter.safety_filter.config.barrier
         self._period = settings.period
         for name, timeout in settings.timeouts.items():
             self._watchdog.set_timeout(name, timeout)
@@ -282,41 +291,49 @@ class SafetyFilterNode(Node):
 
     # -- inputs ------------------------------------------------------------------------------
 
-    def _on_odom(self, msg):
-        """Convert odometry to the model state; keep the last finite one."""
+    def _on_odom(self, data):
+        """Read serialized odometry into the model state; keep the last finite one."""
         self._watchdog.feed('odom', time.monotonic())
-        yaw = conversions.odometry_to_state(msg, self._model_name, self._scratch)
-        self._odom_valid = bool(np.isfinite(self._scratch).all()) and math.isfinite(yaw)
-        if not self._odom_valid:
-            self._bad_message('odometry')
+        try:
+            stamp, frame, pose, twist = conversions.read_odometry(data)
+        except ValueError as exc:
+            self._odom_valid = False
+            self._bad_message(f'odometry ({exc})')
             return
-        self._state[:] = self._scratch
-        self._yaw = yaw
-        self._have_state = True
-        self._odom_stamp = conversions.stamp_seconds(msg.header.stamp)
-        frame = msg.header.frame_id.lstrip('/')
-        if frame != self._odom_frame:
-            self._odom_frame = frame
+        result = conversions.state_from_odometry(self._model_name, pose, twist)
+        self._odom_valid = result is not None
+        if result is None:
+            self._bad_message('odometry (NaN/Inf)')
+            return
+        self._state[:], self._yaw = result
+        self._odom_stamp = stamp
+        if frame != self._odom_frame_raw:
+            self._odom_frame_raw = frame
+            self._odom_frame = frame.decode(errors='replace').lstrip('/')
             self._rebuild_obstacles()
-        if self._waiting_for_odom and self._odom_stamp >= self._cmd_stamp:
+        if self._waiting_for_odom and stamp >= self._cmd_stamp:
             self._waiting_for_odom = False
             self._step(time.monotonic())
 
-    def _on_command(self, msg):
+    def _on_command(self, data):
         """Store the nominal command; with ``trigger:=command`` answer it right away."""
         now = time.monotonic()
         self._watchdog.feed('cmd', now)
-        self._cmd = msg
-        body = msg.wrench if not self._velocity else msg.twist if self._stamped else msg
-        values = (conversions.twist_values if self._velocity else conversions.wrench_values)(body)
-        self._cmd_valid = all(map(math.isfinite, values))
-        if not self._cmd_valid:
-            self._bad_message('nominal command')
-        if self._match_stamps and hasattr(msg, 'header'):
-            self._cmd_stamp = conversions.stamp_seconds(msg.header.stamp)
-            if self._cmd_stamp > self._odom_stamp:
-                self._waiting_for_odom = True  # answered by _on_odom with matching state
-                return
+        try:
+            cmd = conversions.SerializedCommand(data, self._has_header)
+        except ValueError as exc:
+            cmd = None  # malformed: the previous command's bytes carry the stop
+            self._bad_message(f'nominal command ({exc})')
+        self._cmd_valid = cmd is not None and cmd.finite
+        if cmd is not None:
+            self._cmd = cmd
+            if not cmd.finite:
+                self._bad_message('nominal command (NaN/Inf)')
+            if self._match_stamps and self._has_header:
+                self._cmd_stamp = cmd.stamp
+                if cmd.stamp > self._odom_stamp:
+                    self._waiting_for_odom = True  # answered by _on_odom with matching state
+                    return
         if self._per_command:
             self._step(now)
 
@@ -345,7 +362,8 @@ class SafetyFilterNode(Node):
 
     def _bad_message(self, what):
         self._invalid_messages += 1
-        self.get_logger().error(f'NaN/Inf in {what}: braking', throttle_duration_sec=1.0)
+        self._last_invalid = what
+        self.get_logger().error(f'invalid {what}: braking', throttle_duration_sec=1.0)
 
     def _on_enable(self, request, response):
         """``~/enable``: true filters, false passes nominal commands through."""
@@ -372,73 +390,62 @@ class SafetyFilterNode(Node):
 
     def _step(self, now):
         """Publish one safe command (or a stop); see the module docstring."""
-        if self._cmd is None:
+        cmd = self._cmd
+        if cmd is None:
             return
         start = time.perf_counter()
         if not self._enabled:
-            self._pass_through(now)
+            self._pass_through(cmd, now)
             return
         if self._watchdog.stale(now):
             self._counts['stale_stop'] += 1
-            self._publish_stop()
+            self._publish_stop(cmd)
             return
         if not (self._odom_valid and self._cmd_valid and not self._tracker.has_invalid
                 and not self._obstacle_error):
             self._counts['invalid_input'] += 1
-            self._publish_stop()
+            self._publish_stop(cmd)
             return
         age = 0.0
         if self._odom_stamp > 0.0 and self._t_ref > 0.0:
             age = min(max(self._odom_stamp - self._t_ref, 0.0), self._max_extrapolation)
-        if self._velocity:
-            body = self._cmd.twist if self._stamped else self._cmd
-            command = conversions.twist_to_command(body, self._model_name)
-            u_nom = self._interface.nominal_input(self._state, command, self._yaw)
-        else:
-            u_nom = conversions.wrench_to_thrusts(self._cmd.wrench)
-        u_safe, info = self._filter.step(self._state, self._obstacle_set, u_nom, age)
-        self._counts[info.status.value] += 1
+        model_name = self._model_name
+        safe, info = self._filter.filter(
+            self._state, self._yaw, conversions.command_from_values(cmd.values, model_name),
+            self._obstacle_set, age)
+        self._counts[self._status_names[info.status]] += 1
         self._last_info = info
-        if self._velocity:
-            out = self._out.twist if self._stamped else self._out
-            conversions.fill_twist(out, self._model_name, self._interface.safe_command(
-                self._state, u_safe, self._yaw), body.angular.z)
-        else:
-            conversions.fill_wrench(self._out.wrench, u_safe)
-        if self._stamped or not self._velocity:
-            self._out.header.stamp = self._cmd.header.stamp
-            self._out.header.frame_id = self._cmd.header.frame_id
-        self._publish(self._out)
-        self._min_h = min(self._min_h, info.min_h)
+        # A refused step returns the stop: nothing of the nominal command is kept then.
+        kept = cmd.values if info.status != FilterStatus.INVALID_INPUT else None
+        self._publish(cmd.replaced(conversions.values_from_command(safe, model_name, kept)))
+        if info.h.size:
+            self._min_h = min(self._min_h, float(np.fmin.reduce(info.h)))
         self._latency.add(time.perf_counter() - start)
 
-    def _publish(self, msg):
-        """Publish a command and count it for the achieved rate."""
-        self._publisher.publish(msg)
+    def _publish(self, data):
+        """Publish a serialized command and count it for the achieved rate."""
+        self._publisher.publish(data)
         self._rate_meter.tick()
 
-    def _pass_through(self, now):
+    def _pass_through(self, cmd, now):
         """Disabled: forward the nominal command as is; stop if it is stale or non-finite."""
         if self._watchdog.is_stale('cmd', now):
             self._counts['stale_stop'] += 1
-            self._publish_stop()
+            self._publish_stop(cmd)
         elif not self._cmd_valid:
             self._counts['invalid_input'] += 1
-            self._publish_stop()
+            self._publish_stop(cmd)
         else:
-            self._publish(self._cmd)
+            self._publish(cmd.data)
 
-    def _publish_stop(self):
-        """Zero twist, or the quadrotor's braking (hover) wrench from the last finite state."""
-        if self._velocity:
-            conversions.zero_twist(self._out.twist if self._stamped else self._out)
-        else:
-            state = self._state if self._have_state else np.zeros(self._model.state_dim)
-            conversions.fill_wrench(self._out.wrench, self._model.braking_input(state))
-        if self._stamped or not self._velocity:
-            self._out.header.frame_id = self._cmd.header.frame_id
-            self._out.header.stamp = self.get_clock().now().to_msg()
-        self._publish(self._out)
+    def _publish_stop(self, cmd):
+        """Zero twist, or the quadrotor's braking (hover) wrench from the last finite state.
+
+        Stamped stops carry the current time and the last command's frame.
+        """
+        values = conversions.values_from_command(self._filter.stop(self._state), self._model_name)
+        stamp = self.get_clock().now().seconds_nanoseconds() if self._has_header else None
+        self._publish(cmd.replaced(values, stamp))
 
     # -- observability ------------------------------------------------------------------------
 
@@ -454,7 +461,7 @@ class SafetyFilterNode(Node):
         values = {
             'enabled': str(self._enabled).lower(),
             'model': self._model_name,
-            'barrier': self._filter.config.barrier,
+            'barrier': self._barrier,
             'rate_target_hz': f'{1.0 / self._period:g}',
             'rate_achieved_hz': f'{self._rate_meter.rate(now):.1f}',
             'latency_p50_ms': f'{1e3 * p50:.3f}',
@@ -463,7 +470,10 @@ class SafetyFilterNode(Node):
             **{f'age_{name}_s': f'{self._watchdog.age(name, now):.3f}'
                for name in self._watchdog.names},
             **{f'steps_{name}': count for name, count in self._counts.items()},
+            'steps_infeasible': sum(self._counts[name] for name in _INFEASIBLE),
+            'steps_fallback': sum(self._counts[name] for name in _FALLBACKS),
             'invalid_messages': self._invalid_messages,
+            'last_invalid_message': self._last_invalid,
             'min_h': f'{self._min_h:.4g}',
             'obstacles_in_use': len(self._obstacle_set),
             'obstacles_tracked': len(self._tracker),

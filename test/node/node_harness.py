@@ -15,9 +15,11 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import rclpy
-from geometry_msgs.msg import Point, Twist
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Point, Twist, WrenchStamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -121,6 +123,25 @@ class Harness:
                 return True
             self.executor.spin_once(timeout_sec=0.005)
         return predicate()
+
+    def filter_io(self, proc, command_type=Twist, command_topic=None, odom_qos=RELIABLE):
+        """Wire the filter's usual inputs and outputs; wait until ``proc`` subscribed.
+
+        Returns a namespace with the publishers ``odom``, ``cmd`` and
+        ``obstacles`` (latched) and the collected lists ``out`` (safe commands)
+        and ``diagnostics``.  ``command_topic`` defaults to ``cmd_vel_in`` or
+        ``wrench_in`` by ``command_type``.
+        """
+        wrench = command_type is WrenchStamped
+        io = SimpleNamespace(
+            out=self.collect(command_type, 'wrench_out' if wrench else 'cmd_vel_out'),
+            diagnostics=self.collect(DiagnosticArray, '/diagnostics'),
+            odom=self.publisher(Odometry, 'odom', odom_qos),
+            cmd=self.publisher(command_type, command_topic or (
+                'wrench_in' if wrench else 'cmd_vel_in')),
+            obstacles=self.publisher(MarkerArray, 'obstacles', LATCHED))
+        assert self.wait_for_subscribers(io.odom, io.cmd, io.obstacles), node_log(proc)
+        return io
 
     def wait_for_subscribers(self, *publishers, timeout=15.0):
         """Wait until every publisher has a matched subscription."""

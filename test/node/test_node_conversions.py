@@ -1,9 +1,12 @@
-"""Message <-> numpy conversions (no DDS): odometry, commands, markers, diagnostics."""
+"""Message <-> numpy conversions (no DDS): odometry, commands, CDR, markers, diagnostics."""
 import math
+import struct
 
 import numpy as np
 import pytest
-from geometry_msgs.msg import Point, Twist, Wrench
+from geometry_msgs.msg import Point, Twist, TwistStamped, WrenchStamped
+from hypothesis import given, settings, strategies as st
+from rclpy.serialization import deserialize_message, serialize_message
 from visualization_msgs.msg import Marker, MarkerArray
 
 from node_harness import odometry, wall
@@ -65,24 +68,106 @@ def test_zero_quaternion_is_identity_and_nan_passes_through():
     assert math.isnan(_state(msg, 'unicycle', 5)[0][0])
 
 
-def test_commands_round_trip():
-    """Twist <-> command vectors per model; wrench <-> rotor thrusts through the mixer."""
-    msg = Twist()
-    msg.linear.x, msg.linear.y, msg.linear.z, msg.angular.z = 1.0, 2.0, 3.0, 0.4
-    assert conversions.twist_to_command(msg, 'unicycle') == (1.0, 0.4)
-    assert conversions.twist_to_command(msg, 'point_mass_2d') == (1.0, 2.0)
-    assert conversions.twist_to_command(msg, 'point_mass_3d') == (1.0, 2.0, 3.0)
+def test_command_vectors_in_twists_and_wrenches():
+    """Command vectors sit in the documented numbers; point masses keep the nominal yaw rate."""
+    values = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
+    assert conversions.command_from_values(values, 'unicycle') == (1.0, 6.0)
+    assert conversions.command_from_values(values, 'point_mass_3d') == (1.0, 2.0, 3.0)
+    assert conversions.command_from_values(values, 'quadrotor') == (3.0, 4.0, 5.0, 6.0)
+    assert conversions.values_from_command((0.1, 0.2), 'point_mass_2d', values) == [
+        0.1, 0.2, 0.0, 0.0, 0.0, 6.0]
+    assert conversions.values_from_command((0.1, 0.2), 'unicycle', values) == [
+        0.1, 0.0, 0.0, 0.0, 0.0, 0.2]
+    assert conversions.values_from_command((0.0, 0.0), 'point_mass_2d') == [0.0] * 6
+    assert conversions.twist_to_command(_six(TwistStamped, values), 'unicycle') == (1.0, 6.0)
+    assert conversions.twist_to_command(_six(Twist, values), 'point_mass_2d') == (1.0, 2.0)
+    assert conversions.twist_to_command(_six(WrenchStamped, values), 'quadrotor') == (
+        3.0, 4.0, 5.0, 6.0)
     out = Twist()
     conversions.fill_twist(out, 'point_mass_2d', (0.1, 0.2), yaw_rate=0.4)
     assert (out.linear.x, out.linear.y, out.linear.z, out.angular.z) == (0.1, 0.2, 0.0, 0.4)
-    conversions.zero_twist(out)
-    assert conversions.twist_values(out) == (0.0,) * 6
-    wrench = Wrench()
-    wrench.force.z, wrench.torque.x, wrench.torque.z = 0.3, 1e-4, -2e-5
-    again = Wrench()
-    conversions.fill_wrench(again, conversions.wrench_to_thrusts(wrench))
-    np.testing.assert_allclose(conversions.wrench_values(again), conversions.wrench_values(wrench),
-                               atol=1e-12)
+
+
+_FRAMES = st.text(alphabet='abc/_0123456789', max_size=17)
+_NUMBERS = st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64),
+                    min_size=6, max_size=6)
+
+
+def _six(msg_type, values):
+    msg = msg_type()
+    body = msg.twist if msg_type is TwistStamped else msg.wrench if msg_type is WrenchStamped \
+        else msg
+    first, second = (body.linear, body.angular) if msg_type is not WrenchStamped else (
+        body.force, body.torque)
+    first.x, first.y, first.z, second.x, second.y, second.z = values
+    return msg
+
+
+@settings(max_examples=60, deadline=None)
+@given(msg_type=st.sampled_from([Twist, TwistStamped, WrenchStamped]), frame=_FRAMES,
+       values=_NUMBERS, new=_NUMBERS, sec=st.integers(0, 2**31 - 1),
+       nanosec=st.integers(0, 999_999_999))
+def test_serialized_commands_agree_with_rclpy(msg_type, frame, values, new, sec, nanosec):
+    """Reading and rewriting CDR bytes agrees with rclpy's (de)serialisation for any frame_id."""
+    msg = _six(msg_type, values)
+    stamped = msg_type is not Twist
+    if stamped:
+        msg.header.frame_id = frame
+        msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+    cmd = conversions.SerializedCommand(serialize_message(msg), stamped)
+    assert cmd.values == tuple(values) and cmd.finite
+    assert cmd.stamp == (sec + 1e-9 * nanosec if stamped else 0.0)
+    expected = _six(msg_type, new)
+    if stamped:
+        expected.header = msg.header
+    assert deserialize_message(cmd.replaced(new), msg_type) == expected
+    if stamped:
+        restamped = deserialize_message(cmd.replaced(new, (7, 8)), msg_type)
+        assert (restamped.header.stamp.sec, restamped.header.stamp.nanosec) == (7, 8)
+        assert restamped.header.frame_id == frame
+
+
+@settings(max_examples=60, deadline=None)
+@given(frame=_FRAMES, child=_FRAMES, pose=st.lists(st.floats(-1e3, 1e3), min_size=7,
+                                                    max_size=7), twist_values=_NUMBERS)
+def test_serialized_odometry_agrees_with_rclpy(frame, child, pose, twist_values):
+    """``read_odometry`` finds stamp, frame, pose and twist behind any two frame strings."""
+    msg = odometry(frame=frame)
+    msg.child_frame_id = child
+    msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 500_000_000
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    p.x, p.y, p.z, q.x, q.y, q.z, q.w = pose
+    t = msg.twist.twist
+    t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z = twist_values
+    msg.pose.covariance[:] = 7.0
+    stamp, frame_raw, read_pose, read_twist = conversions.read_odometry(serialize_message(msg))
+    assert (stamp, frame_raw.decode()) == (12.5, frame)
+    assert read_pose == tuple(pose) and read_twist == tuple(twist_values)
+
+
+def test_big_endian_and_malformed_bytes():
+    """Big-endian CDR reads the same; a foreign encapsulation or truncation is a ValueError."""
+    values = (1.0, -2.0, 3.0, 0.0, 0.5, -0.25)
+    cmd = conversions.SerializedCommand(b'\x00\x00\x00\x00' + struct.pack('>6d', *values),
+                                        stamped=False)
+    assert cmd.values == values
+    assert deserialize_message(b'\x00\x01\x00\x00' + struct.pack('<6d', *values), Twist) == \
+        _six(Twist, values)
+    data = serialize_message(_six(TwistStamped, values))
+    with pytest.raises(ValueError, match='encapsulation'):
+        conversions.SerializedCommand(b'\x00\x07' + data[2:], stamped=True)
+    with pytest.raises(ValueError, match='truncated'):
+        conversions.SerializedCommand(data[:30], stamped=True)
+    with pytest.raises(ValueError, match='truncated'):
+        conversions.read_odometry(serialize_message(odometry())[:100])
+
+
+def test_non_finite_odometry_is_refused_even_inside_the_quaternion():
+    """An infinite quaternion component would normalise to identity: it is refused instead."""
+    pose = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, math.inf)
+    assert conversions.state_from_odometry('unicycle', pose, (0.0,) * 6) is None
+    assert conversions.state_from_odometry('quadrotor', (0.0,) * 7, (math.nan,) + (0.0,) * 5) \
+        is None
 
 
 def _solid(kind, position=(1.0, 2.0, 0.5), scale=(2.0, 1.0, 1.0), yaw=0.0):

@@ -2,14 +2,11 @@
 import math
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import Twist
-from nav_msgs.msg import Odometry
+from diagnostic_msgs.msg import DiagnosticStatus
 from visualization_msgs.msg import Marker, MarkerArray
 
 from node_harness import (
     Harness,
-    LATCHED,
     latest_status,
     markers,
     node_log,
@@ -23,8 +20,9 @@ RATE = 50.0
 FIELDS = ('enabled', 'model', 'barrier', 'rate_target_hz', 'rate_achieved_hz', 'latency_p50_ms',
           'latency_p99_ms', 'stale_inputs', 'age_odom_s', 'age_cmd_s', 'age_obstacles_s',
           'steps_ok', 'steps_slack', 'steps_brake', 'steps_escape', 'steps_invalid_input',
-          'steps_stale_stop', 'invalid_messages', 'min_h', 'obstacles_in_use',
-          'obstacles_tracked', 'obstacles_rejected')
+          'steps_stale_stop', 'steps_infeasible', 'steps_fallback', 'invalid_messages',
+          'last_invalid_message', 'min_h', 'obstacles_in_use', 'obstacles_tracked',
+          'obstacles_rejected')
 
 
 @pytest.mark.slow
@@ -36,19 +34,16 @@ def test_diagnostics_fields_follow_the_inputs_and_markers_show_the_cones():
     Odometry silent: WARN, stale_inputs 'odom', stale stops counted.
     """
     with running_filter(params={'model': 'unicycle', 'rate': RATE}) as proc, Harness() as h:
-        diagnostics = h.collect(DiagnosticArray, '/diagnostics')
         drawn = h.collect(MarkerArray, 'safety_filter/markers')
-        odom_pub = h.publisher(Odometry, 'odom')
-        cmd_pub = h.publisher(Twist, 'cmd_vel_in')
-        obstacles_pub = h.publisher(MarkerArray, 'obstacles', LATCHED)
-        assert h.wait_for_subscribers(odom_pub, cmd_pub, obstacles_pub), node_log(proc)
+        io = h.filter_io(proc)
+        diagnostics = io.diagnostics
         inputs = {'odom': True, 'obstacles': [wall([(2.0, -1.0), (2.0, 1.0)])]}
 
         def feed():
             if inputs['odom']:
-                odom_pub.publish(odometry(v=0.3))
-            cmd_pub.publish(twist(0.3))
-            obstacles_pub.publish(markers(*inputs['obstacles']))
+                io.odom.publish(odometry(v=0.3))
+            io.cmd.publish(twist(0.3))
+            io.obstacles.publish(markers(*inputs['obstacles']))
 
         def report(predicate):
             count = len(diagnostics)

@@ -1,14 +1,10 @@
 """``~/enable``: false passes the nominal command through (loudly), true filters again."""
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from geometry_msgs.msg import Twist
-from nav_msgs.msg import Odometry
+from diagnostic_msgs.msg import DiagnosticStatus
 from std_srvs.srv import SetBool
-from visualization_msgs.msg import MarkerArray
 
 from node_harness import (
     Harness,
-    LATCHED,
     latest_status,
     markers,
     node_log,
@@ -25,18 +21,14 @@ RATE = 50.0
 def test_enable_service_switches_between_pass_through_and_filtering():
     """A wall 2 m ahead cuts 0.8 m/s from rest to a creep; disabled, it passes (with a WARN)."""
     with running_filter(params={'model': 'unicycle', 'rate': RATE}) as proc, Harness() as h:
-        out = h.collect(Twist, 'cmd_vel_out')
-        diagnostics = h.collect(DiagnosticArray, '/diagnostics')
-        odom_pub = h.publisher(Odometry, 'odom')
-        cmd_pub = h.publisher(Twist, 'cmd_vel_in')
-        obstacles_pub = h.publisher(MarkerArray, 'obstacles', LATCHED)
-        assert h.wait_for_subscribers(odom_pub, cmd_pub, obstacles_pub), node_log(proc)
+        io = h.filter_io(proc)
+        out, diagnostics = io.out, io.diagnostics
         nominal = twist(0.8, 0.1)
 
         def feed():
-            odom_pub.publish(odometry())
-            cmd_pub.publish(nominal)
-            obstacles_pub.publish(markers(wall([(2.0, -2.0), (2.0, 2.0)])))
+            io.odom.publish(odometry())
+            io.cmd.publish(nominal)
+            io.obstacles.publish(markers(wall([(2.0, -2.0), (2.0, 2.0)])))
 
         def filtered():
             return bool(out) and 0.0 < out[-1][1].linear.x < 0.2

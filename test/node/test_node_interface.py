@@ -1,13 +1,27 @@
-"""Names, stamps and parameters: namespace + remap, header copy, refusals with reasons."""
+"""Names, stamps, QoS and parameters: remapping, header copy, late joiners, refusals."""
 import pytest
-from geometry_msgs.msg import TwistStamped
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import DescribeParameters, GetParameters, SetParameters
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
 
-from node_harness import Harness, LATCHED, markers, node_log, odometry, running_filter
+from node_harness import (
+    Harness,
+    LATCHED,
+    latest_status,
+    markers,
+    node_log,
+    odometry,
+    running_filter,
+    twist,
+    wall,
+)
+
+BEST_EFFORT = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
 
 NAMESPACE = '/robot7'
 RATE = 100.0
@@ -39,28 +53,75 @@ def _get(h, *names):
 def test_namespace_remap_and_header_copy(stamped_filter):
     """Input on /robot7/nominal_cmd -> output on /robot7/cmd_vel_out with the same header."""
     proc, h = stamped_filter
-    odom_pub = h.publisher(Odometry, 'odom')
-    cmd_pub = h.publisher(TwistStamped, 'nominal_cmd')
-    obstacles_pub = h.publisher(MarkerArray, 'obstacles', LATCHED)
-    out = h.collect(TwistStamped, 'cmd_vel_out')
-    assert h.wait_for_subscribers(odom_pub, cmd_pub, obstacles_pub), node_log(proc)
+    io = h.filter_io(proc, TwistStamped, 'nominal_cmd')
     nominal = TwistStamped()
     nominal.header.frame_id = 'base_link'
     nominal.header.stamp.sec, nominal.header.stamp.nanosec = 123, 456789
     nominal.twist.linear.x = 0.3
-    obstacles_pub.publish(markers())
+    io.obstacles.publish(markers())
 
     def feed():
-        odom_pub.publish(odometry(v=0.3))
-        cmd_pub.publish(nominal)
+        io.odom.publish(odometry(v=0.3))
+        io.cmd.publish(nominal)
 
     def answered():
-        return any(m.twist.linear.x > 0.2 for _, m in out)
+        return any(m.twist.linear.x > 0.2 for _, m in io.out)
 
     assert h.spin_until(answered, 15.0, feed, 0.01), node_log(proc)
-    answer = next(m for _, m in out if m.twist.linear.x > 0.2)
+    answer = next(m for _, m in io.out if m.twist.linear.x > 0.2)
     assert answer.header == nominal.header
     assert answer.twist.linear.x == pytest.approx(0.3)
+
+
+@pytest.mark.slow
+def test_best_effort_odometry_is_accepted(stamped_filter):
+    """Odometry from a best-effort publisher keeps the filter answering (not stopping).
+
+    With trigger:=command a stale odometry answers with a stop (0 m/s); a fresh
+    one returns the reachable nominal 0.25 m/s unchanged.
+    """
+    proc, h = stamped_filter
+    io = h.filter_io(proc, TwistStamped, 'nominal_cmd', odom_qos=BEST_EFFORT)
+    out = io.out
+    io.obstacles.publish(markers())
+    nominal = TwistStamped()
+    nominal.header.frame_id = 'best_effort'
+    nominal.twist.linear.x = 0.25
+
+    def feed():
+        io.odom.publish(odometry(v=0.25))
+        io.cmd.publish(nominal)
+
+    def answered():
+        return any(m.header.frame_id == 'best_effort' and abs(m.twist.linear.x - 0.25) < 1e-9
+                   for _, m in out)
+
+    assert h.spin_until(answered, 15.0, feed, 0.01), (
+        [(m.header.frame_id, m.twist.linear.x) for _, m in out[-3:]], node_log(proc))
+
+
+@pytest.mark.slow
+def test_obstacles_published_before_the_filter_starts_reach_it():
+    """A latched obstacle map published before the filter exists is in use once it runs."""
+    with Harness() as h:
+        obstacles_pub = h.publisher(MarkerArray, 'obstacles', LATCHED)
+        obstacles_pub.publish(markers(wall([(2.0, -1.0), (2.0, 1.0)])))
+        diagnostics = h.collect(DiagnosticArray, '/diagnostics')
+        with running_filter(params={'model': 'unicycle', 'obstacles_timeout': 0.0}) as proc:
+            odom_pub = h.publisher(Odometry, 'odom')
+            cmd_pub = h.publisher(Twist, 'cmd_vel_in')
+            assert h.wait_for_subscribers(odom_pub, cmd_pub), node_log(proc)
+
+            def feed():
+                odom_pub.publish(odometry())
+                cmd_pub.publish(twist(0.2))
+
+            def in_use():
+                values = latest_status(diagnostics)[1]
+                return values.get('obstacles_in_use') == '1' and values['stale_inputs'] == 'none'
+
+            assert h.spin_until(in_use, 15.0, feed, 0.02), (latest_status(diagnostics),
+                                                             node_log(proc))
 
 
 @pytest.mark.slow

@@ -2,14 +2,9 @@
 import math
 
 import pytest
-from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import Twist
-from nav_msgs.msg import Odometry
-from visualization_msgs.msg import MarkerArray
 
 from node_harness import (
     Harness,
-    LATCHED,
     latest_status,
     markers,
     node_log,
@@ -30,21 +25,17 @@ def _finite(msg):
 
 @pytest.mark.slow
 def test_non_finite_inputs_brake_and_never_reach_the_output():
-    """Odometry x = NaN, velocity = Inf, command NaN, a NaN vertex: each gives zero twists."""
+    """NaN/Inf or malformed odometry or command, a NaN vertex: each gives zero twists."""
     with running_filter(params={'model': 'unicycle', 'rate': RATE}) as proc, Harness() as h:
-        out = h.collect(Twist, 'cmd_vel_out')
-        diagnostics = h.collect(DiagnosticArray, '/diagnostics')
-        odom_pub = h.publisher(Odometry, 'odom')
-        cmd_pub = h.publisher(Twist, 'cmd_vel_in')
-        obstacles_pub = h.publisher(MarkerArray, 'obstacles', LATCHED)
-        assert h.wait_for_subscribers(odom_pub, cmd_pub, obstacles_pub), node_log(proc)
+        io = h.filter_io(proc)
+        out, diagnostics = io.out, io.diagnostics
         good = {'odom': odometry(v=0.5), 'cmd': twist(0.5), 'wall': wall(FAR_WALL)}
         inputs = dict(good)
 
         def feed():
-            odom_pub.publish(inputs['odom'])
-            cmd_pub.publish(inputs['cmd'])
-            obstacles_pub.publish(markers(inputs['wall']))
+            io.odom.publish(inputs['odom'])
+            io.cmd.publish(inputs['cmd'])
+            io.obstacles.publish(markers(inputs['wall']))
 
         def moving():
             return bool(out) and out[-1][1].linear.x > 0.4
@@ -54,13 +45,23 @@ def test_non_finite_inputs_brake_and_never_reach_the_output():
 
         assert h.spin_until(moving, 15.0, feed, 1.0 / RATE), node_log(proc)
         bad_wall = wall(FAR_WALL + [(math.nan, 0.0)])
+        infinite_quaternion = odometry(v=0.5)
+        infinite_quaternion.pose.pose.orientation.w = math.inf
+        # Serialized garbage (published as raw bytes): a foreign encoding, a truncated message.
         for name, bad in (('odom', odometry(x=math.nan, v=0.5)),
                           ('odom', odometry(v=math.inf)),
+                          ('odom', infinite_quaternion),
+                          ('odom', b'\x00\x07\x00\x00' + bytes(300)),
                           ('cmd', twist(math.nan)),
                           ('cmd', twist(0.5, omega=-math.inf)),
+                          ('cmd', b'\x00\x01\x00\x00\x00\x00'),
                           ('wall', bad_wall)):
             inputs[name] = bad
             assert h.spin_until(stopped, 5.0, feed, 1.0 / RATE), f'no brake on bad {name}'
+            if isinstance(bad, bytes):  # refused as malformed, not merely gone stale
+                reason = 'encapsulation' if name == 'odom' else 'truncated'
+                assert h.spin_until(lambda: reason in latest_status(diagnostics)[1].get(
+                    'last_invalid_message', ''), 5.0, feed, 1.0 / RATE), reason
             inputs[name] = good[name]
             assert h.spin_until(moving, 5.0, feed, 1.0 / RATE), f'no recovery after {name}'
 
@@ -69,6 +70,41 @@ def test_non_finite_inputs_brake_and_never_reach_the_output():
         def counted():
             values = latest_status(diagnostics)[1]
             return (int(values.get('steps_invalid_input', 0)) > 0
-                    and int(values.get('invalid_messages', 0)) >= 5)
+                    and int(values.get('invalid_messages', 0)) >= 8)
 
         assert h.spin_until(counted, 3.0, feed, 1.0 / RATE), latest_status(diagnostics)
+
+
+@pytest.mark.slow
+def test_degenerate_polygons_are_handled_or_rejected_with_a_reason():
+    """A point, repeated points, collinear points become thin walls; a bowtie is rejected.
+
+    The node keeps answering throughout, and diagnostics name the rejected marker.
+    """
+    with running_filter(params={'model': 'unicycle', 'rate': RATE}) as proc, Harness() as h:
+        io = h.filter_io(proc)
+        out, diagnostics = io.out, io.diagnostics
+        degenerate = markers(
+            wall([(4.0, 0.0)], marker_id=1, width=0.0),
+            wall([(4.0, 1.0)] * 3, marker_id=2, width=0.0),
+            wall([(4.0, 2.0), (5.0, 2.0), (6.0, 2.0)], marker_id=3),
+            wall([(4.0, 3.0), (5.0, 3.0), (5.0, 3.0), (5.0, 4.0), (4.0, 3.0)], marker_id=4),
+            wall([(4.0, -3.0), (5.0, -2.0), (5.0, -3.0), (4.0, -2.0)], marker_id=5))
+
+        def feed():
+            io.odom.publish(odometry(v=0.5))
+            io.cmd.publish(twist(0.5))
+            io.obstacles.publish(degenerate)
+
+        def reported():
+            values = latest_status(diagnostics)[1]
+            return values.get('obstacles_tracked') == '4' and values['obstacles_rejected'] == '1'
+
+        assert h.spin_until(reported, 15.0, feed, 1.0 / RATE), (latest_status(diagnostics),
+                                                                 node_log(proc))
+        _, values = latest_status(diagnostics)
+        assert 'self-intersecting' in values['rejected walls/5']
+        assert values['obstacles_in_use'] == '4'
+        count = len(out)
+        assert h.spin_until(lambda: len(out) > count + 10, 5.0, feed, 1.0 / RATE)
+        assert proc.poll() is None and out[-1][1].linear.x > 0.4

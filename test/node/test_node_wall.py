@@ -3,11 +3,8 @@ import math
 import time
 
 import pytest
-from geometry_msgs.msg import Twist
-from nav_msgs.msg import Odometry
-from visualization_msgs.msg import MarkerArray
 
-from node_harness import Harness, LATCHED, markers, node_log, odometry, running_filter, twist, wall
+from node_harness import Harness, markers, node_log, odometry, running_filter, twist, wall
 
 WALL_X, WALL_HALF_LENGTH, WALL_WIDTH = 1.5, 1.5, 0.1
 OFFSET_L = 0.2
@@ -37,13 +34,10 @@ def test_unicycle_never_crosses_the_wall():
     params = {'model': 'unicycle', 'rate': 100.0, 'obstacles_timeout': 0.0,
               'model_params.offset_l': OFFSET_L, 'filter.robot_radius': 0.3}
     with running_filter(params=params) as proc, Harness() as h:
-        odom_pub = h.publisher(Odometry, 'odom')
-        cmd_pub = h.publisher(Twist, 'cmd_vel_in')
-        obstacles_pub = h.publisher(MarkerArray, 'obstacles', LATCHED)
-        safe = h.collect(Twist, 'cmd_vel_out')
-        assert h.wait_for_subscribers(odom_pub, cmd_pub, obstacles_pub), node_log(proc)
+        io = h.filter_io(proc)
+        odom_pub, cmd_pub, safe = io.odom, io.cmd, io.out
         ends = [(WALL_X, -WALL_HALF_LENGTH), (WALL_X, WALL_HALF_LENGTH)]
-        obstacles_pub.publish(markers(wall(ends, width=WALL_WIDTH)))
+        io.obstacles.publish(markers(wall(ends, width=WALL_WIDTH)))
         x, y, theta, v, omega = 0.0, 0.2, 0.0, 0.0, 0.0
         nominal = twist(1.0, 0.0)
         centre, reference = [], []
