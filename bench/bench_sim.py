@@ -88,6 +88,8 @@ def run_case(name, seconds):
     build_s = time.perf_counter() - start
     metrics = RunMetrics(world)
     controls = [_controller(world, robot) for robot in world.robot_names]
+    for control in controls:
+        control()  # warm-up outside the timing: core functions may be JIT-compiled on first call
     steps_per_control = scenario.physics_rate / scenario.control_rate
     steps = int(round(seconds * scenario.physics_rate))
     published = 0

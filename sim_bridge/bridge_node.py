@@ -10,13 +10,19 @@ Per robot namespace ``<ns>`` (the scenario's robot names), in frame ``frame_id``
   ``obstacles``), moving prisms as the same outline around a moving marker pose,
   every other robot as a ``CYLINDER`` (``ns`` ``robots``), so the filter
   estimates their velocities from successive poses.  Each control period sends
-  the moving markers (if any); every ``obstacles_refresh`` s of sim time, and
-  at the start, the full set.  A filter's ``obstacles_timeout`` (wall) must
-  exceed ``obstacles_refresh`` / real-time factor, or be 0 (never stale);
+  the moving markers (if any); at the start, when an obstacle pops up, and
+  every ``obstacles_refresh`` s of sim time, the full set (static obstacles
+  included; empty if there is nothing).  In lockstep full sets are also at
+  least ``obstacles_refresh_wall`` s of wall time apart: faster than real
+  time, a sim-time refresh would only repeat unchanged static obstacles, which
+  every consumer re-reads (with 50 obstacles the filter spent 3.1 ms of CPU
+  per period with a full set every 0.2 s, 0.6 ms with one every 5 s).
+  A filter's ``obstacles_timeout`` (wall) must exceed ``obstacles_refresh`` /
+  real-time factor and, in lockstep, ``obstacles_refresh_wall``, or be 0;
 - publishes ``/clock`` (rosgraph_msgs/Clock) once per control period;
 - ``/tf`` (world -> ``<ns>/base_link``): published when ``tf2_msgs`` is
   importable; the PyPI ROS wheels lack it, so here ``/tf`` is only recorded,
-  from hand-written CDR (``sim_bridge.tf_cdr``);
+  from hand-written CDR (``sim_bridge.cdr``);
 - subscribes to the safe command: ``<ns>/cmd_vel_out`` (TwistStamped,
   quadruped: ``linear.x`` = v, ``angular.z`` = omega, tracked by the plant) or
   ``<ns>/wrench_out`` (WrenchStamped, Crazyflie: ``force.z`` = collective thrust,
@@ -37,8 +43,12 @@ command with the same-stamp odometry, which ``safety_filter`` does with
 ``trigger: command`` and ``match_stamps: true`` (without it, it steps with the
 newest odometry it holds, under load possibly t - T).  At
 start the t = 0 topics are re-sent every 0.25 s (wall) until every robot has
-answered or ``startup_timeout`` passes; a robot takes part once it has
-answered, and one that does not answer within ``lockstep_timeout`` (wall) is
+answered or ``startup_timeout`` passes (subscribers that are still being
+discovered miss the first ones).  The bag holds them once, like every other
+period: the re-sends are published, not recorded, and only a robot's first
+command stamped t is applied, so neither depends on how long discovery took
+(answers to re-sends are recorded as received).  A robot takes part once it
+has answered, and one that does not answer within ``lockstep_timeout`` (wall) is
 dropped from the wait with a warning (it brakes after ``command_timeout`` and
 rejoins with its next matching command).  A robot that never gets a command
 simply brakes, without slowing the run.
@@ -53,15 +63,22 @@ for the filter's sample-and-hold margin.
 With ``record: true`` every topic published or received goes into one bag
 (``bag_path``, default ``runs/<timestamp>/run``; ``sim_bridge.recorder``): the
 above, the nominal commands ``cmd_vel_in`` / ``wrench_in`` (subscribed for
-recording only), the filter's ``<ns>/safety_filter/markers`` and ``/diagnostics``.
-Log time is sim time.  Published messages are serialized once and the same
-bytes are published and recorded; received ones are taken raw.  SIGINT/SIGTERM
+recording only), the filter's ``<ns>/safety_filter/markers`` (unless
+``record_filter_markers`` is off: a filter renders its markers only while
+someone subscribes, ~10 Hz of work per filter that large or fast runs may
+not want) and ``/diagnostics``.
+Log time is sim time.  Published messages are serialized once (odometry,
+clock and tf by ``sim_bridge.cdr``) and the same bytes are published and
+recorded; received ones are taken raw.  Messages are waited for on one rcl
+wait set of the bridge's subscriptions (``Inbox``), the executor turns every
+0.1 s (wall) for the parameter services.  SIGINT/SIGTERM
 close the bag cleanly (``close_on_signals``; rclpy's own handlers are off, the
 bag path being a parameter).  At the end of the scenario (exit 0, summary on
 stdout) or on shutdown the run metrics (``sim_bridge.metrics``) are written
 to ``metrics_path`` (default: ``metrics.json`` beside the bag directory).
 """
 import dataclasses
+import gc
 import json
 import math
 import signal
@@ -81,21 +98,28 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
 )
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import deserialize_message, serialize_message
+from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
-from polyc2bf_ros import conversions
 from polyc2bf_ros.core.models import make_model
+from sim_bridge.cdr import (
+    clock_cdr,
+    OdometryCdr,
+    read_stamped_six,
+    tf_message_cdr,
+    TF_MESSAGE_DEFINITION,
+    TF_MESSAGE_TYPE,
+)
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.msg_definitions import message_class
 from sim_bridge.recorder import BagRecorder, close_on_signals
 from sim_bridge.scenario import load_scenario
-from sim_bridge.tf_cdr import tf_message_cdr, TF_MESSAGE_DEFINITION, TF_MESSAGE_TYPE
 from sim_bridge.world import SimWorld
 
 try:
@@ -116,8 +140,12 @@ PARAMETERS = {
     'startup_timeout': (10.0, (0.0, 600.0), "wall [s] to wait for every robot's first command"),
     'command_timeout': (0.5, (0.001, 60.0), 'sim [s]: an older command -> the robot brakes'),
     'obstacles_refresh': (0.2, (0.001, 60.0), 'sim [s] between full obstacle marker sets'),
+    'obstacles_refresh_wall': (0.5, (0.0, 60.0), 'lockstep: wall [s] at least between full '
+                               "obstacle marker sets (below the filters' obstacles_timeout)"),
     'frame_id': ('world', None, 'frame of odometry, obstacles and tf'),
     'record': (False, None, 'record every topic into one MCAP bag'),
+    'record_filter_markers': (True, None, "subscribe to (and record) each robot's "
+                              'safety_filter/markers; off spares every filter rendering them'),
     'bag_path': ('', None, 'bag directory; empty = runs/<timestamp>/run'),
     'metrics_path': ('', None, 'metrics JSON; empty = metrics.json beside the bag (if any)'),
 }
@@ -128,6 +156,7 @@ LATCHED_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 STARTUP_RESEND = 0.25  # wall s between re-sends of the t = 0 topics while waiting
+SERVICE_PERIOD = 0.1  # wall s between turns of the executor for services; longest wait
 # robot type: (command type, safe topic, nominal topic, plant command kind).
 COMMANDS = {
     'quadruped': (TwistStamped, 'cmd_vel_out', 'cmd_vel_in', 'velocity'),
@@ -149,6 +178,41 @@ def _point(x, y, z=0.0):
     return Point(x=float(x), y=float(y), z=float(z))
 
 
+class Inbox:
+    """Wait on a node's subscriptions and pass each queued message to its callback.
+
+    The lean path of ``rclpy.wait_for_message``: one rcl wait set built once,
+    refilled with the same handles per wait; every queued message is taken.
+    An executor's spin rebuilds its entity lists, wait set and a task per
+    callback each time, which cost the bridge more CPU per period than the
+    physics; this serves subscriptions only.  Private rclpy API, as in ``rclpy.wait_for_message``:
+    ``rclpy_implementation.WaitSet`` and the subscription handles'
+    ``take_message`` and ``pointer``.
+    """
+
+    def __init__(self, node):
+        """Take ``node``'s subscriptions as they are now (none may be destroyed meanwhile)."""
+        self._subscriptions = [(s.handle, s.handle.pointer, s.msg_type, s.raw, s.callback)
+                               for s in node.subscriptions]
+        self._wait_set = _rclpy.WaitSet(len(self._subscriptions), 0, 0, 0, 0, 0,
+                                        node.context.handle)
+
+    def wait(self, timeout):
+        """Wait up to ``timeout`` s for messages, then run the callback of each one taken."""
+        wait_set = self._wait_set
+        wait_set.clear_entities()
+        for handle, *_ in self._subscriptions:
+            wait_set.add_subscription(handle)
+        wait_set.wait(int(timeout * 1e9))
+        ready = wait_set.get_ready_entities('subscription')
+        for handle, pointer, msg_type, raw, callback in self._subscriptions:
+            if pointer in ready:
+                taken = handle.take_message(msg_type, raw)
+                while taken is not None:
+                    callback(taken[0])
+                    taken = handle.take_message(msg_type, raw)
+
+
 @dataclasses.dataclass
 class _Robot:
     """Per-robot ROS plumbing and lockstep bookkeeping."""
@@ -161,8 +225,8 @@ class _Robot:
     command_topic: str
     odom_pub: object
     obstacles_pub: object
-    odom: Odometry
-    dynamic: list = dataclasses.field(default_factory=list)  # (footprint index, Marker)
+    child_frame: str
+    odom_cdr: OdometryCdr
     command: tuple = None
     command_time: float = -math.inf
     answered_ns: int = -1
@@ -210,6 +274,7 @@ class BridgeNode(Node):
             metrics_path = self.bag_path.parent / 'metrics.json'
         self.metrics_path = Path(metrics_path) if metrics_path else None
         self._now_ns = 0
+        self._unrecorded = []  # (topic, CDR) published this period, recorded after publishing
         self._wall_start = None
         self._metrics_written = False
         self._brake_model = make_model('quadrotor')
@@ -221,10 +286,13 @@ class BridgeNode(Node):
             self.recorder.add_topic('/tf', TF_MESSAGE_TYPE, PUBLISHED_QOS,
                                     definition=TF_MESSAGE_DEFINITION)
         self.robots = [self._add_robot(name) for name in self.world.robot_names]
-        self._static, self._moving = self._classify_footprints()
+        self._markers = {}  # (footprint.robot, footprint.index) -> (Marker, dynamic)
+        self._obstacle_version = self.world.obstacle_version
         self._record_only(DIAGNOSTICS_QOS, 'diagnostic_msgs/msg/DiagnosticArray', '/diagnostics')
+        self._inbox = Inbox(self)
         self._executor = SingleThreadedExecutor(context=self.context)
         self._executor.add_node(self)
+        self._next_service = 0.0
         self.get_logger().info(
             f'scenario {scenario.name} (seed {scenario.seed}), {len(self.robots)} robot(s), '
             f'physics {scenario.physics_rate:g} Hz, control every {self.steps_per_period} steps '
@@ -252,7 +320,12 @@ class BridgeNode(Node):
         return publisher
 
     def _record_only(self, qos, type_name, topic, callback=None):
-        """Subscribe raw to ``topic``: record every message, then pass it to ``callback``."""
+        """Subscribe raw to ``topic``: record every message, then pass it to ``callback``.
+
+        Without a recorder, a topic that is only recorded is not subscribed to.
+        """
+        if callback is None and self.recorder is None:
+            return None
         msg_type = message_class(type_name)
         subscription = self.create_subscription(
             msg_type, topic, lambda data: self._on_raw(subscription.topic_name, data, callback),
@@ -265,46 +338,42 @@ class BridgeNode(Node):
         """Create one robot's publishers and subscriptions."""
         spec = self.world.robot_spec(name)
         command_type, safe, nominal, kind = COMMANDS[spec.type]
-        odom = Odometry()
-        odom.header.frame_id = self.frame
-        odom.child_frame_id = f'{name}/base_link'
+        child_frame = f'{name}/base_link'
         odom_pub = self._publisher(Odometry, f'{name}/odom', PUBLISHED_QOS)
         obstacles_pub = self._publisher(MarkerArray, f'{name}/obstacles', LATCHED_QOS)
         robot = _Robot(name=name, type=spec.type, kind=kind, odom_topic=odom_pub.topic_name,
                        obstacles_topic=obstacles_pub.topic_name,
                        command_topic=f'{name}/{safe}', odom_pub=odom_pub,
-                       obstacles_pub=obstacles_pub, odom=odom)
+                       obstacles_pub=obstacles_pub, child_frame=child_frame,
+                       odom_cdr=OdometryCdr(self.frame, child_frame))
         type_name = f'geometry_msgs/msg/{command_type.__name__}'
         self._record_only(COMMAND_QOS, type_name, f'{name}/{safe}',
-                          lambda data: self._on_command(robot, command_type, data))
+                          lambda data: self._on_command(robot, data))
         self._record_only(COMMAND_QOS, type_name, f'{name}/{nominal}')
-        self._record_only(COMMAND_QOS, 'visualization_msgs/msg/MarkerArray',
-                          f'{name}/safety_filter/markers')
+        if self.params['record_filter_markers']:
+            self._record_only(COMMAND_QOS, 'visualization_msgs/msg/MarkerArray',
+                              f'{name}/safety_filter/markers')
         return robot
 
-    def _classify_footprints(self):
-        """Split footprints into static markers (shared) and per-robot moving markers."""
-        static = []
-        moving = set()
-        for robot in self.robots:
-            for index, footprint in enumerate(self.world.obstacle_footprints(robot.name)):
-                if footprint.robot:
-                    marker = self._robot_marker(footprint)
-                elif np.any(footprint.velocity):
-                    marker = self._outline_marker(footprint, index, 'moving')
-                    moving.add(index)
-                else:
-                    if robot is self.robots[0]:
-                        static.append(self._outline_marker(footprint, index, 'static'))
-                    continue
-                robot.dynamic.append((index, marker))
-        return static, moving
+    def _marker(self, footprint):
+        """Return (Marker, dynamic) of a footprint, made on first sight and then reused."""
+        key = (footprint.robot, footprint.index)
+        entry = self._markers.get(key)
+        if entry is None:
+            if footprint.robot:
+                entry = (self._robot_marker(footprint), True)
+            else:
+                kind = 'moving' if np.any(footprint.velocity) else 'static'
+                entry = (self._outline_marker(footprint, kind), kind == 'moving')
+            self._markers[key] = entry
+        return entry
 
-    def _outline_marker(self, footprint, index, kind):
+    def _outline_marker(self, footprint, kind):
         """LINE_STRIP outline at z_min, height in scale.z; moving ones relative to their pose."""
         centre = footprint.polygon.mean(axis=0) if kind == 'moving' else np.zeros(2)
         ring = np.vstack([footprint.polygon, footprint.polygon[:1]]) - centre
-        marker = Marker(ns='obstacles', id=index, type=Marker.LINE_STRIP, action=Marker.ADD,
+        marker = Marker(ns='obstacles', id=footprint.index, type=Marker.LINE_STRIP,
+                        action=Marker.ADD,
                         color=COLORS[kind], points=[_point(x, y) for x, y in ring])
         marker.header.frame_id = self.frame
         marker.scale.x = LINE_WIDTH
@@ -315,8 +384,7 @@ class BridgeNode(Node):
 
     def _robot_marker(self, footprint):
         """CYLINDER of the robot's footprint radius over its z range."""
-        names = self.world.robot_names
-        marker = Marker(ns='robots', id=names.index(footprint.name), type=Marker.CYLINDER,
+        marker = Marker(ns='robots', id=footprint.index, type=Marker.CYLINDER,
                         action=Marker.ADD, color=COLORS['robot'], text=footprint.name)
         marker.header.frame_id = self.frame
         diameter = 2.0 * self.world.robot_spec(footprint.name).radius
@@ -327,12 +395,18 @@ class BridgeNode(Node):
 
     # -- messages -----------------------------------------------------------------------------
 
-    def _send(self, publisher, topic, data):
-        """Publish CDR ``data`` and record the same bytes at sim time."""
+    def _send(self, publisher, topic, data, record):
+        """Publish CDR ``data``; if ``record``, queue the same bytes for ``_record_sent``."""
         if publisher is not None:
             publisher.publish(data)
-        if self.recorder is not None:
+        if record and self.recorder is not None:
+            self._unrecorded.append((topic, data))
+
+    def _record_sent(self):
+        """Record the queued published messages at the current sim time."""
+        for topic, data in self._unrecorded:
             self.recorder.write_serialized(topic, data, self._now_ns)
+        self._unrecorded.clear()
 
     def _on_raw(self, topic, data, callback):
         """Record a received message, then handle it."""
@@ -341,16 +415,24 @@ class BridgeNode(Node):
         if callback is not None:
             callback(data)
 
-    def _on_command(self, robot, command_type, data):
-        """Take a safe command: in lockstep only the one stamped with the current period."""
-        msg = deserialize_message(data, command_type)
-        if command_type is TwistStamped:
-            values = (msg.twist.linear.x, msg.twist.angular.z)
-        else:
-            force, torque = msg.wrench.force, msg.wrench.torque
-            values = (force.z, torque.x, torque.y, torque.z)
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if (self.lockstep and stamp_ns != self._now_ns) or not all(map(math.isfinite, values)):
+    def _on_command(self, robot, data):
+        """Take a safe command: in lockstep only the first one stamped with the current period.
+
+        Later ones with that stamp (answers to the startup re-sends of t = 0) are
+        recorded but not applied, so the applied command does not depend on timing.
+        TwistStamped: [linear.x, angular.z]; WrenchStamped: [force.z, torque].
+        """
+        try:
+            stamp_ns, (x, y, z, rx, ry, rz) = read_stamped_six(data)
+        except ValueError as exc:
+            robot.stray += 1
+            self.get_logger().error(f'{robot.command_topic}: {exc}', throttle_duration_sec=1.0)
+            return
+        values = (x, rz) if robot.type == 'quadruped' else (z, rx, ry, rz)
+        if self.lockstep and (stamp_ns != self._now_ns or robot.answered_ns == stamp_ns):
+            robot.stray += 1
+            return
+        if not all(map(math.isfinite, values)):
             robot.stray += 1
             return
         robot.command = values
@@ -359,55 +441,58 @@ class BridgeNode(Node):
         robot.waited = True
         robot.commands += 1
 
-    def _publish_period(self, full):
-        """Publish clock, tf, obstacles (moving only unless ``full``) and odometry at sim time."""
+    def _publish_period(self, full, record=True):
+        """Publish obstacles (moving only unless ``full``), odometry, clock and tf at sim time.
+
+        What the controllers wait for goes out first; recording follows
+        (``record=False``: not at all, for the startup re-sends of t = 0).  A full
+        set also goes out whenever an obstacle has popped up since the last one.
+        """
         time_msg = stamp(self._now_ns)
-        self._send(self._clock_pub, '/clock', serialize_message(Clock(clock=time_msg)))
+        if self.world.obstacle_version != self._obstacle_version:
+            self._obstacle_version = self.world.obstacle_version
+            full = True
+        markers = self._current_markers(time_msg, full)
         transforms = []
         for robot in self.robots:
             position, quaternion = self.world.robot_pose(robot.name)
             transforms.append((time_msg.sec, time_msg.nanosec, self.frame,
-                               robot.odom.child_frame_id, position.tolist(), quaternion.tolist()))
-            self._send_obstacles(robot, time_msg, full)
-            self._send_odometry(robot, time_msg, position, quaternion)
+                               robot.child_frame, position.tolist(), quaternion.tolist()))
+            own = [m for name, m in markers if name != robot.name]
+            if own or full:  # an empty full set still says "nothing around" (watchdogs)
+                self._send(robot.obstacles_pub, robot.obstacles_topic,
+                           serialize_message(MarkerArray(markers=own)), record)
+            self._send_odometry(robot, time_msg, position, quaternion, record)
+        self._send(self._clock_pub, '/clock', clock_cdr(time_msg.sec, time_msg.nanosec), record)
         if self._tf_pub is not None or self.recorder is not None:
-            self._send(self._tf_pub, '/tf', tf_message_cdr(transforms))
+            self._send(self._tf_pub, '/tf', tf_message_cdr(transforms), record)
+        if self._unrecorded:
+            self._record_sent()
 
-    def _send_obstacles(self, robot, time_msg, full):
-        """Move and stamp the robot's dynamic markers; send them (plus static ones if full)."""
-        footprints = self.world.obstacle_footprints(robot.name)
-        markers = list(self._static) if full else []
-        for index, marker in robot.dynamic:
-            footprint = footprints[index]
-            x, y = footprint.polygon.mean(axis=0).tolist()
-            position = marker.pose.position
-            position.x, position.y = x, y
-            if marker.type == Marker.CYLINDER:
-                position.z = 0.5 * (footprint.z_min + footprint.z_max)
-            markers.append(marker)
-        if not markers:
-            return
-        for marker in markers:
+    def _current_markers(self, time_msg, full):
+        """Return [(robot name or None, Marker)] to send: dynamic ones moved, all if ``full``.
+
+        Moving obstacles and robots are dynamic (marker pose = footprint centre);
+        static obstacles go out only in full sets.  Every marker is stamped.
+        """
+        markers = []
+        for footprint in self.world.obstacle_footprints(moving_only=not full):
+            marker, dynamic = self._marker(footprint)
+            if dynamic:
+                position = marker.pose.position
+                position.x, position.y = footprint.polygon.mean(axis=0).tolist()
+                if footprint.robot:
+                    position.z = 0.5 * (footprint.z_min + footprint.z_max)
             marker.header.stamp = time_msg
-        self._send(robot.obstacles_pub, robot.obstacles_topic,
-                   serialize_message(MarkerArray(markers=markers)))
+            markers.append((footprint.name if footprint.robot else None, marker))
+        return markers
 
-    def _send_odometry(self, robot, time_msg, position, quaternion):
-        """Fill and send ``<ns>/odom``: world pose, body-frame twist."""
-        odom = robot.odom
-        odom.header.stamp = time_msg
-        pose, twist = odom.pose.pose, odom.twist.twist
-        pose.position.x, pose.position.y, pose.position.z = position.tolist()
-        q = pose.orientation
-        q.x, q.y, q.z, q.w = quaternion.tolist()
-        state = self.world.robot_state(robot.name)
-        if robot.type == 'quadruped':
-            twist.linear.x, twist.angular.z = float(state[3]), float(state[4])
-        else:
-            rotation = conversions.quaternion_matrix(q)
-            twist.linear.x, twist.linear.y, twist.linear.z = (rotation.T @ state[3:6]).tolist()
-            twist.angular.x, twist.angular.y, twist.angular.z = state[9:12].tolist()
-        self._send(robot.odom_pub, robot.odom_topic, serialize_message(odom))
+    def _send_odometry(self, robot, time_msg, position, quaternion, record):
+        """Send ``<ns>/odom``: world pose, body-frame twist (hand-written CDR)."""
+        data = robot.odom_cdr.pack(time_msg.sec, time_msg.nanosec,
+                                   (*position.tolist(), *quaternion.tolist()),
+                                   self.world.body_twist(robot.name))
+        self._send(robot.odom_pub, robot.odom_topic, data, record)
 
     # -- loop ---------------------------------------------------------------------------------
 
@@ -425,12 +510,21 @@ class BridgeNode(Node):
                                        'thrusts')
 
     def _spin_until(self, done, deadline):
-        """Handle callbacks until ``done()`` or the monotonic ``deadline``; return done()."""
+        """Handle messages until ``done()`` or the monotonic ``deadline``; return done().
+
+        Every SERVICE_PERIOD (wall) the executor also serves the node's services
+        (parameters); each wait is at most that long, so signals are handled soon.
+        """
         while not done():
-            remaining = deadline - time.monotonic()
+            now = time.monotonic()
+            if now >= self._next_service:
+                self._next_service = now + SERVICE_PERIOD
+                self._executor.spin_once(timeout_sec=0.0)
+                continue
+            remaining = deadline - now
             if remaining <= 0.0:
                 return done()
-            self._executor.spin_once(timeout_sec=remaining)
+            self._inbox.wait(min(remaining, SERVICE_PERIOD))
         return True
 
     def _pending(self):
@@ -446,7 +540,7 @@ class BridgeNode(Node):
                              min(deadline, time.monotonic() + STARTUP_RESEND))
             unanswered = [r for r in self.robots if r.answered_ns != self._now_ns]
             if unanswered:
-                self._publish_period(full=True)
+                self._publish_period(full=True, record=False)
         for robot in unanswered:
             self.get_logger().warning(f'{robot.name}: no command on {robot.command_topic} '
                                       'after startup_timeout; it brakes until one arrives')
@@ -455,7 +549,7 @@ class BridgeNode(Node):
         """Lockstep: wait for the current period's commands; drop robots that time out."""
         deadline = time.monotonic() + self.params['lockstep_timeout']
         if self._spin_until(lambda: not self._pending(), deadline):
-            self._executor.spin_once(timeout_sec=0.0)
+            self._inbox.wait(0.0)
             return
         for robot in self._pending():
             robot.waited = False
@@ -471,25 +565,31 @@ class BridgeNode(Node):
         refresh_every = max(1, round(self.params['obstacles_refresh'] / self.period))
         pace = self.period / self.params['real_time_factor']
         self._wall_start = time.monotonic()
-        period = 0
+        period = last_full = 0
         self._publish_period(full=True)
         if self.lockstep:
             self._wait_startup()
             self._wall_start = time.monotonic()
+        last_full_wall = self._wall_start
         while world.time < duration - 0.5 * world.dt:
             if self.lockstep:
                 self._wait_commands()
             else:
                 deadline = self._wall_start + (period + 1) * pace
                 self._spin_until(lambda: False, deadline)
-                self._executor.spin_once(timeout_sec=0.0)
+                self._inbox.wait(0.0)
             self._apply_commands()
             for _ in range(self.steps_per_period):
                 world.step()
-            self.metrics.update()
             period += 1
             self._now_ns = round(world.time * 1e9)
-            self._publish_period(full=period % refresh_every == 0)
+            full = period - last_full >= refresh_every
+            if full and self.lockstep:
+                full = time.monotonic() - last_full_wall >= self.params['obstacles_refresh_wall']
+            if full:
+                last_full, last_full_wall = period, time.monotonic()
+            self._publish_period(full)
+            self.metrics.update()  # after publishing: overlaps with the controllers' work
         return True
 
     # -- end ----------------------------------------------------------------------------------
@@ -544,6 +644,7 @@ def main(args=None):
         rclpy.logging.get_logger('sim_bridge').fatal(f'invalid configuration: {exc}')
         rclpy.try_shutdown()
         return 1
+    gc.freeze()  # start-up objects leave the collector: shorter full collections in the loop
     if node.recorder is not None:
         close_on_signals(node.recorder)
     else:

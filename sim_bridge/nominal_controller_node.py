@@ -1,7 +1,9 @@
 """``nominal_controller``: a go-to-goal reference controller per robot; it ignores obstacles.
 
-One node per robot namespace.  On every ``odom`` (nav_msgs/Odometry) it answers
-at once with the go-to-goal command of ``polyc2bf_ros.core.nominal``:
+One node per robot namespace.  On every ``odom`` (nav_msgs/Odometry, read from
+its CDR bytes by ``sim_bridge.cdr.read_odometry``: rclpy's deserializer costs
+more than the controller) it answers at once with the go-to-goal command of
+``polyc2bf_ros.core.nominal``:
 
 - ``robot_type: quadruped``: ``cmd_vel_in`` (geometry_msgs/TwistStamped),
   ``linear.x = v``, ``angular.z = omega`` from
@@ -29,6 +31,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from polyc2bf_ros import conversions
 from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
 from polyc2bf_ros.node_main import run_node
+from sim_bridge.cdr import read_odometry
 
 # robot_type: (controller class, core model name for the odometry state, goal size).
 ROBOT_TYPES = {
@@ -67,6 +70,7 @@ class NominalControllerNode(Node):
                                                              to_value=1000.0)])).value
         self._controller = controller_class(**gains)
         self._state = np.zeros(5 if robot_type == 'quadruped' else 12)
+        self._odom = Odometry()
         if robot_type == 'quadruped':
             self._out = TwistStamped()
             self._publisher = self.create_publisher(TwistStamped, 'cmd_vel_in', COMMAND_QOS)
@@ -75,11 +79,16 @@ class NominalControllerNode(Node):
             self._out = WrenchStamped()
             self._publisher = self.create_publisher(WrenchStamped, 'wrench_in', COMMAND_QOS)
             self._fill = self._fill_wrench
-        self.create_subscription(Odometry, 'odom', self._on_odom, ODOM_QOS)
+        self.create_subscription(Odometry, 'odom', self._on_odom, ODOM_QOS, raw=True)
         self.get_logger().info(f'{robot_type} to goal {self._goal.tolist()}')
 
-    def _on_odom(self, msg):
-        """Publish the command for this odometry, stamped with its stamp."""
+    def _on_odom(self, data):
+        """Publish the command for this odometry (CDR ``data``), stamped with its stamp."""
+        try:
+            msg = read_odometry(data, self._odom)
+        except ValueError as exc:
+            self.get_logger().error(f'odometry dropped: {exc}', throttle_duration_sec=1.0)
+            return
         conversions.odometry_to_state(msg, self._model, self._state)
         if not np.isfinite(self._state).all():
             return

@@ -15,6 +15,7 @@ YAML schema (units: m, s, rad, Hz)::
         z: [z_min, z_max]      # optional, default [0, 1]
         velocity: [vx, vy]     # optional, default [0, 0]: constant translation
         name: wall             # optional, default obstacle_<i>
+        appear_at: 3.0         # optional, default 0: pop-up time [s]
     random_obstacles:          # optional, seeded convex polygons
       count: 30
       region: [[xmin, ymin], [xmax, ymax]]   # where their centres fall
@@ -24,7 +25,11 @@ YAML schema (units: m, s, rad, Hz)::
       spacing: 0.0             # optional: min gap between obstacles (circumcircles)
 
 ``radius`` (optional) is the robot's footprint circle as other robots see it;
-defaults per type in ``ROBOT_RADIUS``.  Every problem raises ``ScenarioError``
+defaults per type in ``ROBOT_RADIUS``.  An obstacle with ``appear_at`` = t_a > 0
+is a pop-up: before sim time t_a it does not exist (no body, no clearance or
+collision, no marker); ``polygon`` is its footprint at t_a, from which it then
+moves with ``velocity``.  Starts are checked only against obstacles present
+at t = 0, goals against every obstacle as listed.  Every problem raises ``ScenarioError``
 naming the file and the field path, e.g.
 ``robots[1].start: expected 3 numbers [x, y, yaw] for a quadruped, got 2``.
 """
@@ -115,12 +120,16 @@ class RobotSpec:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class ObstacleSpec:
-    """A vertical prism: CCW footprint (k, 2) at t = 0, z range, constant velocity [vx, vy]."""
+    """A vertical prism: CCW footprint (k, 2) at ``appear_at``, z range, velocity [vx, vy].
+
+    It exists from sim time ``appear_at`` [s] on (0: from the start).
+    """
 
     name: str
     polygon: np.ndarray
     z: tuple = DEFAULT_Z
     velocity: np.ndarray = dataclasses.field(default_factory=lambda: _frozen([0.0, 0.0]))
+    appear_at: float = 0.0
 
     @property
     def moving(self):
@@ -298,7 +307,7 @@ def _robot(reader, data, path):
 
 def _obstacle(reader, data, path, index):
     """Parse one entry of ``obstacles``."""
-    reader.mapping(data, path, ('polygon',), ('z', 'velocity', 'name'))
+    reader.mapping(data, path, ('polygon',), ('z', 'velocity', 'name', 'appear_at'))
     try:
         polygon = clean_polygon(data['polygon'])
     except InvalidPolygonError as exc:
@@ -308,7 +317,9 @@ def _obstacle(reader, data, path, index):
     if 'velocity' in data:
         velocity = reader.numbers(data['velocity'], f'{path}.velocity', 2, '[vx, vy]')
     name = reader.name(data['name'], f'{path}.name') if 'name' in data else f'obstacle_{index}'
-    return ObstacleSpec(name=name, polygon=_frozen(polygon), z=z, velocity=_frozen(velocity))
+    appear_at = reader.number(data.get('appear_at', 0.0), f'{path}.appear_at', minimum=0.0)
+    return ObstacleSpec(name=name, polygon=_frozen(polygon), z=z, velocity=_frozen(velocity),
+                        appear_at=appear_at)
 
 
 def _random(reader, data, path):
@@ -333,10 +344,15 @@ def _random(reader, data, path):
 
 
 def _check_free(reader, robots, obstacles):
-    """Reject starts and goals inside (or within the robot radius of) an obstacle at t = 0."""
+    """Reject starts and goals inside (or within the robot radius of) an obstacle.
+
+    Starts are checked against the obstacles present at t = 0, goals against all.
+    """
     for i, robot in enumerate(robots):
         for field, point in (('start', robot.position), ('goal', robot.goal)):
             for obstacle in obstacles:
+                if field == 'start' and obstacle.appear_at > 0.0:
+                    continue
                 if point.size == 3 and not (obstacle.z[0] - robot.radius < point[2]
                                             < obstacle.z[1] + robot.radius):
                     continue

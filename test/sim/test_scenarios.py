@@ -16,7 +16,8 @@ from sim_bridge.scenario import (
 from sim_bridge.world import SimWorld
 
 SHIPPED = ('long_wall', 'semi_infinite_wall', 'cluttered', 'tight_gap', 'moving_obstacles',
-           'multi_robot_swap', 'quadrotor_pillars', 'quadrotor_wall')
+           'multi_robot_swap', 'quadrotor_pillars', 'quadrotor_wall', 'popup_obstacle',
+           'clear_path')
 
 
 def _minimal():
@@ -49,7 +50,8 @@ def test_shipped_scenario_loads_and_steps(name):
             assert np.isfinite(state).all()
             assert not world.collided(robot.name)
         footprints = world.obstacle_footprints(scenario.robots[0].name)
-        assert len(footprints) == len(scenario.all_obstacles()) + len(scenario.robots) - 1
+        present = [o for o in scenario.all_obstacles() if o.appear_at <= world.time]
+        assert len(footprints) == len(present) + len(scenario.robots) - 1
 
 
 def test_load_by_path_equals_load_by_name():
@@ -71,6 +73,41 @@ def test_defaults_are_filled_in():
     data['robots'][0] = {'name': 'cf', 'type': 'crazyflie', 'start': [0, 0, 1, 0],
                          'goal': [4, 0, 1]}
     assert scenario_from_dict(data).robots[0].radius == cf.BODY_RADIUS
+
+
+def test_popup_may_cover_the_start_but_not_be_there_at_first():
+    """appear_at defaults to 0; a pop-up may cover the start, which the robot has left by then."""
+    assert scenario_from_dict(_minimal()).obstacles[0].appear_at == 0.0
+    data = _minimal()
+    data['obstacles'].append({'polygon': [[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]],
+                              'appear_at': 4.5})
+    popup = scenario_from_dict(data).obstacles[1]
+    assert popup.appear_at == 4.5 and not popup.moving
+    data['obstacles'][1]['appear_at'] = 0
+    with pytest.raises(ScenarioError, match=r'robots\[0\].start: .* is inside obstacle'):
+        scenario_from_dict(data)
+
+
+def test_popup_scenario_puts_the_box_across_the_path():
+    """popup_obstacle: one box appears at t = 3 s straddling y = 0, 1.5-2 m beyond x(3 s)."""
+    scenario = load_scenario('popup_obstacle')
+    (robot,), (box,) = scenario.robots, scenario.obstacles
+    assert box.appear_at == 3.0 and not box.moving
+    assert box.polygon[:, 1].min() < -robot.radius and box.polygon[:, 1].max() > robot.radius
+    # Accelerating at 1 m/s^2 to the nominal 1 m/s puts the base at x = 2.5 m at t = 3 s.
+    assert 1.5 <= box.polygon[:, 0].min() - 2.5 <= 2.0
+    assert robot.goal[0] - robot.position[0] >= 9.0
+
+
+def test_clear_path_keeps_obstacles_well_off_the_path():
+    """clear_path: every obstacle is at least 1.5 m to the side of the straight drive."""
+    scenario = load_scenario('clear_path')
+    (robot,) = scenario.robots
+    assert robot.goal[1] == robot.position[1] == 0.0 and robot.goal[0] >= 7.0
+    assert scenario.obstacles
+    for obstacle in scenario.obstacles:
+        assert np.abs(obstacle.polygon[:, 1]).min() >= 1.5
+        assert np.all(np.sign(obstacle.polygon[:, 1]) == np.sign(obstacle.polygon[0, 1]))
 
 
 def _problem(data, tmp_path):
@@ -122,6 +159,14 @@ BAD = {
                    'obstacles[0].z: min must be below max, got [2.0, 1.0]'),
     'velocity size': (lambda d: d['obstacles'][0].update(velocity=[1, 0, 0]),
                       'obstacles[0].velocity: expected 2 numbers [vx, vy], got 3'),
+    'negative appear_at': (lambda d: d['obstacles'][0].update(appear_at=-1.0),
+                           'obstacles[0].appear_at: must be >= 0.0, got -1.0'),
+    'text appear_at': (lambda d: d['obstacles'][0].update(appear_at='soon'),
+                       "obstacles[0].appear_at: expected a number, got 'soon'"),
+    'goal inside a pop-up': (
+        lambda d: d['obstacles'][0].update(appear_at=2.0, polygon=[[3.5, -1], [4.5, -1],
+                                                                   [4.5, 1], [3.5, 1]]),
+        "robots[0].goal: [4.0, 0.0] is inside obstacle 'obstacle_0'"),
     'start inside obstacle': (
         lambda d: d['robots'][0].update(start=[2.2, 0.0, 0.0]),
         "robots[0].start: [2.2, 0.0] is inside obstacle 'obstacle_0'"),

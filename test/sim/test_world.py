@@ -285,3 +285,81 @@ def test_bad_commands_are_rejected():
         assert world.joint_positions('cf') == {}
         world.close()
         world.close()
+
+
+def test_popup_obstacle_is_absent_until_it_appears():
+    """Before appear_at: no footprint, clearance or collision; from then on all three."""
+    box = {'polygon': [[0.6, -0.5], [1.0, -0.5], [1.0, 0.5], [0.6, 0.5]], 'name': 'popup',
+           'appear_at': 1.0}
+    with _world([_quadruped()], [box]) as world:
+        metrics = RunMetrics(world)
+        world.set_command('a1', [1.0, 0.0])
+        _run(world, 1.0 - world.dt, metrics.update)  # drives into where the box will be
+        assert world.robot_state('a1')[0] > 0.6
+        assert world.obstacle_footprints('a1') == [] and world.obstacle_version == 0
+        assert world.clearances('a1', max_distance=5.0).shape == (0,)
+        assert not world.collided('a1') and not metrics.robots['a1'].collision
+        world.step()  # t = 1.0: it appears around the robot
+        footprints = world.obstacle_footprints('a1')
+        assert [(f.name, f.index) for f in footprints] == [('popup', 0)]
+        assert world.obstacle_version == 1
+        assert world.collided('a1')
+        metrics.update()
+    assert metrics.robots['a1'].collision and metrics.robots['a1'].collision_time_s == 1.0
+
+
+def test_moving_popup_starts_from_its_polygon_at_appear_at():
+    """A moving pop-up's polygon is its footprint at appear_at; it moves on from there."""
+    square = [[3.0, 3.0], [3.4, 3.0], [3.4, 3.4], [3.0, 3.4]]
+    obstacles = [{'polygon': WALL, 'name': 'wall'},
+                 {'polygon': square, 'velocity': [0.0, -1.0], 'appear_at': 0.5}]
+    with _world([_crazyflie(start=(3.2, 0.0, 0.5, 0.0))], obstacles) as world:
+        _run(world, 0.5)
+        at_appearance = world.obstacle_footprints('cf')[1]
+        _run(world, 1.5)
+        later = world.obstacle_footprints('cf')[1]
+        clearance = world.clearances('cf', max_distance=5.0)[1]
+    np.testing.assert_allclose(at_appearance.polygon, square)
+    np.testing.assert_allclose(later.polygon, np.array(square) + [0.0, -1.5])
+    assert later.index == 1 and later.name == 'obstacle_1'
+    # Its lower face is at y = 1.5 after 1.5 s; the Crazyflie holds hover thrust near y = 0.
+    assert clearance == pytest.approx(1.5 - cf.BODY_RADIUS, abs=0.02)
+
+
+def test_quadruped_world_without_bullet_steps_measures_the_same():
+    """Quadrupeds only: skipping Bullet's step changes no state and no clearance (to 1e-12)."""
+    scenario = load_scenario('cluttered')
+    robot = scenario.robots[0].name
+    commands = np.random.default_rng(0).uniform([-0.5, -2.0], [2.0, 2.0], size=(25, 2))
+    traces = []
+    for bullet_steps in (False, True):
+        with SimWorld(scenario) as world:
+            assert world._bullet_steps is False
+            world._bullet_steps = bullet_steps
+            trace = []
+            for command in commands:
+                world.set_command(robot, command)
+                for _ in range(24):
+                    world.step()
+                trace.append(np.concatenate([world.robot_state(robot),
+                                             world.clearances(robot, max_distance=5.0)]))
+            traces.append(np.array(trace))
+    assert np.isfinite(traces[0][:, 5:]).sum() > 100  # many obstacles within 5 m
+    np.testing.assert_allclose(traces[0], traces[1], rtol=0.0, atol=1e-12)
+
+
+def test_body_twist_is_the_state_velocity_in_the_body_frame():
+    """Quadruped: (v, 0, 0, 0, 0, omega); Crazyflie: R^T v_world and the body rates."""
+    thrusts = np.array([1.02, 0.99, 1.0, 0.985]) * cf.HOVER_ROTOR_THRUST
+    robots = [_quadruped(), _crazyflie(start=(0.0, 3.0, 1.0, 0.3))]
+    with _world(robots) as world:
+        world.set_command('a1', [0.8, 0.5])
+        world.set_command('cf', thrusts)
+        _run(world, 0.5)
+        quadruped, crazyflie = world.robot_state('a1'), world.robot_state('cf')
+        assert world.body_twist('a1') == (quadruped[3], 0.0, 0.0, 0.0, 0.0, quadruped[4])
+        twist = np.array(world.body_twist('cf'))
+        rotation = np.reshape(pb.getMatrixFromQuaternion(world.robot_pose('cf')[1]), (3, 3))
+    assert np.linalg.norm(crazyflie[6:8]) > 0.05  # tilted, so the frames differ
+    np.testing.assert_allclose(rotation @ twist[:3], crazyflie[3:6], atol=1e-12)
+    np.testing.assert_allclose(twist[3:], crazyflie[9:12], atol=1e-12)
