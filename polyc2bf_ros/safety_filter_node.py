@@ -54,7 +54,7 @@ from polyc2bf_ros import conversions
 from polyc2bf_ros.core.command_filter import CommandFilter
 from polyc2bf_ros.core.command_interface import VELOCITY_MODELS
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
-from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
+from polyc2bf_ros.core.obstacle_tracker import extrapolation_age, ObstacleTracker
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus
 from polyc2bf_ros.core.stats import LatencyRing, RateMeter
@@ -161,7 +161,7 @@ class SafetyFilterNode(Node):
         # State (the last finite odometry) and the latest nominal command.
         self._state = np.zeros(self._model.state_dim)
         self._yaw = 0.0
-        self._odom_stamp = 0.0
+        self._odom_stamp = -math.inf  # no odometry yet: a matched command waits for it
         self._odom_frame = None
         self._odom_frame_raw = None
         self._odom_valid = False
@@ -406,9 +406,7 @@ class SafetyFilterNode(Node):
             self._counts['invalid_input'] += 1
             self._publish_stop(cmd)
             return
-        age = 0.0
-        if self._odom_stamp > 0.0 and self._t_ref > 0.0:
-            age = min(max(self._odom_stamp - self._t_ref, 0.0), self._max_extrapolation)
+        age = extrapolation_age(self._odom_stamp, self._t_ref, self._max_extrapolation)
         model_name = self._model_name
         safe, info = self._filter.filter(
             self._state, self._yaw, conversions.command_from_values(cmd.values, model_name),

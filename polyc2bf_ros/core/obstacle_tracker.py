@@ -178,3 +178,15 @@ class ObstacleTracker:
                     z_min=t.z_min + shift[2], z_max=t.z_max + shift[2],
                     key=key if len(t.polygons) == 1 else f'{key}#{i}'))
         return obstacles, t_ref, wrong_frame
+
+
+def extrapolation_age(state_stamp, t_ref, max_extrapolation):
+    """Return how far [s] to move a ``snapshot`` (taken at ``t_ref``) to a state's stamp.
+
+    ``age = clip(state_stamp - t_ref, 0, max_extrapolation)``; 0 while either stamp is
+    unset (not > 0, e.g. NaN for an empty snapshot).  The clip keeps stale or
+    future-stamped obstacles from being thrown far along their velocity estimate.
+    """
+    if state_stamp > 0.0 and t_ref > 0.0:
+        return min(max(state_stamp - t_ref, 0.0), max_extrapolation)
+    return 0.0

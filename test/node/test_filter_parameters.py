@@ -1,0 +1,34 @@
+"""The node's parameter files read without ROS (offline replay, in-process evaluation)."""
+import pytest
+
+from polyc2bf_ros.filter_parameters import build_filter, load_parameters, ParameterError
+
+
+def test_parameter_files_match_node_names_like_rcl(tmp_path):
+    """Sections for /**, the namespace and the bare name apply in order; -p overrides last."""
+    path = tmp_path / 'params.yaml'
+    path.write_text(
+        '/**/safety_filter:\n  ros__parameters:\n    rate: 50.0\n    filter: {gamma: 2.0}\n'
+        '/a1/safety_filter:\n  ros__parameters:\n    rate: 80.0\n'
+        '/b2/safety_filter:\n  ros__parameters:\n    rate: 10.0\n'
+        'other_node:\n  ros__parameters:\n    rate: 1.0\n')
+    params = load_parameters([path], ['filter.barrier:=c3bf', 'match_stamps:=true'], 'a1')
+    assert params == {'rate': 80.0, 'filter.gamma': 2.0, 'filter.barrier': 'c3bf',
+                      'match_stamps': True}
+    assert load_parameters([path], [], '')['rate'] == 50.0
+    setup = build_filter(params)
+    assert setup.command_filter.safety_filter.config.control_period == pytest.approx(1 / 80)
+    assert setup.parameters['filter.barrier'] == 'c3bf'
+    with pytest.raises(ParameterError, match='invalid filter parameters: gamma'):
+        build_filter({'filter.gamma': -1.0})
+    with pytest.raises(ParameterError, match='not NAME:=VALUE'):
+        load_parameters([], ['rate'], 'a1')
+
+
+def test_unknown_parameters_are_listed_not_applied():
+    """A name the node does not declare is reported in ``ignored`` and changes nothing."""
+    setup = build_filter({'filter.gamma': 2.0, 'filter.no_such_field': 1.0, 'typo_rate': 5.0})
+    assert setup.ignored == ('filter.no_such_field', 'typo_rate')
+    assert setup.command_filter.safety_filter.config.gamma == 2.0
+    with pytest.raises(ParameterError, match="parameter 'model' must be one of"):
+        build_filter({'model': 'tank'})
