@@ -11,6 +11,9 @@ CONSOLE_SCRIPTS = [
     'safety_filter = polyc2bf_ros.safety_filter_node:main',
     'sim_bridge = sim_bridge.bridge_node:main',
     'nominal_controller = sim_bridge.nominal_controller_node:main',
+    'bag_replay = sim_bridge.bag_replay:main',
+    'demo = sim_bridge.demo:main',
+    'evaluate = sim_bridge.evaluate:main',
 ]
 
 setup(

@@ -4,9 +4,12 @@
 MCAP files; without one, every ``*.mcap`` in it, sorted) or a single ``.mcap``
 file.  ``topics`` lists each topic's type, message count, offered QoS profiles
 (parsed from the channel's ``offered_qos_profiles``, rosbag2 metadata version 8
-or 9) and type hash; ``messages()`` yields ``(topic, type_name, log_time_ns,
-message)`` in log-time order per file, messages deserialized with
-``rclpy.serialization.deserialize_message`` into the classes ``pkg.msg.Type``.
+or 9) and type hash; ``time_range`` gives the first and last log time;
+``messages()`` yields ``(topic, type_name, log_time_ns, message)`` in log-time
+order per file (ties in file order), optionally only of some topics and of a
+log-time window ``start_ns <= t < end_ns``, messages deserialized with
+``rclpy.serialization.deserialize_message`` into the classes ``pkg.msg.Type``, or
+left as CDR bytes with ``raw=True`` (what a player publishes as it is).
 
 A file cut short by a hard kill (no summary or footer) is read by scanning
 from the start up to the last complete record, so every chunk written before
@@ -93,11 +96,24 @@ class BagReader:
                     channel.metadata.get('topic_type_hash', ''))
         return found
 
-    def messages(self, topics=None, raw=False):
-        """Yield ``BagMessage`` tuples, only of ``topics`` if given; CDR bytes if ``raw``."""
+    @functools.cached_property
+    def time_range(self):
+        """Return ``(first, last)`` log time [ns] over all files; ``(None, None)`` if empty."""
+        first = last = None
+        for path in self.files:
+            for start, end in _file_time_range(path):
+                first = start if first is None else min(first, start)
+                last = end if last is None else max(last, end)
+        return first, last
+
+    def messages(self, topics=None, raw=False, start_ns=None, end_ns=None):
+        """Yield ``BagMessage`` tuples, only of ``topics`` if given; CDR bytes if ``raw``.
+
+        ``start_ns`` / ``end_ns`` keep the log times ``start_ns <= t < end_ns``.
+        """
         wanted = None if topics is None else set(topics)
         for path in self.files:
-            for schema, channel, record in _file_messages(path, wanted):
+            for schema, channel, record in _file_messages(path, wanted, start_ns, end_ns):
                 type_name = schema.name if schema else ''
                 if raw:
                     message = record.data
@@ -160,12 +176,26 @@ def _file_channels(path):
             yield channel, schemas.get(channel.schema_id), counts.get(channel.id, 0)
 
 
-def _file_messages(path, topics):
+def _file_time_range(path):
+    """Yield the ``(first, last)`` log time of one MCAP file, if it has messages."""
+    with open(path, 'rb') as stream:
+        summary = _summary(stream)
+        if summary is not None and summary.statistics is not None:
+            if summary.statistics.message_count:
+                yield summary.statistics.message_start_time, summary.statistics.message_end_time
+            return
+        times = [r.log_time for r in _scan(stream) if isinstance(r, Message)]
+        if times:
+            yield min(times), max(times)
+
+
+def _file_messages(path, topics, start_ns=None, end_ns=None):
     """Yield ``(schema, channel, message)`` of one MCAP file, recovering a cut-short one."""
     with open(path, 'rb') as stream:
         if _summary(stream) is not None:
             stream.seek(0)
-            yield from SeekingReader(stream).iter_messages(topics=topics, log_time_order=True)
+            yield from SeekingReader(stream).iter_messages(
+                topics=topics, log_time_order=True, starting_at=start_ns, ending_before=end_ns)
             return
         schemas, channels = {}, {}
         for record in _scan(stream):
@@ -175,7 +205,9 @@ def _file_messages(path, topics):
                 channels[record.id] = record
             elif isinstance(record, Message):
                 channel = channels[record.channel_id]
-                if topics is None or channel.topic in topics:
+                if ((topics is None or channel.topic in topics)
+                        and (start_ns is None or record.log_time >= start_ns)
+                        and (end_ns is None or record.log_time < end_ns)):
                     yield schemas.get(channel.schema_id), channel, record
 
 
