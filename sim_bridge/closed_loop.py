@@ -1,0 +1,263 @@
+"""In-process lockstep closed loop: SimWorld + nominal controller + CommandFilter, no DDS.
+
+The evaluation's runner.  Each control period ``T`` (the bridge's: ``n =
+round(physics_rate / control_rate)`` physics steps), for every robot at once::
+
+    state    = world.robot_state(robot)                      (the odometry's state)
+    command  = nominal law of ``nominal_controller`` (go-to-goal: [v, omega] or wrench)
+    safe     = CommandFilter.filter(state, yaw, command, obstacles)   (the node's decision)
+    world.set_command(robot, safe); n x world.step()        (zero-order hold)
+
+The filter is configured from the same parameter file the node gets
+(``config/quadruped.yaml``, ``config/crazyflie_thrust.yaml``), read and built as
+the node does (``polyc2bf_ros.filter_parameters``), with the
+lockstep run's ``rate`` = 1/T and the chosen ``filter.barrier``; with ``barrier='none'``
+the nominal command goes straight to the robot.  Metrics come from the bridge's
+own ``RunMetrics`` (sampled once per period).
+
+Obstacles are what the bridge publishes, built as the node builds them:
+static and moving prisms from their footprint polygons and z ranges; other
+robots as the node's polygon for the bridge's CYLINDER marker
+(``conversions.marker_geometry``: ``cylinder_sides`` = 12, circumscribing the
+robot's footprint radius).  Differences from the DDS path, all on the side of
+the exact information:
+
+- obstacle and robot velocities are the true ones; the node estimates them
+  from successive marker poses (``ObstacleTracker``, smoothing 0.5), so it
+  sees a moving obstacle's velocity only a few periods after it appears;
+- the state is the plant's, not the odometry message's (equal up to the
+  quaternion round trip of the Crazyflie's attitude);
+- obstacles are never stale and their age is 0 (lockstep markers are stamped
+  with the period's time).
+
+Recorded per robot and period: time, state, nominal and safe commands, the
+model input ``u`` and ``u_nom`` (accelerations, or rotor thrusts), the filter
+status and the wall time of ``CommandFilter.filter`` (the step latency).
+"""
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+from visualization_msgs.msg import Marker
+
+from polyc2bf_ros import conversions
+from polyc2bf_ros.core import crazyflie
+from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.filter_parameters import build_filter, load_parameters
+from sim_bridge.launcher import control_rate, FILTER_CHOICES, params_file
+from sim_bridge.metrics import RunMetrics
+from sim_bridge.scenario import load_scenario
+from sim_bridge.world import SimWorld
+
+# The node's defaults for markers without their own parameters (safety_filter_node).
+CYLINDER_SIDES = 12
+WALL_THICKNESS = 0.05
+# robot type: (nominal controller, world command kind, state index of the yaw)
+ROBOT_TYPES = {
+    'quadruped': (UnicycleGoalController, 'velocity', 2),
+    'crazyflie': (QuadrotorGoalController, 'wrench', 8),
+}
+
+
+def _cylinder_polygon(radius):
+    """Return the node's polygon (k, 2) for the bridge's robot CYLINDER marker, at the origin."""
+    marker = Marker(type=Marker.CYLINDER)
+    marker.scale.x = marker.scale.y = 2.0 * radius
+    marker.scale.z = 1.0
+    marker.pose.orientation.w = 1.0
+    polygons, *_ = conversions.marker_geometry(marker, WALL_THICKNESS, CYLINDER_SIDES)
+    return polygons[0]
+
+
+@dataclasses.dataclass
+class RobotTrace:
+    """Per-period record of one robot; ``states`` has one row more (the final state).
+
+    ``input_box`` is (lower, upper) of the model input ``u`` (the node's parameters).
+    """
+
+    name: str
+    type: str
+    goal: np.ndarray
+    input_box: tuple
+    times: np.ndarray
+    states: np.ndarray
+    nominal: np.ndarray
+    commands: np.ndarray
+    u_nom: np.ndarray
+    u: np.ndarray
+    statuses: list
+    latency_s: np.ndarray
+
+    def speeds(self):
+        """Return the speed [m/s] at every recorded state (|v| or |velocity|)."""
+        if self.type == 'quadruped':
+            return np.abs(self.states[:, 3])
+        return np.linalg.norm(self.states[:, 3:6], axis=1)
+
+    def positions(self):
+        """Return the positions (K + 1, 2 or 3): [x, y] or [x, y, z]."""
+        return self.states[:, :2] if self.type == 'quadruped' else self.states[:, :3]
+
+
+@dataclasses.dataclass
+class ClosedLoopRun:
+    """Result of ``run_in_process``: the scenario run, per-robot traces and bridge metrics."""
+
+    scenario: object
+    barrier: str
+    period: float
+    robots: dict
+    metrics: dict
+    wall_time_s: float
+    robot_radius: float = None
+
+
+class _Robot:
+    """One robot's controller, filter and trace buffers."""
+
+    def __init__(self, spec, barrier, period, steps, world):
+        """Build the nominal law and (unless ``barrier`` is 'none') the node's CommandFilter."""
+        controller_class, self.kind, self.yaw_index = ROBOT_TYPES[spec.type]
+        self.spec = spec
+        self.controller = controller_class()
+        parameters = {**load_parameters([params_file(spec.type)], (), spec.name),
+                      'rate': 1.0 / period}
+        self.filter = None
+        # The model gives u and u_nom for the intervention metric even without a filter.
+        self.reference = build_filter(parameters).command_filter
+        if barrier != 'none':
+            self.filter = build_filter({**parameters, 'filter.barrier': barrier}).command_filter
+        self.robot_radius = self.reference.safety_filter.config.robot_radius
+        state = world.robot_state(spec.name)
+        dim = 2 if spec.type == 'quadruped' else 4
+        inputs = self.reference.model.input_dim
+        self.times = np.arange(steps) * period
+        self.states = np.zeros((steps + 1, state.size))
+        self.states[0] = state
+        self.nominal = np.zeros((steps, dim))
+        self.commands = np.zeros((steps, dim))
+        self.u_nom = np.zeros((steps, inputs))
+        self.u = np.zeros((steps, inputs))
+        self.statuses = []
+        self.latency = np.full(steps, np.nan)
+
+    def command(self, k, state, obstacles):
+        """Return the safe command of period ``k`` and record it."""
+        if self.kind == 'velocity':
+            nominal = self.controller.velocity_command(state, self.spec.goal)
+        else:
+            nominal = self.controller.wrench(state, self.spec.goal)
+        command, status = nominal, 'none'
+        if self.filter is not None:
+            start = time.perf_counter()
+            command, info = self.filter.filter(state, float(state[self.yaw_index]), nominal,
+                                               obstacles)
+            self.latency[k] = time.perf_counter() - start
+            status = info.status.value
+        self.nominal[k] = nominal
+        self.commands[k] = command
+        interface = self.reference.interface
+        if interface is not None:
+            # u_nom = (v_cmd - v) / tau as the filter sees it; u from v_safe = v + u T,
+            # with v = [v, omega] of the unicycle state (the quadruped's model).
+            self.u_nom[k] = interface.nominal_input(state, nominal)
+            self.u[k] = (command - state[3:5]) / interface.period
+        else:
+            self.u_nom[k] = crazyflie.thrusts_from_wrench(nominal)
+            self.u[k] = crazyflie.thrusts_from_wrench(command)
+        self.statuses.append(status)
+        return command
+
+    def trace(self):
+        """Return the recorded RobotTrace."""
+        model = self.reference.model
+        return RobotTrace(self.spec.name, self.spec.type, self.spec.goal,
+                          (model.input_lower, model.input_upper), self.times, self.states,
+                          self.nominal, self.commands, self.u_nom, self.u, self.statuses,
+                          self.latency)
+
+
+class _ObstacleView:
+    """Per robot, the ObstacleSet the node would hold, rebuilt only when something moved."""
+
+    def __init__(self, world):
+        """Prepare the robot-marker polygons of every robot."""
+        self.world = world
+        self._robot_polygons = {name: _cylinder_polygon(world.robot_spec(name).radius)
+                                for name in world.robot_names}
+        self._cache = {}
+
+    def obstacles(self, robot):
+        """Return ``robot``'s ObstacleSet at the world's current time."""
+        footprints = self.world.obstacle_footprints(robot)
+        dynamic = any(f.robot or np.any(f.velocity) for f in footprints)
+        key = (self.world.obstacle_version, self.world.steps if dynamic else None)
+        cached = self._cache.get(robot)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        items = []
+        for f in footprints:
+            polygon = f.polygon
+            if f.robot:
+                polygon = self._robot_polygons[f.name] + np.mean(f.polygon, axis=0)
+            items.append(Obstacle(polygon=polygon, velocity=np.asarray(f.velocity, dtype=float),
+                                  z_min=f.z_min, z_max=f.z_max, key=f.name))
+        obstacles = ObstacleSet.from_obstacles(items)
+        self._cache[robot] = (key, obstacles)
+        return obstacles
+
+
+def obstacle_free(scenario):
+    """Return ``scenario`` without its obstacles (listed and random): the nominal reference."""
+    return dataclasses.replace(scenario, obstacles=(), random_obstacles=None)
+
+
+def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=None,
+                   progress=None):
+    """Run ``scenario`` (Scenario or name) in lockstep in this process; return ClosedLoopRun.
+
+    ``progress(sim_time, duration)`` is called about once per simulated second.
+    """
+    if barrier not in FILTER_CHOICES:
+        raise ValueError(f'filter must be one of {", ".join(FILTER_CHOICES)}, got {barrier!r}')
+    scenario = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
+    if seed is not None:
+        scenario = scenario.with_seed(seed)
+    if duration is not None:
+        scenario = dataclasses.replace(scenario, duration=float(duration))
+    substeps = max(1, round(scenario.physics_rate / scenario.control_rate))
+    period = 1.0 / control_rate(scenario)
+    world = SimWorld(scenario)
+    try:
+        steps = int(round(scenario.duration / period))
+        metrics = RunMetrics(world)
+        robots = {spec.name: _Robot(spec, barrier, period, steps, world)
+                  for spec in scenario.robots}
+        view = _ObstacleView(world)
+        report_every = max(1, round(1.0 / period))
+        start = time.perf_counter()
+        for k in range(steps):
+            commands = {}
+            for name, robot in robots.items():
+                state = world.robot_state(name)
+                obstacles = view.obstacles(name) if robot.filter is not None else None
+                commands[name] = robot.command(k, state, obstacles)
+            for name, command in commands.items():
+                world.set_command(name, command, robots[name].kind)
+            for _ in range(substeps):
+                world.step()
+            metrics.update()
+            for name, robot in robots.items():
+                robot.states[k + 1] = world.robot_state(name)
+            if progress is not None and (k + 1) % report_every == 0:
+                progress((k + 1) * period, scenario.duration)
+        wall = time.perf_counter() - start
+        radius = next(iter(robots.values())).robot_radius
+        return ClosedLoopRun(scenario=scenario, barrier=barrier, period=period,
+                             robots={n: r.trace() for n, r in robots.items()},
+                             metrics=metrics.to_json(), wall_time_s=wall, robot_radius=radius)
+    finally:
+        world.close()

@@ -1,0 +1,477 @@
+"""``evaluate``: every filter x scenario x seed in lockstep, as a table, JSON and plots.
+
+Usage::
+
+    evaluate [--scenarios long_wall ...] [--filters c3bf none ...] [--seeds 0 1 2]
+             [--random-seeds 3] [--duration S] [--out runs/eval] [--no-plots]
+
+Each run is the in-process lockstep loop of ``sim_bridge.closed_loop`` (the
+PyBullet world, the ``nominal_controller`` law and the node's ``CommandFilter``),
+deterministic and much faster than the DDS loop.  Scenarios with random obstacles
+run once per seed (``--seeds``, default the scenario's seed and the next
+``--random-seeds`` - 1); the others once.  Each scenario also runs once without
+obstacles and without a filter, for its own duration (not ``--duration``): the
+nominal time to goal.
+
+Per run (one record in ``results.json``; DESIGN.md section 8 keys first):
+
+- ``collision``: a robot's PyBullet closest-point distance fell below -1 mm
+  (``sim_bridge.metrics``); ``min_clearance_m``: the smallest such distance
+  over robots and time (null: nothing came within 0.5 m);
+- ``success``: every robot reached its goal (within 0.25 m) without collision;
+- ``deadlock``: no collision, some robot away from its goal at the end and
+  stalled: speed below ``STALL_SPEED`` for the last ``STALL_TIME`` s.
+  ``outcome`` names the case: success, collision, deadlock or ``timeout`` (not
+  at the goal at the end, still moving);
+- ``time_to_goal_ratio``: mean over robots of time to goal / the same robot's
+  time in the obstacle-free nominal run (null unless every robot arrived);
+- ``mean_intervention``: mean over periods and robots of ``||u - clip(u_nom)||``
+  in the model's input units (unicycle ``[a, alpha]`` in m/s^2 and rad/s^2;
+  quadrotor rotor thrusts in N), ``u_nom = (v_cmd - v) / T`` clipped to the
+  input box: the part of the change that obstacles, not the input bounds, made
+  (``mean_intervention_unclipped`` keeps the raw ``||u - u_nom||``);
+- ``fallback_rate``: share of filter steps with status slack, brake or escape;
+  ``fallback_at_start``: the first step already fell back (a robot starts inside
+  its (virtual) obstacle: no cone, the C3BF failure the paper describes);
+- ``latency_p50_us`` / ``latency_p99_us``: wall time of ``CommandFilter.filter``
+  per step, in this process (not the node's DDS round trip).
+
+Filter-dependent values are null for ``none``.  Output in ``--out``:
+``results.json``, ``results.md`` (table per scenario x filter aggregated over
+seeds, and findings), ``trajectories.png`` (top view per scenario, first seed,
+all filters overlaid) and ``metrics.png``.
+"""
+import argparse
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+
+from sim_bridge import plots
+from sim_bridge.closed_loop import obstacle_free, run_in_process
+from sim_bridge.launcher import FILTER_CHOICES
+from sim_bridge.metrics import GOAL_TOLERANCE
+from sim_bridge.scenario import load_scenario, scenario_names
+from sim_bridge.world import CLEARANCE_RANGE
+
+STALL_TIME = 3.0      # s
+STALL_SPEED = 0.05    # m/s
+FALLBACKS = ('slack', 'brake', 'escape')
+GRAZE = 0.01          # m: clearances below this are reported as near-contacts
+DEFAULT_RANDOM_SEEDS = 3
+KEYS = ('scenario', 'filter', 'seed', 'success', 'collision', 'deadlock', 'min_clearance_m',
+        'time_to_goal_ratio', 'mean_intervention', 'fallback_rate', 'latency_p50_us',
+        'latency_p99_us')
+POLYC2BF = ('polyc2bf_paper', 'polyc2bf_inflated')
+PAPER_CLAIM = ('long_wall', 'semi_infinite_wall')  # where the paper says C3BF fails
+
+
+def _round(value, digits=4):
+    return None if value is None or not math.isfinite(value) else round(float(value), digits)
+
+
+def _robot_record(trace, metrics, reference_time, period):
+    """Per-robot outcome of one run (see the module docstring)."""
+    final_distance = float(np.linalg.norm(trace.positions()[-1] - trace.goal))
+    window = max(1, round(STALL_TIME / period))
+    stalled = bool(trace.speeds()[-window:].max() < STALL_SPEED)
+    at_goal = final_distance <= GOAL_TOLERANCE
+    deadlock = not metrics['collision'] and not at_goal and stalled
+    ratio = None
+    if metrics['goal_reached'] and reference_time:
+        ratio = metrics['time_to_goal_s'] / reference_time
+    return {'collision': metrics['collision'], 'collision_time_s': metrics['collision_time_s'],
+            'goal_reached': metrics['goal_reached'], 'time_to_goal_s': metrics['time_to_goal_s'],
+            'reference_time_to_goal_s': reference_time, 'time_to_goal_ratio': _round(ratio),
+            'min_clearance_m': metrics['min_clearance_m'], 'final_distance_m':
+            round(final_distance, 4), 'stalled': stalled, 'deadlock': deadlock,
+            'path_length_m': metrics['path_length_m']}
+
+
+def summarise(run, reference_times):
+    """Return the result record of one ClosedLoopRun (DESIGN.md section 8 keys + extras)."""
+    robots = {}
+    for name, trace in run.robots.items():
+        robots[name] = _robot_record(trace, run.metrics[name], reference_times.get(name),
+                                     run.period)
+    filtered = run.barrier != 'none'
+    statuses = [s for trace in run.robots.values() for s in trace.statuses]
+    latency = np.concatenate([t.latency_s for t in run.robots.values()]) * 1e6
+    clipped, raw = [], []
+    for trace in run.robots.values():
+        u_nom = np.clip(trace.u_nom, *trace.input_box)
+        clipped.append(np.linalg.norm(trace.u - u_nom, axis=1))
+        raw.append(np.linalg.norm(trace.u - trace.u_nom, axis=1))
+    clearances = [r['min_clearance_m'] for r in robots.values()
+                  if r['min_clearance_m'] is not None]
+    ratios = [r['time_to_goal_ratio'] for r in robots.values()]
+    collision = any(r['collision'] for r in robots.values())
+    success = all(r['goal_reached'] for r in robots.values()) and not collision
+    deadlock = any(r['deadlock'] for r in robots.values())
+    outcome = ('success' if success else 'collision' if collision else 'deadlock' if deadlock
+               else 'timeout')
+    counts = {status: statuses.count(status) for status in FALLBACKS}
+    record = {
+        'scenario': run.scenario.name, 'filter': run.barrier, 'seed': run.scenario.seed,
+        'success': success, 'collision': collision, 'deadlock': deadlock,
+        'min_clearance_m': min(clearances) if clearances else None,
+        'time_to_goal_ratio': _round(float(np.mean(ratios))) if None not in ratios else None,
+        'mean_intervention': _round(float(np.mean(np.concatenate(clipped)))) if filtered
+        else None,
+        'fallback_rate': _round(sum(counts.values()) / len(statuses), 5) if filtered else None,
+        'latency_p50_us': _round(float(np.percentile(latency, 50)), 1) if filtered else None,
+        'latency_p99_us': _round(float(np.percentile(latency, 99)), 1) if filtered else None,
+        'outcome': outcome,
+        'mean_intervention_unclipped': _round(float(np.mean(np.concatenate(raw))))
+        if filtered else None,
+        'intervention_units': _units(run),
+        'fallback_steps': counts if filtered else None,
+        'fallback_at_start': any(t.statuses[0] in FALLBACKS for t in run.robots.values()
+                                 if t.statuses),
+        'steps': len(statuses), 'duration_s': run.scenario.duration,
+        'wall_time_s': round(run.wall_time_s, 2), 'robots': robots,
+    }
+    return record
+
+
+def _units(run):
+    kinds = {run.scenario.robot(name).type for name in run.robots}
+    units = {'quadruped': 'unicycle [a m/s^2, alpha rad/s^2]',
+             'crazyflie': 'rotor thrusts [N]'}
+    return ', '.join(units[k] for k in sorted(kinds))
+
+
+# -- progress ------------------------------------------------------------------------------
+
+class Progress:
+    """A progress bar with ETA on stderr, counted in simulated robot-seconds."""
+
+    def __init__(self, total, stream=None, width=30):
+        """Expect ``total`` robot-seconds of simulation; write to ``stream`` (stderr)."""
+        self.total = max(total, 1e-9)
+        self.done = 0.0
+        self.stream = stream or sys.stderr
+        self.width = width
+        self.start = time.monotonic()
+        self.tty = self.stream.isatty()
+        self._last = 0.0
+
+    def update(self, done, label, force=False):
+        """Show ``done`` robot-seconds finished, working on ``label``."""
+        self.done = done
+        now = time.monotonic()
+        if not force and now - self._last < (0.2 if self.tty else 10.0):
+            return
+        self._last = now
+        share = min(self.done / self.total, 1.0)
+        elapsed = now - self.start
+        eta = elapsed * (1.0 - share) / share if share > 0 else math.nan
+        bar = '#' * int(share * self.width)
+        text = (f'[{bar:<{self.width}}] {100 * share:5.1f} %  {elapsed:6.0f} s elapsed, '
+                f'ETA {eta:5.0f} s  {label}')
+        self.stream.write(('\r' + text[:160].ljust(160)) if self.tty else text + '\n')
+        self.stream.flush()
+
+    def close(self):
+        """End the bar's line."""
+        if self.tty:
+            self.stream.write('\n')
+            self.stream.flush()
+
+
+# -- the suite ------------------------------------------------------------------------------
+
+def plan_runs(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS, duration=None):
+    """Return ``[(Scenario, filter)]``: random scenarios once per seed, the others once."""
+    runs = []
+    for name in scenarios:
+        base = load_scenario(name)
+        if duration is not None:
+            base = dataclasses.replace(base, duration=float(duration))
+        if base.random_obstacles is not None:
+            chosen = seeds if seeds else [base.seed + i for i in range(random_seeds)]
+            variants = [base.with_seed(s) for s in chosen]
+        else:
+            variants = [base]
+        runs += [(variant, barrier) for variant in variants for barrier in filters]
+    return runs
+
+
+def run_suite(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
+              duration=None, progress=True):
+    """Run the obstacle-free references and every planned run; return (records, runs)."""
+    planned = plan_runs(scenarios, filters, seeds, random_seeds, duration)
+    # References run for the scenario file's own duration, whatever ``duration`` says.
+    references = {}
+    for name in scenarios:
+        scenario = load_scenario(name)
+        references.setdefault(scenario.name, obstacle_free(scenario))
+    work = [(s, 'none', True) for s in references.values()] + [(s, f, False) for s, f in planned]
+    total = sum(s.duration * len(s.robots) for s, _, _ in work)
+    bar = Progress(total) if progress else None
+    done = 0.0
+    reference_times, records, runs = {}, [], []
+    for scenario, barrier, is_reference in work:
+        label = (f'{scenario.name} (obstacle-free reference)' if is_reference
+                 else f'{scenario.name} seed {scenario.seed} {barrier}')
+        weight = len(scenario.robots)
+
+        def report(sim_time, _duration, base=done, weight=weight, label=label):
+            if bar is not None:
+                bar.update(base + sim_time * weight, label)
+
+        run = run_in_process(scenario, barrier, progress=report)
+        done += scenario.duration * weight
+        if is_reference:
+            reference_times[scenario.name] = {name: m['time_to_goal_s']
+                                              for name, m in run.metrics.items()}
+            continue
+        records.append(summarise(run, reference_times[scenario.name]))
+        runs.append(run)
+        if bar is not None:
+            bar.update(done, label, force=True)
+    if bar is not None:
+        bar.close()
+    return records, runs
+
+
+# -- tables and findings --------------------------------------------------------------------
+
+def aggregate(records):
+    """Return one row per (scenario, filter), aggregated over seeds, in record order."""
+    groups = {}
+    for record in records:
+        groups.setdefault((record['scenario'], record['filter']), []).append(record)
+    rows = []
+    for (scenario, name), group in groups.items():
+        def values(key, group=group):
+            return [r[key] for r in group if r[key] is not None]
+
+        clearances = values('min_clearance_m')
+        ratios = values('time_to_goal_ratio')
+        rows.append({
+            'scenario': scenario, 'filter': name, 'runs': len(group),
+            'success': sum(r['success'] for r in group),
+            'collision': sum(r['collision'] for r in group),
+            'deadlock': sum(r['deadlock'] for r in group),
+            'timeout': sum(r['outcome'] == 'timeout' for r in group),
+            'fallback_at_start': sum(r['fallback_at_start'] for r in group),
+            'success_rate': sum(r['success'] for r in group) / len(group),
+            'min_clearance_m': min(clearances) if clearances else None,
+            'time_to_goal_ratio': float(np.mean(ratios)) if ratios else None,
+            'mean_intervention': _mean(values('mean_intervention')),
+            'fallback_rate': _mean(values('fallback_rate')),
+            'latency_p50_us': float(np.median(values('latency_p50_us')))
+            if values('latency_p50_us') else None,
+            'latency_p99_us': max(values('latency_p99_us'), default=None),
+        })
+    return rows
+
+
+def _mean(values):
+    return float(np.mean(values)) if values else None
+
+
+def _cell(value, digits=2, suffix=''):
+    return '–' if value is None else f'{value:.{digits}f}{suffix}'
+
+
+def markdown_table(rows):
+    """Return the Markdown table of aggregated rows."""
+    lines = ['| scenario | filter | success | collision | deadlock | timeout | no cone at t=0 | '
+             'min clearance [m] | time to goal ratio | mean intervention | fallback rate | '
+             'latency p50 / p99 [us] |', '|' + '---|' * 12]
+    for r in rows:
+        n = r['runs']
+        clearance = (f'> {CLEARANCE_RANGE:g}' if r['min_clearance_m'] is None
+                     else f'{r["min_clearance_m"]:.3f}')
+        latency = ('–' if r['latency_p50_us'] is None
+                   else f'{r["latency_p50_us"]:.0f} / {r["latency_p99_us"]:.0f}')
+        lines.append(
+            f'| {r["scenario"]} | {r["filter"]} | {r["success"]}/{n} | {r["collision"]}/{n} | '
+            f'{r["deadlock"]}/{n} | {r["timeout"]}/{n} | {r["fallback_at_start"]}/{n} | '
+            f'{clearance} | '
+            f'{_cell(r["time_to_goal_ratio"])} | {_cell(r["mean_intervention"], 3)} | '
+            f'{_cell(None if r["fallback_rate"] is None else 100 * r["fallback_rate"], 1, " %")}'
+            f' | {latency} |')
+    return '\n'.join(lines)
+
+
+def findings(records, rows):
+    """Return a list of one-line findings drawn from the measured records."""
+    lines = []
+    scenarios = list(dict.fromkeys(r['scenario'] for r in records))
+    filters = list(dict.fromkeys(r['filter'] for r in records))
+    for name in [f for f in POLYC2BF if f in filters]:
+        mine = [r for r in records if r['filter'] == name]
+        hits = sorted({f'{r["scenario"]} (seed {r["seed"]})' for r in mine if r['collision']})
+        if hits:
+            lines.append(f'{name}: COLLIDED in {len(hits)} of {len(mine)} runs: '
+                         + ', '.join(hits) + '.')
+        else:
+            lines.append(f'{name}: zero collisions in {len(mine)} runs over '
+                         f'{len({r["scenario"] for r in mine})} scenarios.')
+        grazes = [r for r in mine if not r['collision'] and r['min_clearance_m'] is not None
+                  and r['min_clearance_m'] < GRAZE]
+        if grazes:
+            lines.append(f'{name}: came within {100 * GRAZE:.0f} cm (no collision) in: '
+                         + ', '.join(f'{r["scenario"]} (seed {r["seed"]}, '
+                                     f'{r["min_clearance_m"]:.4f} m)' for r in grazes) + '.')
+        escapes = [r for r in mine if (r['fallback_steps'] or {}).get('escape')]
+        if escapes:
+            lines.append(f'{name}: reference point inside an inflated obstacle (escape '
+                         'fallback) in: ' + ', '.join(
+                             f'{r["scenario"]} (seed {r["seed"]}, '
+                             f'{r["fallback_steps"]["escape"]} steps)' for r in escapes) + '.')
+    if 'c3bf' in filters:
+        for scenario in [s for s in PAPER_CLAIM if s in scenarios]:
+            mine = [r for r in records if r['filter'] == 'c3bf' and r['scenario'] == scenario]
+            failed = [r for r in mine if not r['success']]
+            rescued = [r for r in mine if r['success'] and r['fallback_at_start']]
+            if failed:
+                verdict = (f'fails in {len(failed)}/{len(mine)} runs ('
+                           + ', '.join(sorted({_why(r) for r in failed})) + ')')
+            elif rescued:
+                verdict = (f'starts inside its virtual obstacle (no cone: fallback from the first '
+                           f'step, the failure the paper describes) in {len(rescued)}/{len(mine)} '
+                           'runs, and reached the goal only through the escape fallback ('
+                           + ', '.join(sorted({_why(r) for r in rescued})) + ')')
+            else:
+                verdict = (f"succeeds in all {len(mine)} runs: the paper's claim is NOT "
+                           'reproduced here')
+            lines.append(f'c3bf on {scenario}: {verdict}.')
+    for name in [f for f in filters if f != 'none']:
+        stuck = [r for r in records if r['filter'] == name and r['outcome'] in
+                 ('deadlock', 'timeout')]
+        if stuck:
+            lines.append(f'{name} did not reach the goal in: ' + ', '.join(
+                f'{r["scenario"]} (seed {r["seed"]}, {_why(r)})' for r in stuck) + '.')
+        slow = [row for row in rows if row['filter'] == name
+                and (row['time_to_goal_ratio'] or 0.0) > 1.25]
+        if slow:
+            lines.append(f'{name} is conservative (time to goal > 1.25 x nominal) in: '
+                         + ', '.join(f'{row["scenario"]} ({row["time_to_goal_ratio"]:.2f}x)'
+                                     for row in slow) + '.')
+    if 'none' in filters:
+        hits = sorted({r['scenario'] for r in records if r['filter'] == 'none' and r['collision']})
+        lines.append(f'no filter: collides in {len(hits)} of {len(scenarios)} scenarios'
+                     + (f' ({", ".join(hits)})' if hits else '') + ': the scenarios are not '
+                     'trivially safe.')
+    return lines
+
+
+def _why(record):
+    """Return a short reason for a run's outcome (with the filter's dominant fallback)."""
+    outcome = record['outcome']
+    steps = record.get('fallback_steps') or {}
+    escape = steps.get('escape', 0)
+    if escape:
+        outcome += f', escape in {100 * escape / record["steps"]:.0f} % of steps'
+    return outcome
+
+
+def write_outputs(out, records, runs, command, plots_too=True):
+    """Write results.json, results.md and (unless ``plots_too`` is False) the PNGs."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'results.json').write_text(json.dumps(records, indent=1) + '\n')
+    rows = aggregate(records)
+    load = ', '.join(f'{v:.2f}' for v in os.getloadavg())
+    units = ', '.join(sorted({r['intervention_units'] for r in records}))
+    text = ['# Evaluation: PolyC2BF vs C3BF (lockstep, in-process)', '',
+            f'Command: `{command}`  ',
+            f'Date: {datetime.now().isoformat(timespec="seconds")}, load average after the run: '
+            f'{load}.  ',
+            f'{len(records)} runs; per run JSON in `results.json`.  Definitions: '
+            '`sim_bridge/evaluate.py` docstring.  Counts are runs (seeds) with that outcome; '
+            '"no cone at t=0": the filter fell back (escape: the robot starts inside the '
+            '(virtual) obstacle, where the barrier is undefined) on the first step; '
+            f'min clearance is the minimum over seeds ("> {CLEARANCE_RANGE:g}": nothing came '
+            f'within {CLEARANCE_RANGE:g} m); '
+            f'intervention units: {units}.',
+            '', markdown_table(rows), '', '## Findings', '']
+    text += [f'- {line}' for line in findings(records, rows)]
+    (out / 'results.md').write_text('\n'.join(text) + '\n')
+    if plots_too and runs:
+        _plots(out, runs, rows)
+    return rows
+
+
+def _plots(out, runs, rows):
+    """Write trajectories.png (first seed per scenario) and metrics.png."""
+    panels, seen = {}, {}
+    radius = {}
+    for run in runs:
+        first = seen.setdefault(run.scenario.name, run.scenario.seed)
+        if run.scenario.seed != first:
+            continue
+        scenario, by_filter, collisions = panels.setdefault(
+            run.scenario.name, (run.scenario, {}, []))
+        by_filter[run.barrier] = [t.positions() for t in run.robots.values()]
+        if run.robot_radius is not None:
+            radius[run.scenario.name] = run.robot_radius
+        for name, trace in run.robots.items():
+            when = run.metrics[name]['collision_time_s']
+            if when is not None:
+                collisions.append(trace.positions()[min(len(trace.times),
+                                                        round(when / run.period))])
+    plots.grid_figure(out / 'trajectories.png', list(panels.values()),
+                      lambda s: radius.get(s.name, 0.0),
+                      'Paths per scenario (first seed); red dotted: C3BF virtual obstacles')
+    scenarios = list(dict.fromkeys(r['scenario'] for r in rows))
+    filters = list(dict.fromkeys(r['filter'] for r in rows))
+    plots.metrics_figure(out / 'metrics.png', rows, filters, scenarios)
+
+
+def main(argv=None):
+    """Run the evaluation suite and write its outputs; exit 0, 2 on bad arguments, 130 on ^C."""
+    parser = argparse.ArgumentParser(prog='evaluate', description=__doc__.split('\n')[0])
+    parser.add_argument('--scenarios', nargs='+', default=None, metavar='NAME',
+                        help=f'scenarios (default: all shipped: {", ".join(scenario_names())})')
+    parser.add_argument('--filters', nargs='+', default=list(FILTER_CHOICES),
+                        choices=FILTER_CHOICES, metavar='FILTER',
+                        help=f'filters (default: all: {", ".join(FILTER_CHOICES)})')
+    parser.add_argument('--seeds', nargs='+', type=int, default=None,
+                        help='seeds of the scenarios with random obstacles')
+    parser.add_argument('--random-seeds', type=int, default=DEFAULT_RANDOM_SEEDS,
+                        help="without --seeds: this many seeds from the scenario's own "
+                        f'(default {DEFAULT_RANDOM_SEEDS})')
+    parser.add_argument('--duration', type=float, default=None,
+                        help="sim seconds per run (default: each scenario's)")
+    parser.add_argument('--out', default='runs/eval', help='output directory (runs/eval)')
+    parser.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
+    args = parser.parse_args(argv)
+    scenarios = args.scenarios or scenario_names()
+    unknown = [s for s in scenarios if s not in scenario_names() and not Path(s).is_file()]
+    if unknown:
+        parser.error(f'unknown scenario(s) {", ".join(unknown)}; shipped: '
+                     f'{", ".join(scenario_names())}')
+    if args.duration is not None and args.duration <= 0:
+        parser.error('--duration must be > 0')
+    if args.random_seeds < 1:
+        parser.error('--random-seeds must be >= 1')
+    command = 'evaluate ' + ' '.join(sys.argv[1:] if argv is None else argv)
+    try:
+        records, runs = run_suite(scenarios, args.filters, args.seeds, args.random_seeds,
+                                  args.duration)
+    except KeyboardInterrupt:
+        print('\nevaluate: interrupted; nothing written', file=sys.stderr)
+        return 130
+    rows = write_outputs(args.out, records, runs, command.strip(), not args.no_plots)
+    print(markdown_table(rows))
+    print()
+    for line in findings(records, rows):
+        print(f'- {line}')
+    print(f'\nwrote {Path(args.out) / "results.json"}, results.md'
+          + ('' if args.no_plots else ', trajectories.png, metrics.png'))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
