@@ -1,6 +1,6 @@
-"""Benchmark the PyBullet world alone (no ROS, no filter): real-time factor and memory.
+"""Benchmark the PyBullet world alone, and in-process closed loop: real-time factor, memory.
 
-Usage: python bench/bench_sim.py [--seconds S] [--out bench/results/sim.json]
+Usage: python bench/bench_sim.py [--seconds S] [--case NAME] [--out bench/results/sim.json]
 
 Per physics step: ``SimWorld.step()``.  Per control period, per robot, what the
 bridge node will do besides ROS: read the state, compute the nominal command
@@ -9,6 +9,13 @@ obstacle footprints to publish, and sample the metrics (closest points).
 real_time_factor = simulated time / wall time; cpu_real_time_factor uses the
 process CPU time, the fairer number on a shared machine.  rss_mb is the peak
 resident set of the process so far (cases run in the order listed).
+
+Closed loop in process (``closed_loop: true``, ``transport: in_process``): the
+same cases through ``sim_bridge.closed_loop.run_in_process``, the evaluation's
+lockstep runner: per period and robot the nominal law, the node's
+``CommandFilter`` (default barrier) and the world, with no DDS in between.  It
+shows what the simulation plus the filter cost; the loop over DDS with one
+process per node is ``bench_sim_closed_loop.py``.
 """
 import argparse
 import dataclasses
@@ -20,6 +27,7 @@ from bench_io import write_records
 
 from polyc2bf_ros.core import crazyflie as cf
 from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+from sim_bridge.closed_loop import run_in_process
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.scenario import load_scenario, scenario_from_dict
 from sim_bridge.world import SimWorld
@@ -120,6 +128,22 @@ def run_case(name, seconds):
             'footprints_per_s': round(published / wall), 'robots_collided': collisions}
 
 
+def run_closed_loop_case(name, seconds):
+    """Run case ``name`` in closed loop in this process; return its result record."""
+    run = run_in_process(CASES[name](), duration=seconds)
+    statuses = [s for trace in run.robots.values() for s in trace.statuses]
+    latency_us = np.concatenate([trace.latency_s for trace in run.robots.values()]) * 1e6
+    return {'bench': 'sim', 'case': name, 'robots': len(run.robots), 'closed_loop': True,
+            'transport': 'in_process', 'barrier': run.barrier,
+            'real_time_factor': round(seconds / run.wall_time_s, 2),
+            'rss_mb': round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+            'sim_seconds': seconds, 'control_rate': round(1.0 / run.period, 3),
+            'filter_p50_us': round(float(np.nanpercentile(latency_us, 50)), 1),
+            'filter_p99_us': round(float(np.nanpercentile(latency_us, 99)), 1),
+            'non_ok_steps': sum(s != 'ok' for s in statuses),
+            'robots_collided': sum(r['collision'] for r in run.metrics.values())}
+
+
 def main(argv=None):
     """Run every case, print a table and write the JSON records."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -137,6 +161,15 @@ def main(argv=None):
         print(f'{name:<24} {record["robots"]:>6} {record["real_time_factor"]:>9.1f} '
               f'{record["cpu_real_time_factor"]:>8.1f} {record["physics_share"]:>8.0%} '
               f'{record["rss_mb"]:>7.0f} {record["build_s"]:>8.2f}', flush=True)
+    print(f'\nclosed loop in process (nominal law + CommandFilter + world, no DDS)\n'
+          f'{"case":<24} {"robots":>6} {"RTF wall":>9} {"filter p50 us":>14} '
+          f'{"p99 us":>8} {"non-ok":>7} {"RSS MB":>7}')
+    for name in args.case or CASES:
+        record = run_closed_loop_case(name, args.seconds)
+        records.append(record)
+        print(f'{name:<24} {record["robots"]:>6} {record["real_time_factor"]:>9.1f} '
+              f'{record["filter_p50_us"]:>14.0f} {record["filter_p99_us"]:>8.0f} '
+              f'{record["non_ok_steps"]:>7} {record["rss_mb"]:>7.0f}', flush=True)
     write_records(records, args.out)
     return records
 

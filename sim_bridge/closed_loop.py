@@ -189,12 +189,20 @@ class _ObstacleView:
         self._robot_polygons = {name: _cylinder_polygon(world.robot_spec(name).radius)
                                 for name in world.robot_names}
         self._cache = {}
+        self._dynamic = {}
+
+    def _moves(self, robot, footprints):
+        """Return whether any of ``robot``'s obstacles moves (per obstacle version)."""
+        key = (robot, self.world.obstacle_version)
+        if key not in self._dynamic:
+            self._dynamic[key] = any(f.robot or np.any(f.velocity) for f in footprints)
+        return self._dynamic[key]
 
     def obstacles(self, robot):
         """Return ``robot``'s ObstacleSet at the world's current time."""
         footprints = self.world.obstacle_footprints(robot)
-        dynamic = any(f.robot or np.any(f.velocity) for f in footprints)
-        key = (self.world.obstacle_version, self.world.steps if dynamic else None)
+        version = self.world.obstacle_version
+        key = (version, self.world.steps if self._moves(robot, footprints) else None)
         cached = self._cache.get(robot)
         if cached is not None and cached[0] == key:
             return cached[1]
