@@ -2,12 +2,20 @@
 
 Usage: python bench/bench_core.py [--steps N] [--out bench/results/core.json]
        [--models unicycle ...] [--backends daqp ...] [--counts 1 10 ...] [--no-startup]
+       [--rebuilds N] [--moving M]
 
 Every step of a closed-loop numpy rollout is timed: the robot starts at rest
 and its nominal controller drives it through N random 8-gons (2-20 m around
 the start, drifting at up to 0.1 m/s) towards a goal 15 m away, so the mix of
 ok / slack steps is the one the filter meets in operation.  The obstacle set
 is built once per case, as the node does once per obstacle message.
+
+Rebuild (``core_rebuild``): every new obstacle set (each obstacle message;
+each step while obstacles move) is built with ``ObstacleSet.from_obstacles``
+and prepared by the filter (``SafetyFilter.prepare``: inflation, circles,
+vertical views).  Per model and barrier, a set of N convex 8-gons of which
+``--moving`` translate every period is rebuilt ``--rebuilds`` times; both parts
+are timed.
 
 Start-up: the filter's kernels are compiled by numba on first use and cached
 on disk; two fresh processes sharing an empty cache directory time the import
@@ -29,7 +37,7 @@ from polyc2bf_ros.core.geometry import convex_hull
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
+from polyc2bf_ros.core.safety_filter import CONE_MODELS, FilterConfig, SafetyFilter
 from polyc2bf_ros.core.simulate import rk4_step
 
 OBSTACLE_COUNTS = (1, 10, 50, 200)
@@ -38,8 +46,8 @@ BACKENDS = ('daqp', 'proxsuite')
 MODELS = ('unicycle', 'quadrotor')
 
 
-def octagons(count, rng):
-    """Return ``count`` convex 8-gons scattered 2-20 m around the origin."""
+def octagon_obstacles(count, rng):
+    """Return ``count`` obstacles: convex 8-gons scattered 2-20 m around the origin."""
     angles = np.linspace(0.0, 2.0 * np.pi, VERTICES, endpoint=False)
     obstacles = []
     for _ in range(count):
@@ -50,7 +58,12 @@ def octagons(count, rng):
                                                         radii * np.sin(angles)]))
         obstacles.append(Obstacle(polygon=polygon, velocity=rng.uniform(-0.1, 0.1, 3),
                                   z_min=0.0, z_max=rng.uniform(0.5, 3.0)))
-    return ObstacleSet.from_obstacles(obstacles)
+    return obstacles
+
+
+def octagons(count, rng):
+    """Return the ObstacleSet of ``octagon_obstacles``."""
+    return ObstacleSet.from_obstacles(octagon_obstacles(count, rng))
 
 
 CASES = {
@@ -86,6 +99,53 @@ def time_case(model_name, backend, count, steps, rng):
             'p99_us': round(float(np.percentile(us, 99)), 1),
             'max_us': round(float(us.max()), 1), 'steps': steps, 'statuses': statuses,
             'load_avg_1min': round(os.getloadavg()[0], 2)}
+
+
+def _percentiles(prefix, seconds):
+    """Return {prefix_p50_us, prefix_p99_us} of the samples."""
+    us = np.asarray(seconds) * 1e6
+    return {f'{prefix}_p50_us': round(float(np.percentile(us, 50)), 1),
+            f'{prefix}_p99_us': round(float(np.percentile(us, 99)), 1)}
+
+
+def time_rebuild(model_name, barrier, count, moving, rebuilds, rng, period=0.01):
+    """Return one rebuild record: from_obstacles and SafetyFilter.prepare per new set."""
+    filt = SafetyFilter(make_model(model_name), FilterConfig(barrier=barrier, robot_radius=0.3))
+    obstacles = octagon_obstacles(count, rng)
+    build, prepare = np.empty(rebuilds), np.empty(rebuilds)
+    for i in range(rebuilds):
+        obstacles[:moving] = [Obstacle(polygon=o.polygon + period * o.velocity[:2],
+                                       velocity=o.velocity, z_min=o.z_min, z_max=o.z_max)
+                              for o in obstacles[:moving]]
+        begin = time.perf_counter()
+        obstacle_set = ObstacleSet.from_obstacles(obstacles)
+        built = time.perf_counter()
+        filt.prepare(obstacle_set)
+        build[i], prepare[i] = built - begin, time.perf_counter() - built
+    return {'bench': 'core_rebuild', 'model': model_name, 'barrier': barrier,
+            'obstacles': count, 'moving': moving, 'vertices': VERTICES,
+            **_percentiles('from_obstacles', build), **_percentiles('prepare', prepare),
+            **_percentiles('total', build + prepare), 'rebuilds': rebuilds,
+            'load_avg_1min': round(os.getloadavg()[0], 2)}
+
+
+def rebuild_records(models, counts, moving, rebuilds):
+    """Time the rebuild for every model, barrier and obstacle count; print a table."""
+    records = []
+    print(f'{"rebuild":<10} {"barrier":<18} {"N":>4} {"set p50":>8} {"prep p50":>8} '
+          f'{"total p50":>9} {"total p99":>9}  (us, {moving} moving)')
+    for model_name in models:
+        for barrier in CONE_MODELS:
+            for count in counts:
+                rng = np.random.default_rng([11, MODELS.index(model_name), count])
+                record = time_rebuild(model_name, barrier, count, min(moving, count), rebuilds,
+                                      rng)
+                records.append(record)
+                print(f'{model_name:<10} {barrier:<18} {count:>4} '
+                      f'{record["from_obstacles_p50_us"]:>8.1f} {record["prepare_p50_us"]:>8.1f} '
+                      f'{record["total_p50_us"]:>9.1f} {record["total_p99_us"]:>9.1f}',
+                      flush=True)
+    return records
 
 
 STARTUP_SCRIPT = """
@@ -125,9 +185,15 @@ def main(argv=None):
     parser.add_argument('--backends', nargs='+', choices=BACKENDS, default=BACKENDS)
     parser.add_argument('--counts', nargs='+', type=int, default=OBSTACLE_COUNTS)
     parser.add_argument('--no-startup', action='store_true', help='skip the start-up timing')
+    parser.add_argument('--rebuilds', type=int, default=500,
+                        help='obstacle-set rebuilds timed per case (0: skip)')
+    parser.add_argument('--moving', type=int, default=10,
+                        help='obstacles that move between rebuilds')
     args = parser.parse_args(argv)
     print(f'load average at start: {" ".join(f"{v:.2f}" for v in os.getloadavg())}')
     records = [] if args.no_startup else startup_records()
+    if args.rebuilds:
+        records += rebuild_records(args.models, args.counts, args.moving, args.rebuilds)
     print(f'{"model":<10} {"backend":<10} {"N":>4} {"p50 us":>8} {"p99 us":>8} {"max us":>8}  '
           'statuses')
     for model_name in args.models:

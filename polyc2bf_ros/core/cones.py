@@ -23,6 +23,14 @@ delta constant in the obstacle frame, so ds/dp = k_hat + (p - s k_hat)/||k||.
   silhouette of the inflated obstacle up to radius*(1/cos(pi/segments) - 1).
 * ``CircleCone``: C3BF, the polygon's minimum enclosing circle grown by the
   robot radius.
+
+Where no cone exists (the viewpoint q inside the inflated obstacle, or within
+``extension`` of the polygon), ``exits`` gives the shortest way out of that
+region: with d(q) the signed distance to the polygon (negative inside) or the
+circle, the depth is ``extension - d(q)`` (``R - |q - c|`` for a circle) and the
+direction is grad d: (q - c)/|q - c| for the nearest boundary point c outside,
+the outward normal of the nearest edge inside (for a convex polygon the
+nearest boundary point from inside lies on that edge).
 """
 import abc
 import math
@@ -30,7 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polyc2bf_ros.core.geometry import inflate_polygon, minimum_enclosing_circle, PolygonBatch
+from polyc2bf_ros.core import batch_geometry
+from polyc2bf_ros.core.geometry import PolygonBatch
 from polyc2bf_ros.core.jit import kernel
 
 _TINY = 1e-12
@@ -71,13 +80,13 @@ class Cones:
 
 @dataclass(frozen=True)
 class PlanarPolygons:
-    """Convex polygons laid out for the cone kernel: (N, V) arrays, one row per polygon.
+    """Convex polygons laid out for the cone kernel: (N, W) arrays, one row per polygon.
 
     Vertex coordinates ``x``, ``y``, edges ``edge_x``, ``edge_y`` (from each vertex to
-    the next) and their ``inv_sq`` = 1 / |e|^2, each polygon's first ``counts[n]`` slots.
+    the next) and their ``inv_sq`` = 1 / |e|^2, each polygon's first ``counts[n]`` slots
+    (``batch_geometry.edge_rows`` pads the rest).
     """
 
-    batch: PolygonBatch
     x: np.ndarray
     y: np.ndarray
     edge_x: np.ndarray
@@ -86,14 +95,26 @@ class PlanarPolygons:
     counts: np.ndarray
 
     @classmethod
+    def from_rows(cls, x, y, counts):
+        """Lay out (N, W) vertex rows (filled up to ``counts``) once per obstacle update."""
+        edge_x, edge_y, inv_sq = np.empty_like(x), np.empty_like(x), np.empty_like(x)
+        batch_geometry.edge_rows(x, y, counts, edge_x, edge_y, inv_sq)
+        return cls(x, y, edge_x, edge_y, inv_sq, counts)
+
+    @classmethod
     def from_batch(cls, batch):
-        """Lay out a batch once per obstacle update."""
-        rows = [np.ascontiguousarray(a.T) for a in (batch.x, batch.y, *batch.edge_table)]
-        return cls(batch, *rows, counts=batch.counts)
+        """Lay out a ``PolygonBatch``."""
+        return cls.from_rows(np.ascontiguousarray(batch.vertices[..., 0]),
+                             np.ascontiguousarray(batch.vertices[..., 1]), batch.counts)
+
+    @property
+    def batch(self):
+        """Return the polygons as a ``PolygonBatch``."""
+        return PolygonBatch(np.stack((self.x, self.y), axis=-1), self.counts)
 
     def __len__(self):
         """Return the number of polygons."""
-        return len(self.batch)
+        return self.counts.shape[0]
 
 
 class ConeModel(abc.ABC):
@@ -117,17 +138,38 @@ class ConeModel(abc.ABC):
     def fill(self, prepared, viewpoints, block, valid):
         """Write the cones seen from ``viewpoints`` (2, 1 or N) into ``block`` and ``valid``."""
 
+    def exits(self, prepared, viewpoints):
+        """Return (3, N): the unit outward direction (rows 0-1) and the depth (row 2).
+
+        The shortest way out of the region without a cone (module docstring); the depth
+        is > 0 exactly where ``fill`` reports no cone, up to the boundary itself.
+        """
+        viewpoints = np.ascontiguousarray(viewpoints, dtype=np.float64).reshape(2, -1)
+        out = np.empty((3, len(prepared)))
+        self.fill_exits(prepared, viewpoints, out)
+        return out
+
+    @abc.abstractmethod
+    def fill_exits(self, prepared, viewpoints, out):
+        """Write ``exits`` of ``viewpoints`` (2, 1 or N) into ``out`` (3, N)."""
+
 
 @kernel
-def _square_distance(x, y, edge_x, edge_y, inv_sq, count, qx, qy):
-    """Return min_k |r_k - t_k e_k|^2, r_k = q - v_k, t_k = clip(<r_k, e_k> / |e_k|^2, 0, 1)."""
-    best = math.inf
+def _nearest_edge(x, y, edge_x, edge_y, inv_sq, count, qx, qy):
+    """Return (|d|^2, k, d_x, d_y, inside) for the polygon's edge nearest to q.
+
+    d = r_k - t_k e_k is the offset of q from edge k's nearest point, r_k = q - v_k,
+    t_k = clip(<r_k, e_k> / |e_k|^2, 0, 1); inside: q is left of (or on) every edge.
+    """
+    best, nearest, best_x, best_y, inside = math.inf, 0, 0.0, 0.0, True
     for k in range(count):
         rx, ry = -(x[k] - qx), -(y[k] - qy)
         t = min(max((rx * edge_x[k] + ry * edge_y[k]) * inv_sq[k], 0.0), 1.0)
         dx, dy = rx - t * edge_x[k], ry - t * edge_y[k]
-        best = min(best, dx * dx + dy * dy)
-    return best
+        if dx * dx + dy * dy < best:
+            best, nearest, best_x, best_y = dx * dx + dy * dy, k, dx, dy
+        inside = inside and edge_x[k] * ry >= edge_y[k] * rx
+    return best, nearest, best_x, best_y, inside
 
 
 @kernel
@@ -181,9 +223,26 @@ def _polygon_cones(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, extension, 
         out[5, n] = hx + (px - s * hx) / k_norm
         out[6, n] = hy + (py - s * hy) / k_norm
         if seen and extension > 0.0:
-            seen = math.sqrt(_square_distance(x[n], y[n], edge_x[n], edge_y[n], inv_sq[n],
-                                              counts[n], qx, qy)) > extension
+            seen = math.sqrt(_nearest_edge(x[n], y[n], edge_x[n], edge_y[n], inv_sq[n],
+                                           counts[n], qx, qy)[0]) > extension
         valid[n] = seen
+
+
+@kernel
+def _polygon_exits(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, extension, out):
+    """Write the shortest way out of each polygon grown by ``extension`` (module docstring)."""
+    shared = viewpoints.shape[1] == 1
+    for n in range(counts.shape[0]):
+        j = 0 if shared else n
+        square, k, dx, dy, inside = _nearest_edge(x[n], y[n], edge_x[n], edge_y[n], inv_sq[n],
+                                                  counts[n], viewpoints[0, j], viewpoints[1, j])
+        distance = math.sqrt(square)
+        if inside or distance == 0.0:  # the nearest edge's outward normal
+            norm = math.sqrt(inv_sq[n, k])
+            out[0, n], out[1, n] = edge_y[n, k] * norm, -edge_x[n, k] * norm
+        else:
+            out[0, n], out[1, n] = dx / distance, dy / distance
+        out[2, n] = extension + distance if inside else extension - distance
 
 
 class _PolygonCone(ConeModel):
@@ -196,6 +255,11 @@ class _PolygonCone(ConeModel):
         _polygon_cones(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                        prepared.inv_sq, prepared.counts, viewpoints, self.extension, block,
                        valid)
+
+    def fill_exits(self, prepared, viewpoints, out):
+        """Run the exit kernel."""
+        _polygon_exits(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                       prepared.inv_sq, prepared.counts, viewpoints, self.extension, out)
 
 
 class PaperCone(_PolygonCone):
@@ -226,10 +290,15 @@ class InflatedCone(_PolygonCone):
         self.segments = int(segments)
 
     def prepare(self, batch):
-        """Inflate every polygon (once per obstacle update)."""
-        polygons = [batch.vertices[i, :batch.counts[i]] for i in range(len(batch))]
-        return PlanarPolygons.from_batch(PolygonBatch.from_polygons(
-            [inflate_polygon(poly, self.radius, self.segments) for poly in polygons]))
+        """Inflate every polygon (once per obstacle update): ``minkowski_regular``."""
+        if self.radius == 0.0:
+            return PlanarPolygons.from_batch(batch)
+        width = batch.vertices.shape[1] + self.segments
+        x, y = np.empty((len(batch), width)), np.empty((len(batch), width))
+        counts = np.empty(len(batch), dtype=np.intp)
+        batch_geometry.minkowski_regular(batch.vertices, batch.counts, self.radius,
+                                         self.segments, x, y, counts)
+        return PlanarPolygons.from_rows(x, y, counts)
 
 
 @dataclass(frozen=True)
@@ -267,6 +336,21 @@ def _circle_cones(centres, radii, viewpoints, out, valid):
         valid[n] = clearance_sq > 0.0
 
 
+@kernel
+def _circle_exits(centres, radii, viewpoints, out):
+    """Write the shortest way out of each circle: (q - c)/|q - c|, depth R - |q - c|."""
+    shared = viewpoints.shape[1] == 1
+    for n in range(radii.shape[0]):
+        j = 0 if shared else n
+        dx, dy = viewpoints[0, j] - centres[0, n], viewpoints[1, j] - centres[1, n]
+        distance = math.sqrt(dx * dx + dy * dy)
+        if distance > 0.0:
+            out[0, n], out[1, n] = dx / distance, dy / distance
+        else:  # at the centre every direction is shortest
+            out[0, n], out[1, n] = 1.0, 0.0
+        out[2, n] = radii[n] - distance
+
+
 class CircleCone(ConeModel):
     """C3BF baseline: minimum enclosing circle plus robot radius."""
 
@@ -277,16 +361,18 @@ class CircleCone(ConeModel):
         self.radius = float(robot_radius)
 
     def prepare(self, batch):
-        """Compute each polygon's minimum enclosing circle."""
-        circles = [minimum_enclosing_circle(batch.vertices[i, :batch.counts[i]])
-                   for i in range(len(batch))]
-        centres = np.array([c for c, _ in circles], dtype=float).reshape(-1, 2).T
-        radii = np.array([r for _, r in circles], dtype=float) + self.radius
-        return Circles(np.ascontiguousarray(centres), radii)
+        """Compute each polygon's minimum enclosing circle (``enclosing_circles``)."""
+        centres, radii = np.empty((2, len(batch))), np.empty(len(batch))
+        batch_geometry.enclosing_circles(batch.vertices, batch.counts, centres, radii)
+        return Circles(centres, radii + self.radius)
 
     def fill(self, prepared, viewpoints, block, valid):
         """Run the circle kernel."""
         _circle_cones(prepared.centres, prepared.radii, viewpoints, block, valid)
+
+    def fill_exits(self, prepared, viewpoints, out):
+        """Run the circle exit kernel."""
+        _circle_exits(prepared.centres, prepared.radii, viewpoints, out)
 
 
 CONE_MODELS = {cls.name: cls for cls in (PaperCone, InflatedCone, CircleCone)}

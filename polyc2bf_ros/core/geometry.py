@@ -10,12 +10,13 @@ Conventions: ``cross(u, v) = u_x v_y - u_y v_x`` (positive when v is CCW of u); 
 polygon a point p lies left of edge ``e_k = v_{k+1} - v_k`` when ``cross(e_k, p - v_k) > 0``.
 """
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
-# Sine of the smallest angle treated as a real turn of a polygon boundary.
-_REL_TOL = 1e-12
+from polyc2bf_ros.core import batch_geometry
+from polyc2bf_ros.core.batch_geometry import REL_TOL as _REL_TOL
 
 
 class InvalidPolygonError(ValueError):
@@ -47,16 +48,16 @@ def _drop_repeats(pts):
 
 
 def _turns(pts):
-    """Return per-vertex ``(turn, tol, dot)`` of the incoming and outgoing edges.
+    """Return per-vertex ``(turn, tol)`` of the incoming and outgoing edges.
 
     ``turn = cross(in, out)`` is > 0 for a left turn; ``|turn| <= tol`` means the boundary goes
-    straight on (or doubles back) there; ``dot = <in, out>`` tells those two apart.
+    straight on (or doubles back) there.
     """
     incoming = pts - np.roll(pts, 1, axis=0)
     outgoing = np.roll(incoming, -1, axis=0)
     turn = _cross(incoming, outgoing)
     tol = _REL_TOL * np.hypot(*incoming.T) * np.hypot(*outgoing.T)
-    return turn, tol, np.einsum('ij,ij->i', incoming, outgoing)
+    return turn, tol
 
 
 def _drop_collinear(pts):
@@ -65,7 +66,7 @@ def _drop_collinear(pts):
         pts = _drop_repeats(pts)
         if len(pts) < 3:
             return pts
-        turn, tol, _ = _turns(pts)
+        turn, tol = _turns(pts)
         straight = np.abs(turn) <= tol
         if not straight.any():
             return pts
@@ -162,7 +163,7 @@ def convex_hull(points) -> np.ndarray:
 
 def _left_turning(pts):
     """Return True when the boundary of ``pts`` never turns right (up to tolerance)."""
-    turn, tol, _ = _turns(pts)
+    turn, tol = _turns(pts)
     return bool(np.all(turn >= -tol))
 
 
@@ -175,11 +176,10 @@ def is_convex(polygon) -> bool:
     pts = _drop_repeats(_as_points(polygon, 'polygon'))
     if len(pts) < 3:
         return False
-    if not (_left_turning(pts) or _left_turning(pts[::-1])):
-        return False
-    turn, _, dot = _turns(pts)
-    winding = np.sum(np.arctan2(turn, dot)) / (2.0 * np.pi)
-    return bool(abs(abs(winding) - 1.0) < 1e-6)
+    both = np.stack((pts, pts[::-1]))
+    ok = np.empty(2, dtype=np.bool_)
+    batch_geometry.convex_ccw(both, np.full(2, len(pts)), ok)
+    return bool(ok.any())
 
 
 def _ear_clip(pts):
@@ -327,22 +327,19 @@ class PolygonBatch:
 
     ``vertices`` (N, V, 2) repeats each polygon's last vertex up to V, so min / max / argmin
     over vertices need no mask; ``counts`` (N,) holds the true vertex counts. Derived on
-    construction, in vertex-major (V, N) layout so that reductions over vertices are fast:
-    the coordinates ``x``, ``y`` and the ``edge_table`` of edges ``v_next(k) - v_k`` with
+    first use, in vertex-major (V, N) layout so that reductions over vertices are fast: the
+    coordinates ``x``, ``y`` and the ``edge_table`` of edges ``v_next(k) - v_k`` with
     ``next(k) = k + 1`` if ``k + 1 < count`` else 0, so every padding slot carries a copy of
-    the closing edge. ``from_polygons`` checks its input (at least 3 vertices, no repeated
-    consecutive vertex, positive area, no right turn); the constructor trusts its arrays, and
-    ``translated`` (cheaper than constructing shifted vertices anew) reuses the edge table.
+    the closing edge. ``from_polygons`` checks its input (``batch_geometry.convex_ccw``);
+    ``pack`` and the constructor trust it, and ``translated`` reuses the edge table.
     """
 
     vertices: np.ndarray
     counts: np.ndarray
-    edge_table: Optional[_EdgeTable] = field(default=None, repr=False)
-    x: np.ndarray = field(init=False, repr=False)
-    y: np.ndarray = field(init=False, repr=False)
+    known_edges: Optional[_EdgeTable] = field(default=None, repr=False)
 
     def __post_init__(self):
-        """Coerce the arrays, lay out coordinates (V, N) and derive the edge table if missing."""
+        """Coerce the arrays and check their shapes."""
         vertices = np.asarray(self.vertices, dtype=np.float64)
         counts = np.asarray(self.counts, dtype=np.intp)
         if vertices.ndim != 3 or vertices.shape[2] != 2 or counts.shape != vertices.shape[:1]:
@@ -351,57 +348,67 @@ class PolygonBatch:
                 f'and {counts.shape}')
         object.__setattr__(self, 'vertices', vertices)
         object.__setattr__(self, 'counts', counts)
-        x = np.ascontiguousarray(vertices[..., 0].T)
-        y = np.ascontiguousarray(vertices[..., 1].T)
-        object.__setattr__(self, 'x', x)
-        object.__setattr__(self, 'y', y)
-        if self.edge_table is None:
-            wraps = np.arange(1, x.shape[0] + 1)[:, None] >= counts
-            ex = np.where(wraps, x[0], _rotate_rows(x, 1)) - x
-            ey = np.where(wraps, y[0], _rotate_rows(y, 1)) - y
-            object.__setattr__(self, 'edge_table',
-                               _EdgeTable(ex, ey, _inverse_square_lengths(ex, ey)))
 
-    def _check_convex_ccw(self):
-        """Raise InvalidPolygonError unless every polygon is convex CCW with positive area."""
+    @cached_property
+    def x(self) -> np.ndarray:
+        """Return the (V, N) x coordinates."""
+        return np.ascontiguousarray(self.vertices[..., 0].T)
+
+    @cached_property
+    def y(self) -> np.ndarray:
+        """Return the (V, N) y coordinates."""
+        return np.ascontiguousarray(self.vertices[..., 1].T)
+
+    @cached_property
+    def edge_table(self) -> _EdgeTable:
+        """Return the (V, N) edges and their inverse square lengths (class docstring)."""
+        if self.known_edges is not None:
+            return self.known_edges
         x, y = self.x, self.y
-        ex, ey, inv_sq = self.edge_table
-        turn = _rotate_rows(ex, -1) * ey - _rotate_rows(ey, -1) * ex
-        right_turn = turn * np.sqrt(_rotate_rows(inv_sq, -1) * inv_sq) < -_REL_TOL
-        twice_area = np.sum(((x - x[0]) * ey - (y - y[0]) * ex) * self.mask.T, axis=0)
-        bad = (self.counts < 3) | ~(twice_area > 0) | np.any(right_turn | (inv_sq == 0), axis=0)
-        if bad.any():
+        wraps = np.arange(1, x.shape[0] + 1)[:, None] >= self.counts
+        ex = np.where(wraps, x[0], _rotate_rows(x, 1)) - x
+        ey = np.where(wraps, y[0], _rotate_rows(y, 1)) - y
+        return _EdgeTable(ex, ey, _inverse_square_lengths(ex, ey))
+
+    @classmethod
+    def pack(cls, polygons: Sequence[np.ndarray]) -> 'PolygonBatch':
+        """Pad (n, 2) arrays with n >= 3 and finite values, unchecked otherwise."""
+        arrays = [np.asarray(polygon, dtype=np.float64) for polygon in polygons]
+        if not arrays:
+            return cls(np.zeros((0, 3, 2)), np.zeros(0, dtype=np.intp))
+        try:
+            points = np.concatenate(arrays)
+        except ValueError:
+            points = None
+        if points is None or points.ndim != 2 or points.shape[1] != 2:
+            index = next(i for i, a in enumerate(arrays) if a.ndim != 2 or a.shape[1] != 2)
             raise InvalidPolygonError(
-                f'polygon {int(np.argmax(bad))} of the batch is not a convex CCW polygon with '
-                'at least 3 distinct consecutive vertices and positive area')
+                f'polygon {index} of the batch must have shape (n, 2), got {arrays[index].shape}')
+        counts = np.fromiter(map(len, arrays), dtype=np.intp, count=len(arrays))
+        if counts.min() < 3:
+            raise InvalidPolygonError(
+                f'polygon {int(np.argmin(counts))} of the batch has fewer than 3 vertices')
+        vertices = np.empty((len(arrays), max(3, counts.max()), 2))
+        if not batch_geometry.pad(points, counts, vertices):
+            raise InvalidPolygonError('batch polygons contain NaN or infinite values')
+        return cls(vertices, counts)
 
     @classmethod
     def from_polygons(cls, polygons: Sequence[np.ndarray]) -> 'PolygonBatch':
         """Pack and check convex CCW polygons; no polygons give shapes (0, 3, 2) and (0,)."""
-        arrays = [np.asarray(polygon, dtype=np.float64) for polygon in polygons]
-        if not arrays:
-            return cls(np.zeros((0, 3, 2)), np.zeros(0, dtype=np.intp))
-        for index, array in enumerate(arrays):
-            if array.ndim != 2 or array.shape[1] != 2:
-                raise InvalidPolygonError(
-                    f'polygon {index} of the batch must have shape (n, 2), got {array.shape}')
-        points = np.concatenate(arrays)
-        if not np.isfinite(points).all():
-            raise InvalidPolygonError('batch polygons contain NaN or infinite values')
-        counts = np.array([len(array) for array in arrays], dtype=np.intp)
-        if counts.min() < 3:
+        batch = cls.pack(polygons)
+        bad = ~batch.convex_ccw()
+        if bad.any():
             raise InvalidPolygonError(
-                f'polygon {int(np.argmin(counts))} of the batch has fewer than 3 vertices')
-        starts = np.cumsum(counts) - counts
-        slots = np.minimum(np.arange(max(3, counts.max())), counts[:, None] - 1)
-        batch = cls(points[starts[:, None] + slots], counts)
-        batch._check_convex_ccw()
+                f'polygon {int(np.argmax(bad))} of the batch is not a convex CCW polygon with '
+                'at least 3 distinct consecutive vertices and positive area')
         return batch
 
-    @property
-    def mask(self) -> np.ndarray:
-        """Return the (N, V) mask that is True for real (non-padding) vertices."""
-        return np.arange(self.vertices.shape[1]) < self.counts[:, None]
+    def convex_ccw(self) -> np.ndarray:
+        """Return (N,) True where the polygon is convex, CCW and simple with positive area."""
+        ok = np.empty(len(self), dtype=np.bool_)
+        batch_geometry.convex_ccw(self.vertices, self.counts, ok)
+        return ok
 
     def __len__(self) -> int:
         """Return the number of polygons N."""
@@ -411,10 +418,6 @@ class PolygonBatch:
         """Return the batch with polygon n shifted by ``offsets[n]`` (the edge table is reused)."""
         offsets = np.asarray(offsets, dtype=np.float64)
         return PolygonBatch(self.vertices + offsets[:, None, :], self.counts, self.edge_table)
-
-    def centroids(self) -> np.ndarray:
-        """Return the (N, 2) vertex centroids, the mean of each polygon's real vertices."""
-        return np.sum(self.vertices, axis=1, where=self.mask[..., None]) / self.counts[:, None]
 
 
 def signed_distance_batch(point, batch: PolygonBatch) -> np.ndarray:
@@ -465,12 +468,13 @@ def silhouette_pair(viewpoint, polygon) -> tuple[int, int]:
 
 
 def inflate_polygon(polygon, radius, segments=16) -> np.ndarray:
-    """Return a convex polygon containing every point within ``radius`` of a convex polygon.
+    """Return a convex polygon containing every point within ``radius`` of the polygon.
 
-    The Minkowski sum of the polygon with the regular ``segments``-gon circumscribing the disk
-    of ``radius`` (vertex distance ``R = radius / cos(pi / segments)``), as a convex hull. It
-    contains the exact offset set and exceeds it by at most ``R - radius =
-    radius * (1 / cos(pi / segments) - 1)`` (about 1.9 % of radius for 16 segments).
+    The Minkowski sum of the polygon's convex hull with the regular ``segments``-gon
+    circumscribing the disk of ``radius`` (vertex distance ``R = radius / cos(pi /
+    segments)``; ``batch_geometry.minkowski_regular``). It contains the exact offset set and
+    exceeds it by at most ``R - radius = radius * (1 / cos(pi / segments) - 1)`` (about
+    1.9 % of radius for 16 segments).
     """
     pts = _as_points(polygon, 'polygon')
     if not (np.isfinite(radius) and radius >= 0):
@@ -479,58 +483,26 @@ def inflate_polygon(polygon, radius, segments=16) -> np.ndarray:
         raise ValueError(f'segments must be >= 3, got {segments}')
     if radius == 0:
         return pts
-    angles = np.arange(segments) * (2.0 * np.pi / segments)
-    offsets = (radius / np.cos(np.pi / segments)) * np.column_stack(
-        (np.cos(angles), np.sin(angles)))
-    return convex_hull((pts[:, None, :] + offsets).reshape(-1, 2))
-
-
-def _circle_through_two(a, b):
-    """Return the circle with diameter ab."""
-    centre = 0.5 * (a + b)
-    return centre, float(np.hypot(*(a - centre)))
-
-
-def _circle_through_three(a, b, c):
-    """Return the circumcircle of abc, or the widest two-point circle if they are collinear."""
-    ab, ac = b - a, c - a
-    ab2, ac2 = np.dot(ab, ab), np.dot(ac, ac)
-    det = 2.0 * _cross(ab, ac)
-    if abs(det) <= 2.0 * _REL_TOL * np.sqrt(ab2 * ac2):
-        pairs = [(a, b), (a, c), (b, c)]
-        return max((_circle_through_two(*pair) for pair in pairs), key=lambda circle: circle[1])
-    offset = np.array([ac[1] * ab2 - ab[1] * ac2, ab[0] * ac2 - ac[0] * ab2]) / det
-    return a + offset, float(np.hypot(*offset))
+    hull = convex_hull(pts)
+    width = len(hull) + segments
+    x, y, count = np.empty((1, width)), np.empty((1, width)), np.empty(1, dtype=np.intp)
+    batch_geometry.minkowski_regular(hull[None], np.array([len(hull)]), float(radius),
+                                     int(segments), x, y, count)
+    return np.column_stack((x[0, :count[0]], y[0, :count[0]]))
 
 
 def minimum_enclosing_circle(points) -> tuple[np.ndarray, float]:
     """Return ``(centre, radius)`` of the smallest circle containing all points.
 
-    Welzl's incremental algorithm on a fixed pseudo-random order (expected O(n)): whenever a
-    point lies outside the current circle, it is on the boundary of the new one.
+    Welzl's incremental algorithm on a fixed shuffled order (expected O(n); see
+    ``batch_geometry``): whenever a point lies outside the current circle, it is on the
+    boundary of the new one.
     """
     pts = _as_points(points)
     if len(pts) == 0:
         raise InvalidPolygonError('minimum enclosing circle needs at least one point')
-    pts = pts[np.random.default_rng(0).permutation(len(pts))]
-    slack = 1e-12 * (1.0 + np.abs(pts).max())
-
-    def outside(point, circle):
-        return np.hypot(*(point - circle[0])) > circle[1] + slack
-
-    circle = (pts[0], 0.0)
-    for i in range(1, len(pts)):
-        if not outside(pts[i], circle):
-            continue
-        circle = (pts[i], 0.0)
-        for j in range(i):
-            if not outside(pts[j], circle):
-                continue
-            circle = _circle_through_two(pts[i], pts[j])
-            for k in range(j):
-                if outside(pts[k], circle):
-                    circle = _circle_through_three(pts[i], pts[j], pts[k])
-    return circle[0].copy(), float(circle[1])
+    cx, cy, radius = batch_geometry.enclosing_circle(pts, len(pts))
+    return np.array([cx, cy]), float(radius)
 
 
 def thin_axis(polygon) -> np.ndarray:
@@ -543,10 +515,7 @@ def thin_axis(polygon) -> np.ndarray:
     pts = _drop_repeats(_as_points(polygon, 'polygon'))
     if len(pts) < 2:
         raise InvalidPolygonError('thin axis needs at least 2 distinct points')
-    edges = np.roll(pts, -1, axis=0) - pts
-    normals = np.column_stack((edges[:, 1], -edges[:, 0])) / np.hypot(*edges.T)[:, None]
-    along = pts @ normals.T
-    return normals[np.argmin(along.max(axis=0) - along.min(axis=0))]
+    return np.array(batch_geometry.thin_axis(np.ascontiguousarray(pts), len(pts)))
 
 
 def vertical_shadow(footprint, z_min, z_max, axis) -> np.ndarray:
@@ -563,6 +532,5 @@ def vertical_shadow(footprint, z_min, z_max, axis) -> np.ndarray:
         raise ValueError(f'axis must be a finite non-zero 2-vector, got {axis}')
     if not z_min <= z_max:
         raise ValueError(f'need z_min <= z_max, got {z_min} > {z_max}')
-    s = pts @ (axis / norm)
-    low, high = s.min(), s.max()
+    low, high = batch_geometry.extent(pts, len(pts), *(axis / norm).tolist())
     return np.array([[low, z_min], [high, z_min], [high, z_max], [low, z_max]], dtype=np.float64)

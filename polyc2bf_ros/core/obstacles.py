@@ -5,11 +5,13 @@ odometry frame, translating at constant velocity, optionally bounded in z
 (a vertical prism, for 3-D models).  Non-convex footprints are split into
 convex parts when the set is built; every part is one constraint row.
 """
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from polyc2bf_ros.core.geometry import decompose_convex, is_convex, PolygonBatch
+from polyc2bf_ros.core.jit import kernel
 
 
 @dataclass(frozen=True)
@@ -43,24 +45,26 @@ class ObstacleSet:
 
     @classmethod
     def from_obstacles(cls, obstacles):
-        """Build the set, splitting non-convex footprints into convex parts."""
-        parts, velocities, z_ranges, owner = [], [], [], []
-        for index, obstacle in enumerate(obstacles):
-            polygon = np.asarray(obstacle.polygon, dtype=float)
-            pieces = [polygon] if is_convex(polygon) else decompose_convex(polygon)
-            velocity = np.zeros(3)
-            given = np.asarray(obstacle.velocity, dtype=float).ravel()
-            velocity[:given.size] = given[:3]
-            for piece in pieces:
-                parts.append(piece)
-                velocities.append(velocity)
-                z_ranges.append((obstacle.z_min, obstacle.z_max))
-                owner.append(index)
-        return cls(footprints=PolygonBatch.from_polygons(parts),
-                   velocities=np.array(velocities, dtype=float).reshape(-1, 3),
-                   z_ranges=np.array(z_ranges, dtype=float).reshape(-1, 2),
-                   owner=np.array(owner, dtype=int),
-                   keys=tuple(o.key for o in obstacles))
+        """Build the set, splitting non-convex footprints into convex parts.
+
+        Convex CCW footprints (``PolygonBatch.convex_ccw``, one kernel call for all) are
+        used as they are; only the others go through ``is_convex`` / ``decompose_convex``.
+        """
+        obstacles = list(obstacles)
+        footprints = PolygonBatch.pack([obstacle.polygon for obstacle in obstacles])
+        convex = footprints.convex_ccw()
+        velocities = _velocities(obstacles)
+        z_ranges = np.empty((len(obstacles), 2))
+        z_ranges[:, 0] = [obstacle.z_min for obstacle in obstacles]
+        z_ranges[:, 1] = [obstacle.z_max for obstacle in obstacles]
+        owner = np.arange(len(obstacles))
+        if not convex.all():
+            pieces = [_convex_parts(o.polygon, ok) for o, ok in zip(obstacles, convex)]
+            owner = np.repeat(owner, [len(parts) for parts in pieces])
+            footprints = PolygonBatch.from_polygons([part for parts in pieces for part in parts])
+            velocities, z_ranges = velocities[owner], z_ranges[owner]
+        return cls(footprints=footprints, velocities=velocities, z_ranges=z_ranges, owner=owner,
+                   keys=tuple(obstacle.key for obstacle in obstacles))
 
     def __len__(self):
         """Return the number of convex parts."""
@@ -68,6 +72,41 @@ class ObstacleSet:
 
     def is_finite(self):
         """Return True when vertices and velocities are finite (z bounds may be infinite)."""
-        return bool(np.isfinite(self.footprints.vertices).all()
-                    and np.isfinite(self.velocities).all()
-                    and not np.isnan(self.z_ranges).any())
+        return _finite(self.footprints.vertices, self.velocities, self.z_ranges)
+
+
+@kernel
+def _finite(vertices, velocities, z_ranges):
+    """Return True when vertices and velocities are finite and no z bound is NaN."""
+    for value in vertices.ravel():
+        if not math.isfinite(value):
+            return False
+    for value in velocities.ravel():
+        if not math.isfinite(value):
+            return False
+    for value in z_ranges.ravel():
+        if math.isnan(value):
+            return False
+    return True
+
+
+def _convex_parts(polygon, convex_ccw):
+    """Return the convex parts of a footprint: itself if convex, else its decomposition."""
+    polygon = np.asarray(polygon, dtype=float)
+    return [polygon] if convex_ccw or is_convex(polygon) else decompose_convex(polygon)
+
+
+def _velocities(obstacles):
+    """Return the (N, 3) velocities, zero-padded from (2,) or (3,) (first 3 entries kept)."""
+    out = np.zeros((len(obstacles), 3))
+    try:
+        given = np.array([obstacle.velocity for obstacle in obstacles], dtype=float)
+    except ValueError:  # mixed lengths
+        given = None
+    if given is not None and given.ndim == 2:
+        out[:, :min(3, given.shape[1])] = given[:, :3]
+        return out
+    for row, obstacle in zip(out, obstacles):
+        velocity = np.asarray(obstacle.velocity, dtype=float).ravel()[:3]
+        row[:velocity.size] = velocity
+    return out

@@ -12,7 +12,13 @@ interval h drifts from its first-order prediction by at most T^2/2 max|h_ddot|,
 so each row is tightened by a margin m = ``margin_gain`` * T [m^2/s^2]: with
 margin_gain >= max|h_ddot|/2 the held input keeps h_dot + gamma h >= 0 on
 average over the interval.  The closed-loop tests show the default is enough
-at the node's rates.
+at the node's rates, except at a silhouette vertex, which no margin covers:
+held at h = m / gamma, the filter keeps a fixed angle between v_rel and the
+boundary ray k, so the reference point reaches the vertex k on a spiral (the
+cone bounds the direction of v_rel, not the distance), where k_hat turns at
+|v| / |k| -> inf and the vertex pair switches (p jumps, and h with it).  The
+point then grazes the inflated obstacle by millimetres; the escape below takes
+it out.  This is inherent to collision cones, not a sampling artefact.
 
 3-D models see each obstacle (a vertical prism) in two planes (paper
 section III, quadrotor): the horizontal plane (footprint polygon) and the
@@ -38,8 +44,17 @@ Fallbacks, always flagged in ``FilterInfo.status``:
 * ``brake``: the slack QP failed too; apply the model's braking input.
 * ``escape``: the reference point is inside an (inflated) obstacle, where no
   cone exists; the nominal input is replaced by one that accelerates the
-  reference point out along (q - obstacle centroid), still subject to the
-  other obstacles' rows.
+  reference point out along the shortest way out, still subject to the other
+  obstacles' rows.  Per part n the cone model gives, in each plane the part is
+  seen in, the depth d and the outward unit vector e of the region without a
+  cone (``ConeModel.exits``).  A 3-D model sees the prism through two
+  extrusions that both contain it, and is out of the prism once it is out of
+  either, so the plane with the smaller depth is taken::
+
+      e_n = P_n^T e (plane of min d),       escape direction = sum_n e_n / |sum_n e_n|
+
+  over the parts the point is inside: over a wall's top edge the vertical plane
+  gives straight up, not a crawl sideways along the wall.
 * ``invalid_input``: NaN/Inf in state, nominal input or obstacles; brake.
 """
 import enum
@@ -152,17 +167,14 @@ class Evaluation:
     """Per obstacle part: cones and barrier terms in the plane used, and which are usable.
 
     ``vertical`` (N,) tells where a 3-D model uses the vertical plane (None for planar
-    models); ``viewpoints`` (2, 1 or N) and ``centroids`` (2, N) are the horizontal
-    plane's, for the escape direction; ``dim`` is the robot's position dimension.
+    models); ``viewpoints`` holds each plane's (2, N) viewpoints, for the escape direction.
     """
 
     cones: Cones
     terms: BarrierTerms
     usable: np.ndarray
     vertical: Optional[np.ndarray]
-    viewpoints: np.ndarray
-    centroids: np.ndarray
-    dim: int
+    viewpoints: tuple
 
     @property
     def inside(self):
@@ -175,17 +187,6 @@ class Evaluation:
         if self.vertical is None:
             return np.zeros(self.usable.shape, dtype=int)
         return self.vertical.astype(int)
-
-    def escape_direction(self):
-        """Return the unit sum of (viewpoint - centroid) over the parts we are inside.
-
-        In world axes; horizontal (z = 0) for 3-D models, where inside means inside
-        in both planes and the horizontal one is kept.
-        """
-        planar = (self.viewpoints - self.centroids)[:, self.inside].sum(axis=1)
-        direction = np.append(planar, np.zeros(self.dim - 2))
-        norm = np.linalg.norm(direction)
-        return direction / norm if norm > 1e-9 else np.zeros_like(direction)
 
 
 @dataclass(frozen=True)
@@ -300,7 +301,7 @@ class SafetyFilter:
             Obstacle(polygon=square + [-1.0, 2.0])])
         state = np.zeros(self.model.state_dim)
         self.step(state, scene, (self._lower + self._upper) / 2, 0.01)
-        self.evaluate(state, scene)
+        self.escape_direction(self.evaluate(state, scene), scene)
         # And the QP front end's shortcut, which a step the fast path answers skips.
         self.solver.solve(self._upper + 1.0, self._weights, np.eye(self.model.input_dim)[:1],
                           self._lower[:1], self._lower, self._upper)
@@ -332,7 +333,7 @@ class SafetyFilter:
                                        prepared.index, h)
         u_ref, status, message = u_nom, FilterStatus.OK, ''
         if inside:
-            u_ref = self._escape_input(ref, evaluation.escape_direction())
+            u_ref = self._escape_input(ref, self._escape_direction(prepared, evaluation))
             status = FilterStatus.ESCAPE
             message = (f'reference point inside {inside} (inflated) obstacle part(s); '
                        'escaping along the outward direction')
@@ -375,6 +376,27 @@ class SafetyFilter:
         u, *_ = np.linalg.lstsq(ref.input_matrix, desired - ref.drift, rcond=None)
         return self.model.clip_input(u)
 
+    def escape_direction(self, evaluation, obstacles):
+        """Return the unit direction (world axes) out of the parts ``evaluation`` is inside.
+
+        Zero when it is inside none (see the module docstring).
+        """
+        return self._escape_direction(self._prepare(obstacles), evaluation)
+
+    def _escape_direction(self, prepared, evaluation):
+        """Sum the shortest ways out of the parts we are inside, each in its shallower plane."""
+        depth = np.full(prepared.count, np.inf)
+        direction = np.zeros((prepared.count, self.model.position_dim))
+        for view, viewpoints in zip(prepared.views, evaluation.viewpoints):
+            exits = self.cone_model.exits(view.prepared, viewpoints)
+            shallower = evaluation.inside & view.enabled & (exits[2] < depth)
+            depth[shallower] = exits[2, shallower]
+            direction[shallower] = np.einsum('nid,in->nd', view.projections[shallower],
+                                             exits[:2, shallower])
+        total = direction.sum(axis=0)
+        norm = np.linalg.norm(total)
+        return total / norm if norm > 1e-9 else np.zeros_like(total)
+
     def evaluate(self, state, obstacles, obstacle_age=0.0):
         """Return the barrier evaluation at ``state`` without solving the QP."""
         return self._evaluate(self._prepare(obstacles), self.model.reference(
@@ -383,7 +405,7 @@ class SafetyFilter:
     def _evaluate(self, prepared, ref, age):
         """Evaluate cones and barrier terms in every plane; 3-D: pick the plane per part."""
         seen = [self._view_terms(view, prepared, ref, age) for view in prepared.views]
-        viewpoints, cone_block, valid, term_block = seen[0]
+        _, cone_block, valid, term_block = seen[0]
         vertical, usable = None, valid
         if len(seen) > 1:
             _, cone_vertical, valid_vertical, term_vertical = seen[1]
@@ -395,8 +417,7 @@ class SafetyFilter:
             term_block = np.where(vertical, term_vertical, term_block)
         return Evaluation(cones=Cones.from_block(cone_block, valid),
                           terms=BarrierTerms.from_block(term_block), usable=usable,
-                          vertical=vertical, viewpoints=viewpoints,
-                          centroids=prepared.views[0].centroids, dim=ref.position.size)
+                          vertical=vertical, viewpoints=tuple(view[0] for view in seen))
 
     def _view_terms(self, view, prepared, ref, age):
         """Return viewpoints, cone block, validity and barrier-term block of one plane."""
@@ -408,6 +429,13 @@ class SafetyFilter:
         barrier_terms(Cones.from_block(cone_block, valid), view.projections,
                       prepared.velocities, ref, self._epsilon, term_block)
         return viewpoints, cone_block, valid, term_block
+
+    def prepare(self, obstacles):
+        """Precompute the geometry of an obstacle set now (``step`` does it on first use).
+
+        A node can call this when an obstacle message arrives, off the control path.
+        """
+        self._prepare(obstacles)
 
     def _prepare(self, obstacles):
         """Build (and cache per obstacle set) the planar views of the obstacles."""

@@ -8,10 +8,12 @@ footnote)::
     horizontal   P   = [[1, 0, 0], [0, 1, 0]]     footprint polygon
     vertical     P_n = [[a_x, a_y, 0], [0, 0, 1]]  shadow rectangle in (s, z), s = <a_n, xy>
 
-with a_n the footprint's thin axis.  Each view models the prism by an extrusion
-that contains it: the horizontal one extends it to all heights, the vertical
-one without end along the footprint's long axis l_n (a wall).  Avoiding either
-extrusion avoids the prism, so either cone is safe.
+with a_n the footprint's thin axis (``batch_geometry.vertical_shadows``; a
+prism without a finite, non-empty z range has no vertical view).  Each view
+models the prism by an extrusion that contains it: the horizontal one extends
+it to all heights, the vertical one without end along the footprint's long
+axis l_n (a wall).  Avoiding either extrusion avoids the prism, so either cone
+is safe.
 
 Choice of plane: the paper keeps the plane whose cone has the smaller ||k||.
 The vertical view's endless wall passes right beside, above or below a robot
@@ -31,7 +33,8 @@ from typing import Optional
 
 import numpy as np
 
-from polyc2bf_ros.core.geometry import PolygonBatch, thin_axis, vertical_shadow
+from polyc2bf_ros.core import batch_geometry
+from polyc2bf_ros.core.geometry import PolygonBatch
 from polyc2bf_ros.core.jit import kernel
 
 
@@ -39,15 +42,14 @@ from polyc2bf_ros.core.jit import kernel
 class View:
     """Obstacles seen in one plane, prepared once per obstacle update.
 
-    ``prepared`` is the cone model's geometry, ``projections`` (N, 2, d) the P_n,
-    ``centroids`` (2, N) the planar centroids and ``enabled`` (N,) where the view exists
+    ``prepared`` is the cone model's geometry, ``projections`` (N, 2, d) the P_n and
+    ``enabled`` (N,) where the view exists
     (a vertical view needs a finite z range).  Vertical views also carry the long axes
     l_n (N, 2) and the ``band`` (N, 2) of <l_n, xy> in which they are candidates.
     """
 
     prepared: object
     projections: np.ndarray
-    centroids: np.ndarray
     enabled: np.ndarray
     long_axes: Optional[np.ndarray] = None
     band: Optional[np.ndarray] = None
@@ -84,30 +86,22 @@ def prepare_views(obstacles, cone_model, dim, band_margin):
 
 def _view(cone_model, batch, projections, enabled, **band):
     """Prepare one plane's geometry for the cone model."""
-    return View(prepared=cone_model.prepare(batch), projections=projections,
-                centroids=np.ascontiguousarray(batch.centroids().T), enabled=enabled, **band)
+    return View(prepared=cone_model.prepare(batch), projections=projections, enabled=enabled,
+                **band)
 
 
 def _vertical_view(obstacles, cone_model, band_margin):
     """Project each prism onto the vertical plane through its footprint's thin axis."""
     batch = obstacles.footprints
-    enabled = np.isfinite(obstacles.z_ranges).all(axis=1)
-    shadows, axes, band = [], [], []
-    for i in range(len(batch)):
-        footprint = batch.vertices[i, :batch.counts[i]]
-        axis = thin_axis(footprint)
-        z_min, z_max = obstacles.z_ranges[i] if enabled[i] else (-1.0, 1.0)
-        shadows.append(vertical_shadow(footprint, z_min, z_max, axis))
-        axes.append(axis)
-        along = footprint @ np.array([-axis[1], axis[0]])
-        band.append((along.min() - band_margin, along.max() + band_margin))
-    axes = np.array(axes)
-    projections = np.zeros((len(batch), 2, 3))
-    projections[:, 0, :2] = axes
-    projections[:, 1, 2] = 1.0
-    return _view(cone_model, PolygonBatch.from_polygons(shadows), projections, enabled,
-                 long_axes=np.ascontiguousarray(np.column_stack([-axes[:, 1], axes[:, 0]])),
-                 band=np.array(band))
+    count = len(batch)
+    projections, long_axes = np.empty((count, 2, 3)), np.empty((count, 2))
+    shadows, band = np.empty((count, 4, 2)), np.empty((count, 2))
+    enabled = np.empty(count, dtype=np.bool_)
+    batch_geometry.vertical_shadows(batch.vertices, batch.counts, obstacles.z_ranges,
+                                    float(band_margin), projections, long_axes, shadows, band,
+                                    enabled)
+    return _view(cone_model, PolygonBatch(shadows, np.full(count, 4)), projections, enabled,
+                 long_axes=long_axes, band=band)
 
 
 @kernel

@@ -205,14 +205,13 @@ def test_silhouette_indices_of_empty_batch():
 
 # --- polygon batch ------------------------------------------------------------------------
 
-def test_batch_pads_with_last_vertex_and_reports_masks_and_centroids():
-    """Padding, mask, centroids, translation and distances of a small ragged batch."""
+def test_batch_pads_with_last_vertex_and_translates():
+    """Padding, translation and distances of a small ragged batch."""
     triangle = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 2.0]])
     batch = PolygonBatch.from_polygons([triangle, SQUARE + 5.0])
     assert batch.vertices.shape == (2, 4, 2) and len(batch) == 2
     assert np.array_equal(batch.vertices[0, 3], triangle[2])
-    assert np.array_equal(batch.mask, [[True, True, True, False], [True] * 4])
-    assert np.allclose(batch.centroids(), [triangle.mean(0), SQUARE.mean(0) + 5.0])
+    np.testing.assert_array_equal(batch.counts, [3, 4])
     moved = batch.translated([[1.0, 0.0], [0.0, -1.0]])
     assert np.allclose(moved.vertices[1], SQUARE + [5.0, 4.0])
     assert np.allclose(signed_distance_batch((1.5, 0.5), moved), [-0.5, 3.5 * np.sqrt(2)])
@@ -220,7 +219,7 @@ def test_batch_pads_with_last_vertex_and_reports_masks_and_centroids():
     assert all(np.allclose(*pair) for pair in zip(rebuilt.edge_table, moved.edge_table))
     empty = PolygonBatch.from_polygons([])
     assert empty.vertices.shape == (0, 3, 2) and empty.counts.shape == (0,)
-    assert empty.centroids().shape == (0, 2) and len(empty) == 0
+    assert len(empty) == 0
 
 
 @pytest.mark.parametrize('polygons, reason', [

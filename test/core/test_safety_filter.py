@@ -164,6 +164,45 @@ def test_inside_obstacle_escapes_outward(barrier):
     assert u[0] < 0.0  # away from the wall's centroid at x = 1.1
 
 
+LONG_WALL_3D = Obstacle(polygon=np.array([[3.0, -4.0], [3.2, -4.0], [3.2, 4.0], [3.0, 4.0]]),
+                       z_min=0.0, z_max=1.6)
+
+
+@pytest.mark.parametrize('barrier', ['polyc2bf_paper', 'polyc2bf_inflated', 'c3bf'])
+@pytest.mark.parametrize('position, direction', [
+    # 1 cm under the top of the inflated wall, mid-wall: straight up (vertical plane).
+    ((3.1, 0.5, 1.69), (0.0, 0.0, 1.0)),
+    # Beside the wall's end, low down: out past the end (horizontal plane).
+    ((3.1, 4.05, 0.8), (0.0, 1.0, 0.0)),
+])
+def test_3d_escape_takes_the_shallower_plane(barrier, position, direction):
+    """Inside a prism, the escape leaves through the plane with the shorter way out.
+
+    C3BF too: its circles (of the shadow rectangle, of the footprint) are crossed there.
+    """
+    model = make_model('point_mass_3d')
+    filt = SafetyFilter(model, FilterConfig(barrier=barrier, robot_radius=0.1))
+    obstacles = ObstacleSet.from_obstacles([LONG_WALL_3D])
+    state = np.concatenate([position, np.zeros(3)])
+    evaluation = filt.evaluate(state, obstacles)
+    assert evaluation.inside[0]
+    np.testing.assert_allclose(filt.escape_direction(evaluation, obstacles), direction,
+                               atol=1e-12)
+    u, info = filt.step(state, obstacles, np.zeros(3))
+    assert info.status == FilterStatus.ESCAPE
+    assert u @ direction > 0.0 and np.linalg.norm(u - (u @ direction) * np.array(direction)) < 1e-9
+
+
+def test_escape_direction_is_zero_outside():
+    """No part is inside: no escape direction."""
+    model = make_model('point_mass_3d')
+    filt = SafetyFilter(model, FilterConfig())
+    obstacles = ObstacleSet.from_obstacles([LONG_WALL_3D])
+    evaluation = filt.evaluate(np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0]), obstacles)
+    assert not evaluation.inside.any()
+    assert not filt.escape_direction(evaluation, obstacles).any()
+
+
 def test_far_obstacles_are_pruned_but_h_is_reported():
     """Rows that hold for every input in the box are dropped; h still covers all.
 
