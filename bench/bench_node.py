@@ -33,6 +33,13 @@ section 8).  DDS stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``)
 
     .venv/bin/python bench/bench_node.py [--rate 1000] [--obstacles 50] [--duration 10]
         [--subjects echo echo_rclpy command timer]
+
+``--obstacle-updates`` instead times the node's obstacle handling in-process
+(``run_obstacle_updates``): messages shaped like the sim bridge's (``--robots``
+cylinders and ``--moving`` outlines every period, plus ``--obstacles`` static
+outlines in every full set), ``_on_obstacles`` per message kind, with rclpy's
+deserialization of the same message and the next filter step beside it;
+results in ``bench/results/node_obstacles.json``.
 """
 import argparse
 import json
@@ -62,6 +69,7 @@ from polyc2bf_ros.lean_executor import LeanExecutor
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / 'bench' / 'results' / 'node.json'
+OBSTACLE_RESULTS = REPO / 'bench' / 'results' / 'node_obstacles.json'
 NAMESPACE = '/bench_node'
 COMMANDS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 ANSWERS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -334,6 +342,122 @@ def run(subject, rate, obstacles, duration, warmup):
     }
 
 
+# -- obstacle updates (in-process) ------------------------------------------------------------
+
+def _ring_marker(ns, marker_id, ring, position, height):
+    """LINE_STRIP outline as the sim bridge sends it: closed ring relative to ``position``."""
+    marker = Marker(ns=ns, id=marker_id, type=Marker.LINE_STRIP, action=Marker.ADD)
+    marker.header.frame_id = 'world'
+    marker.scale.x, marker.scale.z = 0.02, height
+    marker.pose.position = Point(x=float(position[0]), y=float(position[1]))
+    marker.pose.orientation.w = 1.0
+    marker.points = [Point(x=float(x), y=float(y)) for x, y in np.vstack([ring, ring[:1]])]
+    return marker
+
+
+def sim_markers(static, robots, moving, seed=0):
+    """Return ``(static markers, dynamic markers, move(t))`` shaped like the sim bridge's.
+
+    Static obstacles: outlines (rectangles, octagons, every fifth an L-shaped wall)
+    in absolute coordinates; moving ones: octagons relative to a moving pose;
+    robots: CYLINDERs (ns ``robots``).  ``move(t)`` sets the dynamic poses and
+    every stamp for sim time ``t`` [s].
+    """
+    rng = np.random.default_rng(seed)
+    angles = np.linspace(0.0, 2.0 * np.pi, 9)[:-1]
+    octagon = 0.3 * np.column_stack([np.cos(angles), np.sin(angles)])
+    rectangle = np.array([[-0.4, -0.2], [0.4, -0.2], [0.4, 0.2], [-0.4, 0.2]])
+    l_wall = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 0.2], [0.2, 0.2], [0.2, 1.5], [0.0, 1.5]])
+    static_markers = []
+    for i in range(static):
+        shape = (l_wall, rectangle, octagon)[0 if i % 5 == 0 else 1 + i % 2]
+        static_markers.append(_ring_marker('obstacles', i, shape + rng.uniform(-10, 10, 2),
+                                           (0.0, 0.0), 1.0))
+    dynamic = [_ring_marker('obstacles', static + i, octagon, (0.0, 0.0), 1.0)
+               for i in range(moving)]
+    for i in range(robots):
+        marker = Marker(ns='robots', id=i, type=Marker.CYLINDER, action=Marker.ADD)
+        marker.header.frame_id = 'world'
+        marker.scale.x = marker.scale.y = 0.6
+        marker.scale.z = 0.5
+        marker.pose.position.z = 0.25
+        marker.pose.orientation.w = 1.0
+        dynamic.append(marker)
+    centres = rng.uniform(-8.0, 8.0, (len(dynamic), 2))
+    velocities = rng.uniform(-0.5, 0.5, (len(dynamic), 2))
+
+    def move(t):
+        stamp = STAMP.unpack(STAMP.pack(int(t), int(round(1e9 * (t % 1.0))) % 1_000_000_000))
+        for marker, centre, velocity in zip(dynamic, centres, velocities):
+            marker.pose.position.x, marker.pose.position.y = (centre + velocity * t).tolist()
+        for marker in static_markers + dynamic:
+            marker.header.stamp.sec, marker.header.stamp.nanosec = stamp
+    return static_markers, dynamic, move
+
+
+def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_every=24):
+    """Time ``SafetyFilterNode._on_obstacles`` (and the next filter step) per message.
+
+    The node runs in this process without spinning; the messages follow the sim
+    bridge's pattern at ``rate`` Hz: the dynamic markers every period, everything
+    every ``full_every`` periods.  Returns one record per message kind.
+    """
+    from polyc2bf_ros.safety_filter_node import SafetyFilterNode
+    rclpy.init()
+    node = SafetyFilterNode()
+    odom = Odometry()
+    odom.header.frame_id = 'world'
+    odom.pose.pose.orientation.w = 1.0
+    node._on_odom(serialize_message(odom))
+    static_markers, dynamic, move = sim_markers(static, robots, moving)
+    timings = {'full': ([], [], []), 'moving': ([], [], [])}
+    state, command = node._state.copy(), (0.5, 0.0)
+    try:
+        for k in range(messages):
+            move(k / rate)
+            kind = 'full' if k % full_every == 0 else 'moving'
+            msg = MarkerArray(markers=static_markers + dynamic if kind == 'full' else dynamic)
+            data = serialize_message(msg)
+            start = time.perf_counter()
+            deserialize_message(data, MarkerArray)
+            parsed = time.perf_counter()
+            node._on_obstacles(msg)
+            handled = time.perf_counter()
+            node._filter.filter(state, 0.0, command, node._obstacle_set, 0.0)
+            stepped = time.perf_counter()
+            if k >= 2 * full_every:  # warm-up: kernels compiled, caches filled
+                for column, seconds in zip(timings[kind], (parsed - start, handled - parsed,
+                                                           stepped - handled)):
+                    column.append(1e6 * seconds)
+        in_use, tracked = len(node._obstacle_set), len(node._tracker)
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    records = []
+    for kind, (parse, handle, step) in timings.items():
+        p50, p99 = percentiles(handle, (50, 99))
+        records.append({
+            'bench': 'node_obstacles', 'message': kind,
+            'markers': static + robots + moving if kind == 'full' else robots + moving,
+            'obstacles': static + robots + moving, 'samples': len(handle),
+            'on_obstacles_p50_us': round(float(p50), 1), 'on_obstacles_p99_us': round(
+                float(p99), 1),
+            'deserialize_p50_us': round(float(np.median(parse)), 1),
+            'next_step_p50_us': round(float(np.median(step)), 1),
+            'obstacles_in_use': in_use, 'obstacles_tracked': tracked,
+            'barrier': node._barrier, 'load_avg_1min': round(os.getloadavg()[0], 2)})
+    return records
+
+
+def print_obstacle_table(records):
+    """One row per message kind."""
+    keys = ('message', 'markers', 'samples', 'deserialize_p50_us', 'on_obstacles_p50_us',
+            'on_obstacles_p99_us', 'next_step_p50_us', 'obstacles_in_use', 'load_avg_1min')
+    print(' '.join(f'{key:>{max(len(key), 8)}}' for key in keys))
+    for r in records:
+        print(' '.join(f'{r[key]!s:>{max(len(key), 8)}}' for key in keys))
+
+
 def _cell(value, width, digits=3):
     if value is None:
         return f'{"-":>{width}}'
@@ -365,7 +489,15 @@ def main(argv=None):
     parser.add_argument('--duration', type=float, default=10.0, help='measured seconds')
     parser.add_argument('--warmup', type=float, default=2.0, help='seconds before measuring')
     parser.add_argument('--subjects', nargs='+', choices=SUBJECTS, default=list(SUBJECTS))
-    parser.add_argument('--out', type=Path, default=RESULTS)
+    parser.add_argument('--out', type=Path, help=f'default {RESULTS}, or '
+                        f'{OBSTACLE_RESULTS} with --obstacle-updates')
+    parser.add_argument('--obstacle-updates', action='store_true',
+                        help='instead: time obstacle messages shaped like the sim bridge '
+                        "in-process (the node's _on_obstacles): --obstacles static + "
+                        '--robots cylinders + --moving outlines')
+    parser.add_argument('--robots', type=int, default=7)
+    parser.add_argument('--moving', type=int, default=5)
+    parser.add_argument('--messages', type=int, default=2400)
     args = parser.parse_args(argv)
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     # Above the test suite's usual domains (test/conftest.py), so parallel test runs
@@ -375,10 +507,15 @@ def main(argv=None):
         return run_sender(args.rate[0], args.count)
     if args.role.startswith('echo'):
         return run_echo(lean=args.role == 'echo')
+    if args.obstacle_updates:
+        records = run_obstacle_updates(args.obstacles, args.robots, args.moving, args.messages)
+        print_obstacle_table(records)
+        write_records(records, args.out or OBSTACLE_RESULTS)
+        return 0
     records = [run(subject, rate, args.obstacles, args.duration, args.warmup)
                for rate in args.rate for subject in args.subjects]
     print_table(records)
-    write_records(records, args.out)
+    write_records(records, args.out or RESULTS)
     return 0
 
 

@@ -46,9 +46,18 @@ a flat LINE_STRIP / LINE_LIST outline with ``scale.z > 0`` is a prism from the
 points' z up by ``scale.z`` (how ``sim_bridge`` publishes obstacles; RViz ignores
 scale.z on lines), and otherwise an infinite extrusion (a wall).  The velocity reference
 position is the pose, or the points' centroid when the pose is the identity.
+
+The pose is split (``marker_placement``): a rotation about z only (``q.x = q.y
+= 0``) becomes the ``Placement`` (yaw, then ``p``) of a ``Shape`` computed in the
+marker's own frame (``marker_shape``), which the pose moves rigidly; any other
+rotation is applied to the points inside the shape.  ``apply_markers`` reuses
+the key's last ``Shape`` while its ``_source`` (type, scale, points, tilt, the
+two settings) is unchanged, so a marker that only moved costs no outline
+cleaning or hull.
 """
 import math
 import struct
+from typing import NamedTuple
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -57,7 +66,12 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from polyc2bf_ros.core.geometry import convex_hull
-from polyc2bf_ros.core.obstacle_tracker import outline_polygon, POINT_TOLERANCE
+from polyc2bf_ros.core.obstacle_tracker import (
+    outline_polygon,
+    Placement,
+    POINT_TOLERANCE,
+    Shape,
+)
 
 MARKER_TYPE_NAMES = {getattr(Marker, n): n for n in (
     'ARROW', 'CUBE', 'SPHERE', 'CYLINDER', 'LINE_STRIP', 'LINE_LIST', 'CUBE_LIST',
@@ -218,7 +232,6 @@ class _Layout:
 
 
 _LAYOUTS = {b'\x00\x01': _Layout('<'), b'\x00\x00': _Layout('>')}
-_LITTLE = b'\x00\x01\x00\x00'
 
 
 def _layout(data):
@@ -233,49 +246,70 @@ def _aligned(offset, size):
     return offset + (-(offset - 4)) % size
 
 
-def _after_string(data, layout, offset):
-    """Offset just past the CDR string whose length field is at ``offset`` (4-aligned)."""
+def _string(data, layout, offset):
+    """``(bytes without NUL, offset after)`` of the CDR string with its length at ``offset``."""
     offset = _aligned(offset, 4)
-    return offset + 4 + layout.length.unpack_from(data, offset)[0]
+    end = offset + 4 + layout.length.unpack_from(data, offset)[0]
+    return data[offset + 4:end - 1], end
 
 
 def _header(data, layout):
-    """``(stamp [s], frame_id bytes, offset after the header)`` of a serialized Header."""
+    """``(sec, nanosec, frame_id bytes, offset after the header)`` of a serialized Header."""
     sec, nanosec = layout.stamp.unpack_from(data, 4)
-    end = _after_string(data, layout, 12)
-    return sec + 1e-9 * nanosec, data[16:end - 1], end
+    frame, end = _string(data, layout, 12)
+    return sec, nanosec, frame, end
+
+
+class OdometryView(NamedTuple):
+    """The numbers of a serialized Odometry that are read (see ``read_odometry``)."""
+
+    sec: int
+    nanosec: int
+    frame: bytes
+    child_frame: bytes
+    pose: tuple
+    twist: tuple
+
+    @property
+    def stamp(self):
+        """Header stamp [s]."""
+        return self.sec + 1e-9 * self.nanosec
 
 
 def read_odometry(data):
-    """``(stamp [s], frame_id bytes, pose (7,), twist (6,))`` of a serialized Odometry.
+    """``OdometryView`` (stamp, frame ids, pose (7,), twist (6,)) of a serialized Odometry.
 
-    Raises ``ValueError`` for a malformed message.
+    The covariances are skipped, not read.  Raises ``ValueError`` for a malformed message.
     """
     layout = _layout(data)
     try:
-        stamp, frame, end = _header(data, layout)
-        pose_at = _aligned(_after_string(data, layout, end), 8)
+        sec, nanosec, frame, end = _header(data, layout)
+        child_frame, end = _string(data, layout, end)
+        pose_at = _aligned(end, 8)
         pose = layout.pose.unpack_from(data, pose_at)
         twist = layout.six.unpack_from(data, pose_at + 8 * (7 + 36))
     except struct.error as exc:
         raise ValueError(f'truncated Odometry: {exc}') from None
-    return stamp, frame, pose, twist
+    return OdometryView(sec, nanosec, frame, child_frame, pose, twist)
 
 
 class SerializedCommand:
-    """A received serialized Twist, TwistStamped or WrenchStamped and its six numbers."""
+    """A received serialized Twist, TwistStamped or WrenchStamped and its six numbers.
 
-    __slots__ = ('data', 'layout', 'at', 'values', 'stamp', 'finite')
+    ``stamp`` [s] and ``stamp_ns`` (exact, for matching stamps) are 0 without a header.
+    """
+
+    __slots__ = ('data', 'layout', 'at', 'values', 'stamp', 'stamp_ns', 'finite')
 
     def __init__(self, data, stamped):
         """Parse ``data``; ``stamped``: it starts with a Header.  ``ValueError`` if malformed."""
         self.data = data
         self.layout = _layout(data)
-        self.stamp = 0.0
-        self.at = 4
+        self.stamp, self.stamp_ns, self.at = 0.0, 0, 4
         try:
             if stamped:
-                self.stamp, _, end = _header(data, self.layout)
+                sec, nanosec, _, end = _header(data, self.layout)
+                self.stamp, self.stamp_ns = sec + 1e-9 * nanosec, sec * 1_000_000_000 + nanosec
                 self.at = _aligned(end, 8)
             self.values = self.layout.six.unpack_from(data, self.at)
         except struct.error as exc:
@@ -289,14 +323,16 @@ class SerializedCommand:
             self.data[:4] + layout.stamp.pack(*stamp) + self.data[12:at])
         return head + layout.six.pack(*values) + self.data[at + 48:]
 
+_SOLIDS = (Marker.CUBE, Marker.CYLINDER, Marker.SPHERE)
+
+
 def _points(points):
     return np.array([(p.x, p.y, p.z) for p in points], dtype=float).reshape(-1, 3)
 
 
-def _solid_corners(marker, sides):
+def _solid_corners(kind, sx, sy, sz, sides):
     """Local corners (k, 3) of a CUBE or of the prism circumscribing a CYLINDER/SPHERE."""
-    sx, sy, sz = marker.scale.x, marker.scale.y, marker.scale.z
-    if marker.type == Marker.CUBE:
+    if kind == Marker.CUBE:
         xy = 0.5 * np.array([[-sx, -sy], [sx, -sy], [sx, sy], [-sx, sy]])
     else:
         angles = 2.0 * np.pi * (np.arange(sides) + 0.5) / sides
@@ -310,50 +346,94 @@ def _is_identity(pose):
     return p.x == p.y == p.z == 0.0 and q.x == q.y == q.z == 0.0 and q.w in (0.0, 1.0)
 
 
-def marker_geometry(marker, wall_thickness, cylinder_sides):
-    """``(polygons, z_min, z_max, position (3,))`` of one marker; ``ValueError`` with a reason."""
-    pose, scale = marker.pose, marker.scale
-    numbers = (pose.position.x, pose.position.y, pose.position.z, pose.orientation.x,
-               pose.orientation.y, pose.orientation.z, pose.orientation.w,
-               scale.x, scale.y, scale.z)
-    rot = quaternion_matrix(pose.orientation)
-    origin = np.array(numbers[:3])
-    kind = marker.type
-    if kind in (Marker.CUBE, Marker.CYLINDER, Marker.SPHERE):
-        if not np.isfinite(numbers).all():
+def marker_placement(marker):
+    """``(Placement, tilt)`` of a marker pose; ``NonFiniteError`` for NaN/Inf in it.
+
+    A rotation about z only (``q.x = q.y = 0``) is the placement's yaw and
+    ``tilt`` is ``None``: the shape turns rigidly with the pose.  Any other
+    rotation is ``tilt`` (3, 3), applied to the shape itself (its footprint
+    changes), and the placement only translates.
+    """
+    p, q = marker.pose.position, marker.pose.orientation
+    if not all(map(math.isfinite, (p.x, p.y, p.z, q.x, q.y, q.z, q.w))):
+        raise NonFiniteError('non-finite pose or scale' if marker.type in _SOLIDS
+                             else 'non-finite pose, scale or points')
+    r = rotation(q.x, q.y, q.z, q.w)
+    if q.x == 0.0 and q.y == 0.0:
+        return Placement(p.x, p.y, p.z, r[0], r[3]), None
+    return Placement(p.x, p.y, p.z), np.array(r).reshape(3, 3)
+
+
+def _source(marker, tilt, wall_thickness, cylinder_sides):
+    """Everything a marker's ``Shape`` depends on besides the placement, as a comparable tuple."""
+    scale, q = marker.scale, marker.pose.orientation
+    source = (marker.type, scale.x, scale.y, scale.z, wall_thickness, cylinder_sides,
+              None if tilt is None else (q.x, q.y, q.z, q.w))
+    if marker.type in _SOLIDS:
+        return source
+    return source + tuple((p.x, p.y, p.z) for p in marker.points)
+
+
+def marker_shape(marker, wall_thickness, cylinder_sides, tilt=None, source=None):
+    """``Shape`` of one marker in its own frame (``tilt`` applied); ``ValueError`` with a reason.
+
+    The pose is not read here (see ``marker_placement``); ``source`` is stored in the shape.
+    """
+    scale, kind = marker.scale, marker.type
+    sx, sy, sz = scale.x, scale.y, scale.z
+    if kind in _SOLIDS:
+        if not all(map(math.isfinite, (sx, sy, sz))):
             raise NonFiniteError('non-finite pose or scale')
-        if not (scale.x > 0.0 and scale.y > 0.0 and scale.z >= 0.0):
+        if not (sx > 0.0 and sy > 0.0 and sz >= 0.0):
             raise ValueError(f'{MARKER_TYPE_NAMES[kind]} needs scale x, y > 0 and z >= 0')
-        world = origin + _solid_corners(marker, cylinder_sides) @ rot.T
-        polygons = [outline_polygon(convex_hull(world[:, :2]), wall_thickness)]
-        return polygons, world[:, 2].min(), world[:, 2].max(), origin
+        corners = _solid_corners(kind, sx, sy, sz, cylinder_sides)
+        if tilt is not None:
+            corners = corners @ tilt.T
+        polygon = outline_polygon(convex_hull(corners[:, :2]), wall_thickness)
+        return Shape((polygon,), corners[:, 2].min(), corners[:, 2].max(), None, source)
     local = _points(marker.points)
-    if not (np.isfinite(numbers).all() and np.isfinite(local).all()):
+    if not (all(map(math.isfinite, (sx, sy, sz))) and np.isfinite(local).all()):
         raise NonFiniteError('non-finite pose, scale or points')
-    thickness = scale.x if scale.x > 0.0 else wall_thickness
+    thickness = sx if sx > 0.0 else wall_thickness
     if kind == Marker.TRIANGLE_LIST:
-        local = local * (scale.x, scale.y, scale.z)
-    world = origin + local @ rot.T
+        local = local * (sx, sy, sz)
+    if tilt is not None:
+        local = local @ tilt.T
     if kind == Marker.LINE_STRIP:
-        groups = [world]
+        groups = [local]
     elif kind in (Marker.LINE_LIST, Marker.TRIANGLE_LIST):
         size = 2 if kind == Marker.LINE_LIST else 3
-        if len(world) == 0 or len(world) % size:
+        if len(local) == 0 or len(local) % size:
             raise ValueError(f'{MARKER_TYPE_NAMES[kind]} needs a positive multiple of '
-                             f'{size} points, got {len(world)}')
-        groups = np.split(world, len(world) // size)
+                             f'{size} points, got {len(local)}')
+        groups = np.split(local, len(local) // size)
     else:
         raise ValueError(f'unsupported marker type {MARKER_TYPE_NAMES.get(kind, kind)}')
-    if len(world) == 0:
+    if len(local) == 0:
         raise ValueError('no points')
-    polygons = [outline_polygon(g[:, :2], thickness) for g in groups]
-    z_min, z_max = world[:, 2].min(), world[:, 2].max()
+    polygons = tuple(outline_polygon(g[:, :2], thickness) for g in groups)
+    z_min, z_max = local[:, 2].min(), local[:, 2].max()
     if z_max - z_min < POINT_TOLERANCE:
         # A flat outline is a prism of height scale.z above it, or an infinite extrusion.
-        z_max = z_min + scale.z if kind != Marker.TRIANGLE_LIST and scale.z > 0.0 else math.inf
+        z_max = z_min + sz if kind != Marker.TRIANGLE_LIST and sz > 0.0 else math.inf
         z_min = z_min if math.isfinite(z_max) else -math.inf
-    position = origin if not _is_identity(pose) else world.mean(axis=0)
-    return polygons, z_min, z_max, position
+    return Shape(polygons, z_min, z_max, local.mean(axis=0), source)
+
+
+def _reference(marker, shape, placement):
+    """Velocity reference position: the pose, or the points' centroid when the pose is identity."""
+    if shape.centroid is not None and _is_identity(marker.pose):
+        return shape.centroid
+    return placement[:3]
+
+
+def marker_geometry(marker, wall_thickness, cylinder_sides):
+    """``(polygons, z_min, z_max, position (3,))`` of one marker; ``ValueError`` with a reason."""
+    placement, tilt = marker_placement(marker)
+    shape = marker_shape(marker, wall_thickness, cylinder_sides, tilt)
+    polygons = [placement.rotate(p) + placement[:2] for p in shape.polygons]
+    return (polygons, shape.z_min + placement.z, shape.z_max + placement.z,
+            np.array(_reference(marker, shape, placement), dtype=float))
 
 
 def apply_markers(tracker, msg, now_stamp, wall_thickness, cylinder_sides):
@@ -361,7 +441,9 @@ def apply_markers(tracker, msg, now_stamp, wall_thickness, cylinder_sides):
 
     Markers stamped zero use ``now_stamp`` [s].  A marker that cannot be used is
     rejected with its reason (non-finite numbers mark the tracker invalid);
-    markers without a frame are rejected too.
+    markers without a frame are rejected too.  A marker whose shape (type,
+    scale, points, tilt, the two settings) equals the one last given for its
+    key reuses that ``Shape``: only its pose is read (``Placement``).
     """
     for marker in msg.markers:
         key = f'{marker.ns}/{marker.id}'
@@ -378,12 +460,16 @@ def apply_markers(tracker, msg, now_stamp, wall_thickness, cylinder_sides):
         try:
             if not frame:
                 raise ValueError('empty header.frame_id')
-            polygons, z_min, z_max, position = marker_geometry(
-                marker, wall_thickness, cylinder_sides)
+            placement, tilt = marker_placement(marker)
+            source = _source(marker, tilt, wall_thickness, cylinder_sides)
+            shape = tracker.shape(key)
+            if shape is None or shape.source != source:
+                shape = marker_shape(marker, wall_thickness, cylinder_sides, tilt, source)
         except ValueError as exc:
             tracker.reject(key, str(exc), invalid=isinstance(exc, NonFiniteError))
             continue
-        tracker.update(key, frame, stamp, position, polygons, z_min, z_max)
+        tracker.update(key, frame, stamp, _reference(marker, shape, placement), shape,
+                       placement)
 
 
 def _color(r, g, b, a):

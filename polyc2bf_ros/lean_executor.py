@@ -25,10 +25,18 @@ switches by changing one line, and does the minimum per wake-up:
   waitables (QoS events: rare, so they join the wait only every
   ``WAITABLE_PERIOD`` = 0.1 s); then tasks from ``create_task`` and ``async``
   callbacks, which run as ``rclpy.task.Task`` and are resumed on later spins
-  until done.  The context is checked for shutdown only when one of the
-  executor's guard conditions fired (shutdown and Ctrl-C trigger them).  If
-  the entities change during dispatch, it stops; what is left stays ready in
-  rcl and is served after the rebuild, so a destroyed entity is never called.
+  until done.  If the entities change during dispatch, it stops; what is left
+  stays ready in rcl and is served after the rebuild, so a destroyed entity is
+  never called.
+- **Shutdown.** The context is checked after every wait and before every
+  callback (``handle.ok()``, ~0.2 us): rclpy's SIGINT handler shuts the
+  context down at once, and a shut-down context ends the spin with
+  ``ExternalShutdownException`` at the next callback boundary, however much is
+  queued.  So Ctrl-C acts within one callback even when the Python
+  ``KeyboardInterrupt`` never comes (SIGINT ignored at start, as for a
+  background job of a script) or the guard condition's wake-up came before the
+  context was down, and no callback runs with a dead context (its publish
+  would raise).
 
 Differences from ``SingleThreadedExecutor``: ``spin_once`` runs *every*
 callback that is ready after one wait (not just one), and with waitables
@@ -94,6 +102,7 @@ class _Plan:
         self._held = contextlib.ExitStack()
         hold = self._hold
         hold(context.handle)
+        self.context_ok = context.handle.ok
         self.subscriptions = [
             (s.handle, s.handle.pointer, s.msg_type, s.raw, wrap(s.callback),
              s._callback_type == _WITH_INFO, max(1, s.qos_profile.depth))
@@ -248,6 +257,8 @@ class LeanExecutor(Executor):
         if self._is_shutdown:
             return
         self._dispatch(plan, with_waitables)
+        if not plan.context_ok():  # before, during or after dispatch: Ctrl-C or shutdown
+            raise ExternalShutdownException()
         if self._pending:
             self._run_tasks()
 
@@ -256,21 +267,22 @@ class LeanExecutor(Executor):
 
         Everything else stays ready in rcl until taken (queued messages, due
         timers, requests, responses, QoS events).  So when the entities change
-        meanwhile (``wake``), dispatch stops and the rest is served after the
-        rebuild: a destroyed entity is never called.
+        meanwhile (``wake``) or the context is shut down, dispatch stops before
+        the next callback; the rest is served after the rebuild (a destroyed
+        entity is never called), or never.
         """
         wait_set = plan.wait_set
+        ok = plan.context_ok
+        if not ok():
+            return
         guards_ready = wait_set.get_ready_entities('guard_condition')
-        # A context shut down (or Ctrl-C) triggers our guard conditions: check only then.
-        if guards_ready and not self._context.ok():
-            raise ExternalShutdownException()
         for _, pointer, callback in plan.guards:
             if pointer in guards_ready and callback is not None:
                 callback()
         for handle, _, msg_type, raw, callback, with_info, depth in _ready(
                 wait_set, 'subscription', plan.subscriptions):
             for _ in range(depth):
-                if self._stale:
+                if self._stale or not ok():
                     return
                 taken = handle.take_message(msg_type, raw)
                 if taken is None:
@@ -280,22 +292,22 @@ class LeanExecutor(Executor):
                 else:
                     callback(taken[0])
         for handle, _, callback in _ready(wait_set, 'timer', plan.timers):
-            if self._stale:
+            if self._stale or not ok():
                 return
             if handle.is_timer_ready():
                 handle.call_timer()
                 callback()
         for handle, _, service in _ready(wait_set, 'service', plan.services):
-            if self._stale:
+            if self._stale or not ok():
                 return
             self._serve(handle, service)
         for handle, _, client in _ready(wait_set, 'client', plan.clients):
-            if self._stale:
+            if self._stale or not ok():
                 return
             self._complete(handle, client)
         if with_waitables:
             for waitable in plan.waitables:
-                if self._stale:
+                if self._stale or not ok():
                     return
                 if waitable.is_ready(wait_set):
                     self._start(waitable.execute, waitable.take_data())

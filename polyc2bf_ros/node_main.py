@@ -1,5 +1,6 @@
 """The shared ``main`` of this package's nodes (ros2/demos style)."""
 import gc
+import signal
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -10,12 +11,31 @@ from polyc2bf_ros.lean_executor import LeanExecutor
 def run_node(node_class, name, args=None):
     """Spin ``node_class()`` on a ``LeanExecutor`` until shutdown; return 1 on a bad configuration.
 
-    A ``ValueError`` from the constructor is a configuration error: it is logged
-    as fatal under ``name`` and the process exits with status 1.  Ctrl-C and an
-    external shutdown end it cleanly (status 0), also during start-up.  Everything allocated
-    during start-up (modules, the node) is frozen out of the garbage
-    collector, so its full collections stay short while the node runs.
+    Call it from the main thread of the process.  A ``ValueError`` from the
+    constructor is a configuration error: it is logged as fatal under ``name``
+    and the process exits with status 1.  Ctrl-C and an external shutdown end
+    the node cleanly (status 0):
+
+    - while starting up, Ctrl-C raises ``KeyboardInterrupt`` as usual;
+    - while spinning it does not: rclpy's SIGINT handler shuts the context
+      down and the executor stops before its next callback.  An interrupt
+      raised inside a callback would break off whatever it was doing, and one
+      raised inside rclpy's message conversion comes out as a ``RuntimeError``.
+      A callback running at that moment can still fail in its next ROS call
+      (a publish on the shut-down context raises ``RCLError``): an exception
+      once the context is down is that, not a fault.
+
+    Everything allocated during start-up (modules, the node) is frozen out of
+    the garbage collector, so its full collections stay short while the node runs.
     """
+    spinning = []
+
+    def on_sigint(signum, frame):
+        """Python's part of SIGINT (rclpy chains to it): interrupt only the start-up."""
+        if not spinning:
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_sigint)  # before rclpy.init, so that rclpy chains to it
     rclpy.init(args=args)
     try:
         node = node_class()
@@ -31,9 +51,13 @@ def run_node(node_class, name, args=None):
         executor.add_node(node)
         gc.collect()
         gc.freeze()
+        spinning.append(True)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if rclpy.ok():
+            raise
     finally:
         executor.shutdown()
         node.destroy_node()

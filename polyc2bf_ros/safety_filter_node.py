@@ -295,18 +295,19 @@ class SafetyFilterNode(Node):
         """Read serialized odometry into the model state; keep the last finite one."""
         self._watchdog.feed('odom', time.monotonic())
         try:
-            stamp, frame, pose, twist = conversions.read_odometry(data)
+            odom = conversions.read_odometry(data)
         except ValueError as exc:
             self._odom_valid = False
             self._bad_message(f'odometry ({exc})')
             return
-        result = conversions.state_from_odometry(self._model_name, pose, twist)
+        result = conversions.state_from_odometry(self._model_name, odom.pose, odom.twist)
         self._odom_valid = result is not None
         if result is None:
             self._bad_message('odometry (NaN/Inf)')
             return
         self._state[:], self._yaw = result
-        self._odom_stamp = stamp
+        self._odom_stamp = stamp = odom.stamp
+        frame = odom.frame
         if frame != self._odom_frame_raw:
             self._odom_frame_raw = frame
             self._odom_frame = frame.decode(errors='replace').lstrip('/')
@@ -347,13 +348,12 @@ class SafetyFilterNode(Node):
         self._rebuild_obstacles()
 
     def _rebuild_obstacles(self):
-        """Snapshot the tracker in the odometry frame into a new ``ObstacleSet``."""
+        """Take the tracker's obstacles in the odometry frame as a new ``ObstacleSet``."""
         if self._odom_frame is None:
             return
-        obstacles, self._t_ref, self._wrong_frame = self._tracker.snapshot(
-            self._odom_frame, self._model.position_dim)
         try:
-            self._obstacle_set = ObstacleSet.from_obstacles(obstacles)
+            self._obstacle_set, self._t_ref, self._wrong_frame = self._tracker.obstacle_set(
+                self._odom_frame, self._model.position_dim)
             self._obstacle_error = ''
         except ValueError as exc:
             self._obstacle_set = ObstacleSet.empty()

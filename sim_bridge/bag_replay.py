@@ -55,7 +55,7 @@ parameter file(s) the node takes (rcl's YAML: the sections whose node name
 pattern matches ``/NS/safety_filter``, e.g. ``/**/safety_filter``) plus ``-p``
 overrides, with the node's defaults for the rest.  Obstacles go through the
 node's own path (``conversions.apply_markers`` into an ``ObstacleTracker``,
-snapshot in the odometry frame, ``ObstacleSet``), with the node's age rule
+``ObstacleTracker.obstacle_set`` in the odometry frame), with the node's age rule
 ``age = clip(t_odom - t_ref, 0, max_extrapolation)``.
 
 Each recorded safe command (``/NS/cmd_vel_out`` / ``/NS/wrench_out``, stamped
@@ -713,10 +713,9 @@ class _OfflineNode:
         if stamp not in self.odometry or stamp not in self.nominal:
             return None
         if self.dirty and self.frame is not None:
-            obstacles, self.t_ref, _ = self.tracker.snapshot(
-                self.frame, self.filter.model.position_dim)
             try:
-                self.obstacle_set = ObstacleSet.from_obstacles(obstacles)
+                self.obstacle_set, self.t_ref, _ = self.tracker.obstacle_set(
+                    self.frame, self.filter.model.position_dim)
                 self.obstacle_error = False
             except ValueError:
                 self.obstacle_set, self.obstacle_error = ObstacleSet.empty(), True

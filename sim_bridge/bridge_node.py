@@ -107,11 +107,11 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from polyc2bf_ros.conversions import SerializedCommand
 from polyc2bf_ros.core.models import make_model
 from sim_bridge.cdr import (
     clock_cdr,
     OdometryCdr,
-    read_stamped_six,
     tf_message_cdr,
     TF_MESSAGE_DEFINITION,
     TF_MESSAGE_TYPE,
@@ -423,11 +423,12 @@ class BridgeNode(Node):
         TwistStamped: [linear.x, angular.z]; WrenchStamped: [force.z, torque].
         """
         try:
-            stamp_ns, (x, y, z, rx, ry, rz) = read_stamped_six(data)
+            command = SerializedCommand(data, stamped=True)
         except ValueError as exc:
             robot.stray += 1
             self.get_logger().error(f'{robot.command_topic}: {exc}', throttle_duration_sec=1.0)
             return
+        stamp_ns, (x, _, z, rx, ry, rz) = command.stamp_ns, command.values
         values = (x, rz) if robot.type == 'quadruped' else (z, rx, ry, rz)
         if self.lockstep and (stamp_ns != self._now_ns or robot.answered_ns == stamp_ns):
             robot.stray += 1

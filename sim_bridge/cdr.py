@@ -2,10 +2,10 @@
 
 rclpy serializes through Python message objects: an ``Odometry`` (two float64[36]
 covariances) took ~120 us to serialize here, more than a DDS hop.  These functions
-build, or read, the bytes rclpy would (little-endian CDR after the 4-byte
-encapsulation header; alignment counted from the end of that header), so the
-bridge can publish and record the same bytes.  They equal rclpy's output except
-in alignment padding, which Fast CDR leaves unset and these write as zeros;
+build the bytes rclpy would (little-endian CDR after the 4-byte encapsulation
+header; alignment counted from the end of that header), so the bridge can
+publish and record the same bytes.  They equal rclpy's output except in
+alignment padding, which Fast CDR leaves unset and these write as zeros;
 test/sim/test_cdr.py checks them with ``rclpy.serialization`` and ``rosbags``.
 
 - ``tf_message_cdr``: ``tf2_msgs/msg/TFMessage``, also because the PyPI ROS
@@ -13,10 +13,10 @@ test/sim/test_cdr.py checks them with ``rclpy.serialization`` and ``rosbags``.
   ``TF_MESSAGE_DEFINITION`` is its ``.msg`` text for the bag's schema;
 - ``clock_cdr``: ``rosgraph_msgs/msg/Clock``;
 - ``OdometryCdr``: ``nav_msgs/msg/Odometry`` with fixed frame ids and zero
-  covariances (what the bridge sends); ``read_odometry`` fills an Odometry
-  message from any Odometry CDR without building the covariance arrays;
-- ``read_stamped_six``: stamp and six numbers of a ``TwistStamped`` (linear,
-  angular) or ``WrenchStamped`` (force, torque), the robots' commands.
+  covariances (what the bridge sends).
+
+The readers (odometry, stamped commands) are the safety filter's own:
+``polyc2bf_ros.conversions.read_odometry`` and ``SerializedCommand``.
 
 (A MarkerArray writer was tried and dropped: reading the fields of rclpy
 ``Marker`` objects costs as much as rclpy's own serializer, ~33 us a marker.)
@@ -84,60 +84,3 @@ class OdometryCdr:
         """Return the CDR bytes of the odometry message."""
         return b''.join((_ENCAPSULATION, _STAMP.pack(sec, nanosec), self._frames,
                          _POSE.pack(*pose), _COVARIANCE, _TWIST.pack(*twist), _COVARIANCE))
-
-
-def _check_little_endian(data):
-    """Raise ValueError unless ``data`` starts with the CDR_LE encapsulation."""
-    if data[:2] != _ENCAPSULATION[:2]:
-        raise ValueError('only little-endian CDR (encapsulation 0x0001) is read')
-
-
-def _after_string(payload, offset):
-    """Return (text, offset past it) of the CDR string at payload ``offset`` (4-aligned)."""
-    offset += -offset % 4
-    (length,) = _UINT32.unpack_from(payload, offset)
-    text = bytes(payload[offset + 4:offset + 3 + length]).decode()
-    return text, offset + 4 + length
-
-
-def read_stamped_six(data):
-    """Return (stamp [ns], (6 floats)) of a TwistStamped or WrenchStamped CDR.
-
-    Raises ValueError for big-endian or truncated data.
-    """
-    _check_little_endian(data)
-    payload = memoryview(data)[4:]
-    try:
-        sec, nanosec = _STAMP.unpack_from(payload, 0)
-        offset = _after_string(payload, 8)[1]
-        values = _TWIST.unpack_from(payload, offset + (-offset % 8))
-    except struct.error as exc:
-        raise ValueError(f'truncated stamped command CDR: {exc}') from None
-    return sec * 1_000_000_000 + nanosec, values
-
-
-def read_odometry(data, msg):
-    """Fill ``msg`` (a nav_msgs/Odometry) from Odometry CDR ``data``; return it.
-
-    Sets the header, child frame, pose and twist; the covariances are left as
-    they are.  Raises ValueError for big-endian or truncated data.
-    """
-    _check_little_endian(data)
-    payload = memoryview(data)[4:]
-    try:
-        msg.header.stamp.sec, msg.header.stamp.nanosec = _STAMP.unpack_from(payload, 0)
-        frame_id, offset = _after_string(payload, 8)
-        child_frame_id, offset = _after_string(payload, offset)
-        offset += -offset % 8
-        pose = _POSE.unpack_from(payload, offset)
-        twist = _TWIST.unpack_from(payload, offset + (7 + 36) * 8)
-    except struct.error as exc:
-        raise ValueError(f'truncated Odometry CDR: {exc}') from None
-    msg.header.frame_id, msg.child_frame_id = frame_id, child_frame_id
-    position, orientation = msg.pose.pose.position, msg.pose.pose.orientation
-    position.x, position.y, position.z = pose[:3]
-    orientation.x, orientation.y, orientation.z, orientation.w = pose[3:]
-    linear, angular = msg.twist.twist.linear, msg.twist.twist.angular
-    linear.x, linear.y, linear.z = twist[:3]
-    angular.x, angular.y, angular.z = twist[3:]
-    return msg

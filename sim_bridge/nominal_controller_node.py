@@ -1,9 +1,9 @@
 """``nominal_controller``: a go-to-goal reference controller per robot; it ignores obstacles.
 
 One node per robot namespace.  On every ``odom`` (nav_msgs/Odometry, read from
-its CDR bytes by ``sim_bridge.cdr.read_odometry``: rclpy's deserializer costs
-more than the controller) it answers at once with the go-to-goal command of
-``polyc2bf_ros.core.nominal``:
+its CDR bytes by ``polyc2bf_ros.conversions.read_odometry``, as the safety filter
+does: rclpy's deserializer costs more than the controller) it answers at once
+with the go-to-goal command of ``polyc2bf_ros.core.nominal``:
 
 - ``robot_type: quadruped``: ``cmd_vel_in`` (geometry_msgs/TwistStamped),
   ``linear.x = v``, ``angular.z = omega`` from
@@ -31,7 +31,6 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from polyc2bf_ros import conversions
 from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
 from polyc2bf_ros.node_main import run_node
-from sim_bridge.cdr import read_odometry
 
 # robot_type: (controller class, core model name for the odometry state, goal size).
 ROBOT_TYPES = {
@@ -70,7 +69,6 @@ class NominalControllerNode(Node):
                                                              to_value=1000.0)])).value
         self._controller = controller_class(**gains)
         self._state = np.zeros(5 if robot_type == 'quadruped' else 12)
-        self._odom = Odometry()
         if robot_type == 'quadruped':
             self._out = TwistStamped()
             self._publisher = self.create_publisher(TwistStamped, 'cmd_vel_in', COMMAND_QOS)
@@ -85,16 +83,18 @@ class NominalControllerNode(Node):
     def _on_odom(self, data):
         """Publish the command for this odometry (CDR ``data``), stamped with its stamp."""
         try:
-            msg = read_odometry(data, self._odom)
+            odom = conversions.read_odometry(data)
         except ValueError as exc:
             self.get_logger().error(f'odometry dropped: {exc}', throttle_duration_sec=1.0)
             return
-        conversions.odometry_to_state(msg, self._model, self._state)
-        if not np.isfinite(self._state).all():
+        result = conversions.state_from_odometry(self._model, odom.pose, odom.twist)
+        if result is None:  # NaN/Inf
             return
+        self._state[:] = result[0]
         self._fill()
-        self._out.header.stamp = msg.header.stamp
-        self._out.header.frame_id = msg.child_frame_id
+        header = self._out.header
+        header.stamp.sec, header.stamp.nanosec = odom.sec, odom.nanosec
+        header.frame_id = odom.child_frame.decode(errors='replace')
         self._publisher.publish(self._out)
 
     def _fill_twist(self):

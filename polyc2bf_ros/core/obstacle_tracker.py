@@ -15,9 +15,19 @@ gets velocities.  A gap longer than ``max_gap``, or a stamp going backwards
 (bag loop, simulation reset), restarts the estimate at zero velocity; a repeated
 stamp keeps it.
 
-``snapshot`` moves every obstacle to a common reference time ``t_ref`` (the
-newest stamp held): ``polygon + v_xy (t_ref - t)``, ``z + v_z (t_ref - t)``.
+Geometry is kept in each obstacle's own frame: a ``Shape`` (polygons and z
+range) placed in the tracking frame by a ``Placement`` (rotation about z, then
+translation), so an obstacle that only moves keeps its ``Shape`` object and
+only its placement changes.  ``snapshot`` moves every obstacle to a common
+reference time ``t_ref`` (the newest stamp held)::
+
+    polygon = R(yaw) q + p_xy + v_xy (t_ref - t)        z = z_shape + p_z + v_z (t_ref - t)
+
 The filter then extrapolates all of them together by the state's age.
+``obstacle_set`` gives the same as the filter's ``ObstacleSet``; while the
+obstacles in the frame keep their shapes and rotations (in the same order) it
+only translates the set of the last call (``PolygonBatch.translated``) instead
+of rebuilding it (convexity checks, decomposition).
 
 ``outline_polygon`` turns degenerate outlines into polygons: one distinct point
 becomes a square of side ``thickness``; collinear points become a rectangle of
@@ -26,11 +36,12 @@ at both ends (a 2-point wall); anything else goes through ``clean_polygon``.
 """
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from polyc2bf_ros.core.geometry import clean_polygon
-from polyc2bf_ros.core.obstacles import Obstacle
+from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 
 # Points closer than this [m] are the same point; points within this distance
 # of the line through the two extreme points make the outline collinear.
@@ -65,17 +76,66 @@ def outline_polygon(points, thickness):
     return np.array([a - half * n, b - half * n, b + half * n, a + half * n])
 
 
+@dataclass(frozen=True, eq=False)
+class Shape:
+    """An obstacle's geometry in its own frame; shapes compare by identity.
+
+    ``polygons``: tuple of ``(k, 2)`` arrays; ``z_min`` / ``z_max``: z range;
+    ``centroid``: the vertices' centroid (3,) for outlines, ``None`` for solids;
+    ``source``: what the caller made it from, so that it can reuse the shape
+    when the same thing arrives again (``ObstacleTracker.shape``).
+    """
+
+    polygons: tuple
+    z_min: float = -math.inf
+    z_max: float = math.inf
+    centroid: np.ndarray = None
+    source: object = None
+
+
+class Placement(NamedTuple):
+    """Own frame -> tracking frame: ``q -> R q + (x, y, z)``, ``R`` about z by (cos, sin)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    cos: float = 1.0
+    sin: float = 0.0
+
+    def rotate(self, polygon):
+        """Return ``R polygon`` (k, 2) (the polygon itself when R = I)."""
+        if self.cos == 1.0 and self.sin == 0.0:
+            return polygon
+        return polygon @ np.array([[self.cos, self.sin], [-self.sin, self.cos]])
+
+
+IDENTITY = Placement()
+
+
 @dataclass
 class _Track:
-    """One obstacle: geometry at ``stamp`` plus its velocity estimate."""
+    """One obstacle: shape and placement at ``stamp`` plus its velocity estimate."""
 
     frame: str
-    polygons: list
-    z_min: float
-    z_max: float
+    shape: Shape
+    placement: Placement
     position: np.ndarray
     stamp: float
     velocity: np.ndarray
+
+    def parts(self, key):
+        """``(key, rotated polygon)`` per polygon; ``key#i`` for multi-polygon shapes."""
+        polygons = self.shape.polygons
+        if len(polygons) == 1:
+            return [(key, self.placement.rotate(polygons[0]))]
+        return [(f'{key}#{i}', self.placement.rotate(p)) for i, p in enumerate(polygons)]
+
+    def moved(self, t_ref):
+        """Return the offset (x, y, z) of the rotated shape at ``t_ref``: p + v (t_ref - t)."""
+        dt = t_ref - self.stamp
+        vx, vy, vz = self.velocity.tolist()
+        p = self.placement
+        return p.x + vx * dt, p.y + vy * dt, p.z + vz * dt
 
 
 class ObstacleTracker:
@@ -92,6 +152,8 @@ class ObstacleTracker:
         self._history = {}
         self._rejected = {}
         self._invalid = set()
+        self._layout = None  # keys, shapes and rotations behind _base (last obstacle_set)
+        self._base = ObstacleSet.empty()
 
     def __len__(self):
         """Return the number of obstacles held (rejected ones excluded)."""
@@ -107,8 +169,16 @@ class ObstacleTracker:
         """True while some key's last update had non-finite numbers (the node brakes)."""
         return bool(self._invalid)
 
-    def update(self, key, frame, stamp, position, polygons, z_min=-math.inf, z_max=math.inf):
-        """ADD/MODIFY ``key``: ``polygons`` (list of ``(k, 2)``) and ``z`` range at ``stamp``."""
+    def shape(self, key):
+        """Return the last ``Shape`` given for ``key`` (kept ``max_gap`` s after a delete)."""
+        track = self._history.get(key)
+        return track.shape if track is not None else None
+
+    def update(self, key, frame, stamp, position, shape, placement=IDENTITY):
+        """ADD/MODIFY ``key``: ``shape`` placed in ``frame`` by ``placement`` at ``stamp``.
+
+        ``position`` (3,) in ``frame`` is the reference point of the velocity estimate.
+        """
         position = np.array(position, dtype=float).reshape(3)
         velocity = np.zeros(3)
         previous = self._history.get(key)
@@ -119,8 +189,7 @@ class ObstacleTracker:
             elif 0.0 < dt <= self.max_gap:
                 raw = (position - previous.position) / dt
                 velocity = self.smoothing * raw + (1.0 - self.smoothing) * previous.velocity
-        track = _Track(frame, [np.asarray(p, dtype=float) for p in polygons],
-                       float(z_min), float(z_max), position, float(stamp), velocity)
+        track = _Track(frame, shape, placement, position, float(stamp), velocity)
         self._tracks[key] = track
         self._history[key] = track
         self._rejected.pop(key, None)
@@ -151,10 +220,23 @@ class ObstacleTracker:
         self._invalid.clear()
 
     def _prune(self, now):
+        if len(self._history) == len(self._tracks):  # every key held is in use
+            return
         old = [k for k, t in self._history.items()
                if now - t.stamp > self.max_gap and k not in self._tracks]
         for k in old:
             del self._history[k]
+
+    def _in_frame(self, frame):
+        """``([(key, track)] in frame, t_ref, {key: reason} for the other frames)``."""
+        tracks, wrong_frame = [], {}
+        for key, t in self._tracks.items():
+            if t.frame == frame:
+                tracks.append((key, t))
+            else:
+                wrong_frame[key] = f'frame {t.frame!r} is not the odometry frame {frame!r}'
+        t_ref = max(t.stamp for _, t in tracks) if tracks else math.nan
+        return tracks, t_ref, wrong_frame
 
     def snapshot(self, frame, position_dim):
         """Obstacles in ``frame`` moved to the newest stamp.
@@ -164,20 +246,42 @@ class ObstacleTracker:
         multi-polygon markers), the reference time (``nan`` if empty) and
         ``{key: reason}`` for obstacles in another frame.
         """
-        obstacles, wrong_frame = [], {}
-        stamps = [t.stamp for t in self._tracks.values() if t.frame == frame]
-        t_ref = max(stamps) if stamps else math.nan
-        for key, t in self._tracks.items():
-            if t.frame != frame:
-                wrong_frame[key] = (f'frame {t.frame!r} is not the odometry frame {frame!r}')
-                continue
-            shift = t.velocity * (t_ref - t.stamp)
-            for i, polygon in enumerate(t.polygons):
+        tracks, t_ref, wrong_frame = self._in_frame(frame)
+        obstacles = []
+        for key, t in tracks:
+            x, y, z = t.moved(t_ref)
+            for name, polygon in t.parts(key):
                 obstacles.append(Obstacle(
-                    polygon=polygon + shift[:2], velocity=t.velocity[:position_dim].copy(),
-                    z_min=t.z_min + shift[2], z_max=t.z_max + shift[2],
-                    key=key if len(t.polygons) == 1 else f'{key}#{i}'))
+                    polygon=polygon + (x, y), velocity=t.velocity[:position_dim].copy(),
+                    z_min=t.shape.z_min + z, z_max=t.shape.z_max + z, key=name))
         return obstacles, t_ref, wrong_frame
+
+    def obstacle_set(self, frame, position_dim):
+        """``snapshot`` as the filter's ``ObstacleSet``: ``(obstacles, t_ref, wrong_frame)``.
+
+        The set of the rotated shapes at the origin is rebuilt only when the
+        keys, shapes or rotations in ``frame`` changed since the last call;
+        otherwise each part is translated by its obstacle's ``moved`` offset
+        (velocities beyond ``position_dim`` are 0, as in ``snapshot``).
+        ``ObstacleSet.from_obstacles`` raises ``ValueError`` for unusable polygons.
+        """
+        tracks, t_ref, wrong_frame = self._in_frame(frame)
+        layout = [(key, t.shape, t.placement.cos, t.placement.sin) for key, t in tracks]
+        if layout != self._layout:
+            self._base = ObstacleSet.from_obstacles([
+                Obstacle(polygon=polygon, z_min=t.shape.z_min, z_max=t.shape.z_max, key=name)
+                for key, t in tracks for name, polygon in t.parts(key)])
+            self._layout = layout
+        base = self._base
+        rows = []
+        for _, t in tracks:
+            velocity = t.velocity.tolist()
+            velocity[position_dim:] = [0.0] * (3 - position_dim)
+            rows += [(*t.moved(t_ref), *velocity)] * len(t.shape.polygons)
+        moves = np.array(rows, dtype=float).reshape(-1, 6)[base.owner]
+        return ObstacleSet(footprints=base.footprints.translated(moves[:, :2]),
+                           velocities=moves[:, 3:], z_ranges=base.z_ranges + moves[:, 2:3],
+                           owner=base.owner, keys=base.keys), t_ref, wrong_frame
 
 
 def extrapolation_age(state_stamp, t_ref, max_extrapolation):

@@ -6,14 +6,14 @@ import pytest
 from hypothesis import given, strategies as st
 
 from polyc2bf_ros.core.geometry import signed_area
-from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker, outline_polygon
+from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker, outline_polygon, Placement, Shape
+from polyc2bf_ros.core.obstacles import ObstacleSet
 
 SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 
 
-def _update(tracker, key, stamp, x, frame='odom', polygons=None):
-    shifted = [SQUARE + (x, 0.0)] if polygons is None else polygons
-    tracker.update(key, frame, stamp, (x + 0.5, 0.5, 0.0), shifted)
+def _update(tracker, key, stamp, x, frame='odom'):
+    tracker.update(key, frame, stamp, (x + 0.5, 0.5, 0.0), Shape((SQUARE + (x, 0.0),)))
 
 
 # -- outlines ------------------------------------------------------------------------------------
@@ -169,10 +169,10 @@ def test_other_frames_are_reported_not_used():
 def test_multi_polygon_markers_get_part_keys_and_z_range():
     """Multi-polygon markers get ns/id#i keys; z range is extrapolated too."""
     tracker = ObstacleTracker(smoothing=1.0)
-    tracker.update('t/1', 'odom', 0.0, (0, 0, 0), [SQUARE, SQUARE + 2.0], z_min=0.0, z_max=1.0)
-    tracker.update('t/1', 'odom', 1.0, (0, 0, 0.5), [SQUARE, SQUARE + 2.0], z_min=0.5,
-                   z_max=1.5)
-    tracker.update('u/1', 'odom', 2.0, (9, 9, 0), [SQUARE + 9.0])
+    shape = Shape((SQUARE, SQUARE + 2.0), z_min=0.0, z_max=1.0)
+    tracker.update('t/1', 'odom', 0.0, (0, 0, 0), shape)
+    tracker.update('t/1', 'odom', 1.0, (0, 0, 0.5), shape, Placement(z=0.5))
+    tracker.update('u/1', 'odom', 2.0, (9, 9, 0), Shape((SQUARE + 9.0,)))
     obstacles = tracker.snapshot('odom', 3)[0]
     parts = [o for o in obstacles if o.key.startswith('t/1')]
     assert [o.key for o in parts] == ['t/1#0', 't/1#1']
@@ -184,3 +184,97 @@ def test_bad_construction():
     for smoothing, gap in ((0.0, 1.0), (1.5, 1.0), (0.5, 0.0)):
         with pytest.raises(ValueError):
             ObstacleTracker(smoothing, gap)
+
+
+# -- shapes, placements and the filter's obstacle set ---------------------------------------------
+
+L_SHAPE = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 0.5], [0.5, 0.5], [0.5, 2.0], [0.0, 2.0]])
+
+
+def _assert_same_set(actual, expected):
+    """Two ObstacleSets hold the same parts (vertices to 1e-9), velocities, z ranges and keys."""
+    assert actual.keys == expected.keys
+    np.testing.assert_array_equal(actual.owner, expected.owner)
+    np.testing.assert_array_equal(actual.footprints.counts, expected.footprints.counts)
+    np.testing.assert_allclose(actual.footprints.vertices, expected.footprints.vertices,
+                               atol=1e-9)
+    np.testing.assert_allclose(actual.velocities, expected.velocities, atol=1e-12)
+    np.testing.assert_allclose(actual.z_ranges, expected.z_ranges, atol=1e-12)
+
+
+def test_placement_rotates_about_z_then_translates():
+    """Placement (x, y, z, cos, sin): a quarter turn maps (1, 0) to (0, 1), then the offset."""
+    quarter = Placement(5.0, 0.0, 1.0, 0.0, 1.0)
+    np.testing.assert_allclose(quarter.rotate(np.array([[1.0, 0.0]])) + quarter[:2],
+                               [[5.0, 1.0]], atol=1e-15)
+    assert Placement().rotate(SQUARE) is SQUARE
+
+
+def test_shapes_are_placed_and_kept_after_a_delete():
+    """Snapshot = R(yaw) shape + offset; ``shape`` returns the last shape, also after DELETE."""
+    tracker = ObstacleTracker(smoothing=1.0, max_gap=1.0)
+    shape = Shape((SQUARE,), z_min=0.0, z_max=2.0)
+    tracker.update('r/1', 'odom', 0.0, (3.0, 0.0, 0.5), shape, Placement(3.0, 0.0, 0.5, 0.0, 1.0))
+    [obstacle], _, _ = tracker.snapshot('odom', 3)
+    np.testing.assert_allclose(obstacle.polygon, [[3, 0], [3, 1], [2, 1], [2, 0]], atol=1e-15)
+    assert (obstacle.z_min, obstacle.z_max) == (0.5, 2.5)
+    tracker.delete('r/1')
+    assert tracker.shape('r/1') is shape and tracker.shape('r/2') is None
+    _update(tracker, 'other/1', 5.0, 0.0)   # beyond max_gap: the deleted key is forgotten
+    assert tracker.shape('r/1') is None
+
+
+def test_obstacle_set_translates_while_shapes_only_move():
+    """Only poses change: the last set translated (same edge table); a turn rebuilds it.
+
+    Each set equals the one built from ``snapshot``.
+    """
+    tracker = ObstacleTracker(smoothing=1.0)
+    robot, wall = Shape((SQUARE,), 0.0, 1.0), Shape((L_SHAPE,))
+    sets = []
+    for step, x in enumerate((0.0, 0.1, 0.2)):
+        tracker.update('robots/0', 'odom', 0.1 * step, (x, 0.0, 0.5), robot,
+                       Placement(x, 0.0, 0.5))
+        tracker.update('walls/0', 'odom', 0.0, (0.0, 0.0, 0.0), wall)
+        obstacle_set, t_ref, wrong = tracker.obstacle_set('odom', 2)
+        expected = ObstacleSet.from_obstacles(tracker.snapshot('odom', 2)[0])
+        _assert_same_set(obstacle_set, expected)
+        assert (t_ref, wrong) == (0.1 * step, {})
+        sets.append(obstacle_set)
+    assert len(sets[0]) == 3 and sets[2].velocities[0, 0] == pytest.approx(1.0)
+    assert sets[1].footprints.edge_table is sets[0].footprints.edge_table
+    tracker.update('robots/0', 'odom', 0.3, (0.3, 0.0, 0.5), robot, Placement(0.3, 0.0, 0.5,
+                                                                               0.0, 1.0))
+    turned = tracker.obstacle_set('odom', 2)[0]
+    assert turned.footprints.edge_table is not sets[0].footprints.edge_table
+    _assert_same_set(turned, ObstacleSet.from_obstacles(tracker.snapshot('odom', 2)[0]))
+
+
+_SHAPES = [Shape((SQUARE,), 0.0, 1.0), Shape((L_SHAPE,)), Shape((SQUARE, SQUARE + 3.0), -1.0, 0.5)]
+
+
+@given(st.lists(st.tuples(st.integers(0, 3), st.sampled_from(['upd', 'del', 'map', 'all']),
+                          st.integers(0, 2), st.floats(-5, 5), st.floats(-5, 5),
+                          st.sampled_from([0.0, 0.5 * math.pi, 2.0])),
+                min_size=1, max_size=25))
+def test_obstacle_set_matches_the_snapshot(steps):
+    """Any updates, deletes and frame changes: the set equals the one built from ``snapshot``.
+
+    3-D velocities, so z ranges are extrapolated too.
+    """
+    tracker = ObstacleTracker(smoothing=0.7)
+    for stamp, (key, action, shape, x, y, yaw) in enumerate(steps):
+        name = f'k/{key}'
+        if action == 'del':
+            tracker.delete(name)
+        elif action == 'all':
+            tracker.delete_all()
+        else:
+            placement = Placement(x, y, 0.1 * x, math.cos(yaw), math.sin(yaw))
+            tracker.update(name, 'odom' if action == 'upd' else 'map', 0.05 * stamp,
+                           placement[:3], _SHAPES[shape], placement)
+        obstacle_set, t_ref, wrong = tracker.obstacle_set('odom', 3)
+        obstacles, snapshot_t_ref, snapshot_wrong = tracker.snapshot('odom', 3)
+        _assert_same_set(obstacle_set, ObstacleSet.from_obstacles(obstacles))
+        assert wrong == snapshot_wrong
+        assert t_ref == snapshot_t_ref or (math.isnan(t_ref) and math.isnan(snapshot_t_ref))

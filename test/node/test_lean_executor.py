@@ -227,9 +227,8 @@ def test_a_subscription_destroyed_by_a_callback_is_not_called(context, executor)
     assert calls == [('a', 1), ('a', 2)]
 
 
-def test_context_shutdown_ends_spin(context, executor):
-    """Shutting the context down from another thread ends spin() with ExternalShutdownException."""
-    executor.add_node(_node(context, 'doomed'))
+def _spin_in_thread(executor):
+    """Start ``executor.spin()`` in a daemon thread; return it and a list that gets the outcome."""
     outcome = []
 
     def spin():
@@ -238,12 +237,45 @@ def test_context_shutdown_ends_spin(context, executor):
         except ExternalShutdownException:
             outcome.append('external shutdown')
 
-    spinner = threading.Thread(target=spin)
+    spinner = threading.Thread(target=spin, daemon=True)
     spinner.start()
+    return spinner, outcome
+
+
+def test_context_shutdown_ends_spin(context, executor):
+    """Shutting the context down from another thread ends spin() with ExternalShutdownException."""
+    executor.add_node(_node(context, 'doomed'))
+    spinner, outcome = _spin_in_thread(executor)
     time.sleep(0.2)
     rclpy.try_shutdown(context=context)
     spinner.join(5.0)
     assert not spinner.is_alive() and outcome == ['external shutdown']
+
+
+def test_a_context_shut_down_under_a_backlog_stops_at_the_next_callback(context, executor):
+    """A context shut down in a callback: no queued message is served after it.
+
+    Shut down as rclpy's SIGINT handler does it (rcl only, no executor wake-up);
+    spin ends with ExternalShutdownException.
+    """
+    node = _node(context, 'backlog')
+    calls = []
+
+    def on_message(msg):
+        calls.append(msg.data)
+        if context.ok():
+            context.handle.shutdown()
+
+    node.create_subscription(Int32, 'backlog', on_message, RELIABLE)
+    publisher = node.create_publisher(Int32, 'backlog', RELIABLE)
+    executor.add_node(node)
+    for i in range(20):
+        publisher.publish(Int32(data=i))
+    time.sleep(0.2)
+    spinner, outcome = _spin_in_thread(executor)
+    spinner.join(5.0)
+    assert not spinner.is_alive(), 'spin ignores the shut-down context'
+    assert outcome == ['external shutdown'] and calls == [0]
 
 
 def test_qos_events_reach_their_callbacks(context, executor):

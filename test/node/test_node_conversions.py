@@ -117,6 +117,7 @@ def test_serialized_commands_agree_with_rclpy(msg_type, frame, values, new, sec,
     cmd = conversions.SerializedCommand(serialize_message(msg), stamped)
     assert cmd.values == tuple(values) and cmd.finite
     assert cmd.stamp == (sec + 1e-9 * nanosec if stamped else 0.0)
+    assert cmd.stamp_ns == (sec * 1_000_000_000 + nanosec if stamped else 0)
     expected = _six(msg_type, new)
     if stamped:
         expected.header = msg.header
@@ -129,20 +130,23 @@ def test_serialized_commands_agree_with_rclpy(msg_type, frame, values, new, sec,
 
 @settings(max_examples=60, deadline=None)
 @given(frame=_FRAMES, child=_FRAMES, pose=st.lists(st.floats(-1e3, 1e3), min_size=7,
-                                                    max_size=7), twist_values=_NUMBERS)
-def test_serialized_odometry_agrees_with_rclpy(frame, child, pose, twist_values):
-    """``read_odometry`` finds stamp, frame, pose and twist behind any two frame strings."""
+                                                    max_size=7), twist_values=_NUMBERS,
+       sec=st.integers(0, 2**31 - 1), nanosec=st.integers(0, 999_999_999))
+def test_serialized_odometry_agrees_with_rclpy(frame, child, pose, twist_values, sec, nanosec):
+    """``read_odometry`` finds stamp, frames, pose and twist behind any two frame strings."""
     msg = odometry(frame=frame)
     msg.child_frame_id = child
-    msg.header.stamp.sec, msg.header.stamp.nanosec = 12, 500_000_000
+    msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
     p.x, p.y, p.z, q.x, q.y, q.z, q.w = pose
     t = msg.twist.twist
     t.linear.x, t.linear.y, t.linear.z, t.angular.x, t.angular.y, t.angular.z = twist_values
     msg.pose.covariance[:] = 7.0
-    stamp, frame_raw, read_pose, read_twist = conversions.read_odometry(serialize_message(msg))
-    assert (stamp, frame_raw.decode()) == (12.5, frame)
-    assert read_pose == tuple(pose) and read_twist == tuple(twist_values)
+    msg.twist.covariance[:] = -np.arange(36.0)
+    odom = conversions.read_odometry(serialize_message(msg))
+    assert (odom.sec, odom.nanosec, odom.stamp) == (sec, nanosec, sec + 1e-9 * nanosec)
+    assert (odom.frame.decode(), odom.child_frame.decode()) == (frame, child)
+    assert odom.pose == tuple(pose) and odom.twist == tuple(twist_values)
 
 
 def test_big_endian_and_malformed_bytes():
@@ -270,6 +274,85 @@ def test_apply_markers_actions_frames_and_stamps():
     conversions.apply_markers(tracker, MarkerArray(markers=[
         Marker(action=Marker.DELETEALL)]), 44.0, 0.05, 12)
     assert len(tracker) == 0 and tracker.rejected == {}
+
+
+def _vertex_set(polygon):
+    """Rows of ``polygon`` sorted, rounded to 1e-9 (start vertex and order ignored)."""
+    return np.round(polygon[np.lexsort(polygon.T[::-1])], 9) + 0.0
+
+
+def _moving_markers():
+    """Markers of every usable kind with a yaw; one tilted CUBE."""
+    cube, cylinder = _solid(Marker.CUBE, yaw=0.3), _solid(Marker.CYLINDER, yaw=1.0)
+    cylinder.id = 2
+    outline = wall([(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.5, 0.3)], ns='moving', width=0.02)
+    outline.pose.orientation.z, outline.pose.orientation.w = math.sin(0.2), math.cos(0.2)
+    triangles = _solid(Marker.TRIANGLE_LIST, scale=(1.0, 2.0, 1.0), yaw=-0.5)
+    triangles.id = 3
+    triangles.points = [Point(x=0.0, y=0.0), Point(x=1.0, y=0.0), Point(x=0.0, y=1.0),
+                        Point(x=2.0, y=0.0), Point(x=3.0, y=0.0), Point(x=2.0, y=1.0)]
+    tilted = _solid(Marker.CUBE)
+    tilted.id = 4
+    q = tilted.pose.orientation
+    q.x, q.y, q.z, q.w = _quaternion(0.4, 0.0, 0.2)
+    return [cube, cylinder, outline, triangles, tilted]
+
+
+def test_moved_markers_reuse_their_shape():
+    """Same shape, new pose: the Shape object is reused and the obstacles are right.
+
+    Reference: the shape computed from scratch with the whole rotation applied
+    to the points before the outline / hull (an independent path).
+    """
+    tracker = ObstacleTracker()
+    markers = _moving_markers()
+    conversions.apply_markers(tracker, MarkerArray(markers=markers), 1.0, 0.05, 12)
+    keys = [f'{m.ns}/{m.id}' for m in markers]
+    shapes = [tracker.shape(key) for key in keys]
+    for i, marker in enumerate(markers):
+        marker.pose.position.x += 0.5 * i
+        marker.pose.position.z -= 0.1
+        q = marker.pose.orientation
+        if q.x == 0.0:   # turn the yawed ones further; the tilted one keeps its tilt
+            q.z, q.w = _quaternion(0.0, 0.0, 2.0 * math.atan2(q.z, q.w) + 0.7)[2:]
+    conversions.apply_markers(tracker, MarkerArray(markers=markers), 1.1, 0.05, 12)
+    assert [tracker.shape(key) for key in keys] == shapes
+    obstacles = {o.key: o for o in tracker.snapshot('odom', 3)[0]}
+    for key, marker in zip(keys, markers):
+        tilt = conversions.quaternion_matrix(marker.pose.orientation)
+        fresh = conversions.marker_shape(marker, 0.05, 12, tilt)
+        origin = conversions.marker_placement(marker)[0]
+        for i, polygon in enumerate(fresh.polygons):
+            obstacle = obstacles[key if len(fresh.polygons) == 1 else f'{key}#{i}']
+            np.testing.assert_array_equal(_vertex_set(obstacle.polygon),
+                                          _vertex_set(polygon + origin[:2]))
+            assert obstacle.z_min == pytest.approx(fresh.z_min + origin.z)
+            assert obstacle.z_max == pytest.approx(fresh.z_max + origin.z)
+
+
+def test_changed_shapes_and_settings_are_rebuilt_and_bad_poses_still_refused():
+    """New points, scale or wall thickness make a new Shape; NaN poses are refused as before."""
+    tracker = ObstacleTracker()
+    outline = wall([(0.0, 0.0), (2.0, 0.0)], width=0.0)
+    robot = _solid(Marker.CYLINDER)
+    conversions.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.0, 0.05, 12)
+    first_wall, first_robot = tracker.shape('walls/0'), tracker.shape('s/1')
+    conversions.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.1, 0.1, 12)
+    assert tracker.shape('walls/0') is not first_wall          # wall_thickness changed
+    assert signed_area(tracker.shape('walls/0').polygons[0]) == pytest.approx(2.1 * 0.1)
+    robot.scale.x = robot.scale.y = 2.0
+    outline.points[1].x = 4.0
+    conversions.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.2, 0.1, 12)
+    assert tracker.shape('s/1') is not first_robot
+    assert signed_area(tracker.shape('walls/0').polygons[0]) == pytest.approx(4.1 * 0.1)
+    [polygon] = tracker.shape('s/1').polygons
+    assert np.linalg.norm(polygon, axis=1).max() == pytest.approx(1.0 / math.cos(math.pi / 12))
+    robot.pose.orientation.w = math.nan
+    outline.pose.position.y = math.inf
+    conversions.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.3, 0.1, 12)
+    assert tracker.has_invalid and len(tracker) == 0
+    assert tracker.rejected == {'s/1': 'non-finite pose or scale',
+                                'walls/0': 'non-finite pose, scale or points'}
 
 
 def test_filter_markers_and_diagnostics():

@@ -1,23 +1,19 @@
-"""Hand-written CDR reads back in rclpy and rosbags as the message, and reads what rclpy wrote.
+"""Hand-written CDR reads back in rclpy and rosbags as the message, and in the filter's reader.
 
 Byte equality with ``serialize_message`` holds except in alignment padding,
-which Fast CDR leaves unset (it is zero here).
+which Fast CDR leaves unset (it is zero here).  The readers themselves
+(``conversions.read_odometry``, ``SerializedCommand``) are tested against
+rclpy in test/node/test_node_conversions.py.
 """
 import numpy as np
 import pytest
-from geometry_msgs.msg import TwistStamped, WrenchStamped
 from nav_msgs.msg import Odometry
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.typesys import get_typestore, Stores
 from rosgraph_msgs.msg import Clock
 
-from sim_bridge.cdr import (
-    clock_cdr,
-    OdometryCdr,
-    read_odometry,
-    read_stamped_six,
-    tf_message_cdr,
-)
+from polyc2bf_ros.conversions import read_odometry
+from sim_bridge.cdr import clock_cdr, OdometryCdr, tf_message_cdr
 
 # Frame ids of every length mod 8, so each padding case of the float64 block occurs.
 FRAMES = [('world', 'a1/base_link'), ('map', 'r'), ('odom', 'robot_7/base_footprint'),
@@ -39,7 +35,7 @@ def _odometry(rng, frame_id, child_frame_id):
 
 @pytest.mark.parametrize('frames', FRAMES)
 def test_odometry_bytes_equal_rclpy(frames):
-    """OdometryCdr.pack deserializes to the message (rclpy, rosbags); read_odometry inverts it."""
+    """OdometryCdr.pack deserializes to the message (rclpy, rosbags) and reads back exactly."""
     rng = np.random.default_rng(len(frames[0]) + 10 * len(frames[1]))
     msg, pose, twist = _odometry(rng, *frames)
     stamp = msg.header.stamp
@@ -49,38 +45,11 @@ def test_odometry_bytes_equal_rclpy(frames):
     assert deserialize_message(data, Odometry) == msg
     other = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(data, 'nav_msgs/msg/Odometry')
     assert other.child_frame_id == frames[1] and other.twist.twist.angular.z == twist[5]
-    assert read_odometry(reference, Odometry()) == msg
-
-
-def test_read_odometry_keeps_nonzero_covariances_out_and_rejects_bad_data():
-    """Covariances sent by someone else do not shift the twist; bad bytes raise ValueError."""
-    msg, _, _ = _odometry(np.random.default_rng(1), 'world', 'x/base_link')
-    msg.pose.covariance[:] = np.arange(36.0)
-    msg.twist.covariance[:] = -np.arange(36.0)
-    back = read_odometry(serialize_message(msg), Odometry())
-    assert back.twist.twist == msg.twist.twist and back.pose.pose == msg.pose.pose
-    assert back.header == msg.header and back.child_frame_id == msg.child_frame_id
-    with pytest.raises(ValueError, match='truncated'):
-        read_odometry(serialize_message(msg)[:100], Odometry())
-    with pytest.raises(ValueError, match='little-endian'):
-        read_odometry(b'\x00\x00\x00\x00' + serialize_message(msg)[4:], Odometry())
-
-
-@pytest.mark.parametrize('frame', ['', 'a', 'a1/base_link', 'abcdefg'])
-def test_stamped_commands_read_back(frame):
-    """read_stamped_six gives the stamp in ns and the six numbers rclpy serialized."""
-    twist, wrench = TwistStamped(), WrenchStamped()
-    for msg in (twist, wrench):
-        msg.header.stamp.sec, msg.header.stamp.nanosec = 7, 8_333_333
-        msg.header.frame_id = frame
-    twist.twist.linear.x, twist.twist.angular.z = 0.75, -0.5
-    wrench.wrench.force.z, wrench.wrench.torque.y = 0.26, 1e-5
-    assert read_stamped_six(serialize_message(twist)) == (
-        7_008_333_333, (0.75, 0.0, 0.0, 0.0, 0.0, -0.5))
-    assert read_stamped_six(serialize_message(wrench)) == (
-        7_008_333_333, (0.0, 0.0, 0.26, 0.0, 1e-5, 0.0))
-    with pytest.raises(ValueError, match='truncated'):
-        read_stamped_six(serialize_message(twist)[:-8])
+    odom = read_odometry(data)
+    assert (odom.sec, odom.nanosec) == (stamp.sec, stamp.nanosec)
+    assert (odom.frame.decode(), odom.child_frame.decode()) == frames
+    assert odom.pose == tuple(pose) and odom.twist == tuple(twist)
+    assert read_odometry(reference) == odom
 
 
 def test_clock_bytes_equal_rclpy():
