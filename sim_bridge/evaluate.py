@@ -18,11 +18,17 @@ Per run (one record in ``results.json``; DESIGN.md section 8 keys first):
 - ``collision``: a robot's PyBullet closest-point distance fell below -1 mm
   (``sim_bridge.metrics``); ``min_clearance_m``: the smallest such distance
   over robots and time (null: nothing came within 0.5 m);
-- ``success``: every robot reached its goal (within 0.25 m) without collision;
+- ``success``: every robot reached its goal (within 0.25 m) without collision,
+  and the filter's barrier was defined at the start (``fallback_at_start``
+  false): a CBF guarantees safety only from inside its safe set, so a run that
+  starts where the barrier does not exist is a failure of the method even if
+  this package's escape fallback then brings the robot to the goal
+  (``goal_reached`` tells);
 - ``deadlock``: no collision, some robot away from its goal at the end and
   stalled: speed below ``STALL_SPEED`` for the last ``STALL_TIME`` s.
-  ``outcome`` names the case: success, collision, deadlock or ``timeout`` (not
-  at the goal at the end, still moving);
+  ``outcome`` names the case: collision, ``no_cone_at_start``, success,
+  deadlock or ``timeout`` (not at the goal at the end, still moving), the
+  first that applies;
 - ``time_to_goal_ratio``: mean over robots of time to goal / the same robot's
   time in the obstacle-free nominal run (null unless every robot arrived);
 - ``mean_intervention``: mean over periods and robots of ``||u - clip(u_nom)||``
@@ -112,10 +118,12 @@ def summarise(run, reference_times):
                   if r['min_clearance_m'] is not None]
     ratios = [r['time_to_goal_ratio'] for r in robots.values()]
     collision = any(r['collision'] for r in robots.values())
-    success = all(r['goal_reached'] for r in robots.values()) and not collision
+    reached = all(r['goal_reached'] for r in robots.values())
+    no_cone = any(t.statuses[0] in FALLBACKS for t in run.robots.values() if t.statuses)
+    success = reached and not collision and not no_cone
     deadlock = any(r['deadlock'] for r in robots.values())
-    outcome = ('success' if success else 'collision' if collision else 'deadlock' if deadlock
-               else 'timeout')
+    outcome = ('collision' if collision else 'no_cone_at_start' if no_cone else 'success'
+               if success else 'deadlock' if deadlock else 'timeout')
     counts = {status: statuses.count(status) for status in FALLBACKS}
     record = {
         'scenario': run.scenario.name, 'filter': run.barrier, 'seed': run.scenario.seed,
@@ -132,8 +140,7 @@ def summarise(run, reference_times):
         if filtered else None,
         'intervention_units': _units(run),
         'fallback_steps': counts if filtered else None,
-        'fallback_at_start': any(t.statuses[0] in FALLBACKS for t in run.robots.values()
-                                 if t.statuses),
+        'fallback_at_start': no_cone, 'goal_reached': reached,
         'steps': len(statuses), 'duration_s': run.scenario.duration,
         'wall_time_s': round(run.wall_time_s, 2), 'robots': robots,
     }
@@ -260,7 +267,8 @@ def aggregate(records):
             'success': sum(r['success'] for r in group),
             'collision': sum(r['collision'] for r in group),
             'deadlock': sum(r['deadlock'] for r in group),
-            'timeout': sum(r['outcome'] == 'timeout' for r in group),
+            'timeout': sum(not (r['goal_reached'] or r['deadlock'] or r['collision'])
+                           for r in group),
             'fallback_at_start': sum(r['fallback_at_start'] for r in group),
             'success_rate': sum(r['success'] for r in group) / len(group),
             'min_clearance_m': min(clearances) if clearances else None,
@@ -333,22 +341,22 @@ def findings(records, rows):
         for scenario in [s for s in PAPER_CLAIM if s in scenarios]:
             mine = [r for r in records if r['filter'] == 'c3bf' and r['scenario'] == scenario]
             failed = [r for r in mine if not r['success']]
-            rescued = [r for r in mine if r['success'] and r['fallback_at_start']]
+            rescued = [r for r in failed if r['goal_reached'] and r['fallback_at_start']]
             if failed:
                 verdict = (f'fails in {len(failed)}/{len(mine)} runs ('
                            + ', '.join(sorted({_why(r) for r in failed})) + ')')
-            elif rescued:
-                verdict = (f'starts inside its virtual obstacle (no cone: fallback from the first '
-                           f'step, the failure the paper describes) in {len(rescued)}/{len(mine)} '
-                           'runs, and reached the goal only through the escape fallback ('
-                           + ', '.join(sorted({_why(r) for r in rescued})) + ')')
+                if rescued:
+                    verdict += (f'; in {len(rescued)} of them it starts inside its virtual '
+                                'obstacle (no cone, the failure the paper describes) and only '
+                                "this package's escape fallback, which the paper's C3BF does "
+                                'not have, then takes it out and on to the goal')
             else:
                 verdict = (f"succeeds in all {len(mine)} runs: the paper's claim is NOT "
                            'reproduced here')
             lines.append(f'c3bf on {scenario}: {verdict}.')
     for name in [f for f in filters if f != 'none']:
-        stuck = [r for r in records if r['filter'] == name and r['outcome'] in
-                 ('deadlock', 'timeout')]
+        stuck = [r for r in records if r['filter'] == name and not r['goal_reached']
+                 and not r['collision']]
         if stuck:
             lines.append(f'{name} did not reach the goal in: ' + ', '.join(
                 f'{r["scenario"]} (seed {r["seed"]}, {_why(r)})' for r in stuck) + '.')
@@ -389,7 +397,7 @@ def write_outputs(out, records, runs, command, plots_too=True):
             f'Date: {datetime.now().isoformat(timespec="seconds")}, load average after the run: '
             f'{load}.  ',
             f'{len(records)} runs; per run JSON in `results.json`.  Definitions: '
-            '`sim_bridge/evaluate.py` docstring.  Counts are runs (seeds) with that outcome; '
+            '`sim_bridge/evaluate.py` docstring.  Counts are runs (seeds) with that property; '
             '"no cone at t=0": the filter fell back (escape: the robot starts inside the '
             '(virtual) obstacle, where the barrier is undefined) on the first step; '
             f'min clearance is the minimum over seeds ("> {CLEARANCE_RANGE:g}": nothing came '
