@@ -56,8 +56,9 @@ bench: $(PKG_STAMP)
 	$(PY) bench/bench_core.py
 	$(PY) bench/bench_clutter.py
 	$(PY) bench/bench_node.py
+	$(PY) bench/bench_node.py --obstacle-updates
 	$(PY) bench/bench_sim.py
-	$(PY) bench/bench_sim_closed_loop.py  # merges its closed-loop records into sim.json
+	$(PY) bench/bench_sim_closed_loop.py --floor  # merges its records into sim.json
 
 # The closed-loop demo: sim_bridge + nominal_controller + safety_filter as separate processes
 # over localhost DDS, in lockstep; writes runs/<timestamp>/ (bag, metrics, trajectory plot).

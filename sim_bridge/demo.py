@@ -23,6 +23,7 @@ on Ctrl-C (the processes are stopped and the bag is closed first).
 import argparse
 import dataclasses
 import math
+import os
 import sys
 import time
 from datetime import datetime
@@ -189,7 +190,7 @@ def main(argv=None):
         print(f'demo: the run failed: {result.message}\n  logs: {run_dir}/*.log', flush=True)
         return 1
     link = run_dir / MCAP_LINK
-    link.symlink_to(result.mcap_path.relative_to(run_dir))
+    link.symlink_to(os.path.relpath(result.mcap_path, run_dir))
     metrics = result.metrics()
     paths, diagnostics = read_run(result.bag_path, [r.name for r in scenario.robots])
     png = plot_run(run_dir, scenario, paths, metrics, args.filter)
@@ -208,7 +209,7 @@ def main(argv=None):
         print('  ' + filter_summary(name, diagnostics[name]))
     if args.filter != 'none' and not diagnostics:
         print('  filter: no /diagnostics recorded (published once per wall second)')
-    print(f'  bag:     {link} -> {result.mcap_path.relative_to(run_dir)} '
+    print(f'  bag:     {link} -> {os.readlink(link)} '
           f'(rosbag2 directory {result.bag_path})\n'
           f'  metrics: {result.metrics_path}\n  plot:    {png}\n  logs:    {run_dir}/*.log')
     return 0

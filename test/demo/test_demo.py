@@ -25,7 +25,8 @@ DURATION = 15.0  # s: short of the goal (16.8 s), and > 1 s of wall time even at
 
 
 def _demo(tmp_path, *args, timeout=300):
-    return subprocess.run([sys.executable, '-m', 'sim_bridge.demo', '--out', str(tmp_path),
+    # --out relative to the working directory, as `make demo` runs it (runs/<timestamp>).
+    return subprocess.run([sys.executable, '-m', 'sim_bridge.demo', '--out', 'runs',
                            *args], cwd=tmp_path, env=ENV, capture_output=True, text=True,
                           timeout=timeout)
 
@@ -35,7 +36,7 @@ def demo_run(tmp_path_factory):
     """Run ``demo --duration 15`` once; return (completed process, run directory)."""
     out = tmp_path_factory.mktemp('demo')
     result = _demo(out, '--duration', str(DURATION))
-    runs = [p for p in out.iterdir() if p.is_dir()]
+    runs = [p for p in (out / 'runs').iterdir() if p.is_dir()]
     assert result.returncode == 0 and len(runs) == 1, result.stdout + result.stderr
     return result, runs[0]
 
