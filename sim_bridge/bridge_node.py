@@ -155,6 +155,7 @@ LATCHED_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 # What the safety filter and nominal controller offer (doc/safety_filter.md), for the bag.
 COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+RECEIVE_DEPTH = 100  # reader history of the bridge's subscriptions (recorded as offered above)
 STARTUP_RESEND = 0.25  # wall s between re-sends of the t = 0 topics while waiting
 SERVICE_PERIOD = 0.1  # wall s between turns of the executor for services; longest wait
 # robot type: (command type, safe topic, nominal topic, plant command kind).
@@ -327,9 +328,13 @@ class BridgeNode(Node):
         if callback is None and self.recorder is None:
             return None
         msg_type = message_class(type_name)
+        # Keep every sample until taken: a depth-1 reader drops a nominal command that is
+        # overtaken by the next period's before the bridge takes it (the bag lost it).
+        receive = QoSProfile(depth=RECEIVE_DEPTH, reliability=qos.reliability,
+                             durability=qos.durability)
         subscription = self.create_subscription(
             msg_type, topic, lambda data: self._on_raw(subscription.topic_name, data, callback),
-            qos, raw=True)
+            receive, raw=True)
         if self.recorder is not None:
             self.recorder.add_topic(subscription.topic_name, msg_type, qos)
         return subscription

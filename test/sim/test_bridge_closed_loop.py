@@ -175,6 +175,10 @@ def test_quadruped_lockstep_bag_and_metrics(quadruped_run):
               for _, m in messages['/a1/cmd_vel_out']]
     odom_stamps = [s for s, *_ in odometry(messages)]
     assert set(odom_stamps[:-1]) <= set(stamps)
+    # ... and every period's nominal command is in the bag too (none dropped while recording).
+    nominal = {m.header.stamp.sec * 10 ** 9 + m.header.stamp.nanosec
+               for _, m in messages['/a1/cmd_vel_in']}
+    assert set(odom_stamps[:-1]) <= nominal
     # Odometry: world frame, body child frame, sim-time stamps = log times; the robot moved.
     log_ns, first = messages['/a1/odom'][0]
     assert first.header.frame_id == 'world' and first.child_frame_id == 'a1/base_link'
