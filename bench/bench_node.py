@@ -44,7 +44,6 @@ results in ``bench/results/node_obstacles.json``.
 import argparse
 import json
 import os
-import signal
 import statistics
 import struct
 import subprocess
@@ -66,6 +65,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from visualization_msgs.msg import Marker, MarkerArray
 
 from polyc2bf_ros.lean_executor import LeanExecutor
+from sim_bridge.launcher import stop_processes
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / 'bench' / 'results' / 'node.json'
@@ -249,17 +249,6 @@ def wait_for(predicate, proc, log, what, timeout=30.0):
         time.sleep(0.05)
 
 
-def stop(proc):
-    """SIGINT, then SIGKILL if it lingers."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(5.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def run(subject, rate, obstacles, duration, warmup):
     """Benchmark one subject at ``rate`` Hz; return a flat result record."""
     first, count = round(warmup * rate), round((warmup + duration) * rate)
@@ -309,7 +298,7 @@ def run(subject, rate, obstacles, duration, warmup):
         rclpy.try_shutdown(context=context)
         for p in (sender, proc):
             if p is not None:
-                stop(p)
+                stop_processes([p], timeout=5.0)
         log.close()
     latency_ms = receiver.latency_ns[first:count] * 1e-6
     answered = latency_ms[latency_ms >= 0.0]

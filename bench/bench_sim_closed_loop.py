@@ -31,7 +31,6 @@ import argparse
 import json
 import os
 import random
-import signal
 import subprocess
 import sys
 import tempfile
@@ -41,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from sim_bridge.launcher import stop_processes
 from sim_bridge.scenario import load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
@@ -144,14 +144,7 @@ def run_case(case, duration, workdir, record_filter_markers):
                 samples.append((time.monotonic(), cpu))
             time.sleep(0.1)
     finally:
-        for _, child in processes:
-            if child.poll() is None:
-                child.send_signal(signal.SIGINT)
-        for _, child in processes:
-            try:
-                child.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                child.kill()
+        stop_processes([child for _, child in processes], timeout=10)
     result = json.loads(metrics.read_text())
     periods = result['sim_time_s'] * result['control_rate']
     # CPU over the loop: from the sample nearest its start (end - wall) to the last one.
@@ -241,10 +234,7 @@ def floor(hops, workdir):
             times.append(time.perf_counter() - tick)
     finally:
         rclpy.try_shutdown()
-        for child in relays:
-            child.send_signal(signal.SIGINT)
-        for child in relays:
-            child.wait(timeout=10)
+        stop_processes(relays, timeout=10)
     times = 1e3 * np.array(times)
     return {'bench': 'sim', 'case': f'dds_floor_{hops}_hops', 'closed_loop': True,
             'hops': hops, 'rounds': FLOOR_ROUNDS,

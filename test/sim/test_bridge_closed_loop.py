@@ -18,6 +18,8 @@ from pathlib import Path
 import pytest
 from rosbags.highlevel import AnyReader
 
+from sim_bridge.launcher import stop_processes
+
 REPO = Path(__file__).resolve().parents[2]
 # Children run from a temporary directory and import this checkout.
 ENV = {**os.environ, 'PYTHONUNBUFFERED': '1', 'PYTHONPATH': os.pathsep.join(
@@ -54,15 +56,7 @@ def processes(tmp_path, *commands):
             procs[-1].log_path = tmp_path / f'{name}.log'
         yield procs
     finally:
-        for proc in procs:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        for proc in procs:
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        stop_processes(procs, timeout=10)
 
 
 def controllers(robot, robot_type, goal, with_filter=True):
