@@ -15,7 +15,9 @@ each step while obstacles move) is built with ``ObstacleSet.from_obstacles``
 and prepared by the filter (``SafetyFilter.prepare``: inflation, circles,
 vertical views).  Per model and barrier, a set of N convex 8-gons of which
 ``--moving`` translate every period is rebuilt ``--rebuilds`` times; both parts
-are timed.
+are timed.  Beside it (``moved`` columns) the same motion as a translation of
+the first set (``ObstacleSet.translated`` + ``prepare``, which reuses the
+first set's prepared geometry): what pose-only updates cost.
 
 Start-up: the filter's kernels are compiled by numba on first use and cached
 on disk; two fresh processes sharing an empty cache directory time the import
@@ -109,31 +111,52 @@ def _percentiles(prefix, seconds):
 
 
 def time_rebuild(model_name, barrier, count, moving, rebuilds, rng, period=0.01):
-    """Return one rebuild record: from_obstacles and SafetyFilter.prepare per new set."""
-    filt = SafetyFilter(make_model(model_name), FilterConfig(barrier=barrier, robot_radius=0.3))
+    """Return one rebuild record: a fresh set, or a translated one, and its preparation.
+
+    Fresh: ``ObstacleSet.from_obstacles`` + ``SafetyFilter.prepare`` (what a new
+    shape costs).  Translated: ``ObstacleSet.translated`` of the first set +
+    ``prepare`` (what the node's tracker and the in-process loop pay when
+    obstacles only move).
+    """
+    config = FilterConfig(barrier=barrier, robot_radius=0.3)
+    fresh_filter = SafetyFilter(make_model(model_name), config)
+    moved_filter = SafetyFilter(make_model(model_name), config)
     obstacles = octagon_obstacles(count, rng)
-    build, prepare = np.empty(rebuilds), np.empty(rebuilds)
+    base = ObstacleSet.from_obstacles(obstacles)
+    velocities = np.array([o.velocity for o in obstacles])
+    times = {name: np.empty(rebuilds) for name in ('build', 'prepare', 'translate', 'reuse')}
     for i in range(rebuilds):
         obstacles[:moving] = [Obstacle(polygon=o.polygon + period * o.velocity[:2],
                                        velocity=o.velocity, z_min=o.z_min, z_max=o.z_max)
                               for o in obstacles[:moving]]
+        offsets = np.zeros((len(base), 3))
+        offsets[:moving] = (i + 1) * period * velocities[:moving]
         begin = time.perf_counter()
         obstacle_set = ObstacleSet.from_obstacles(obstacles)
         built = time.perf_counter()
-        filt.prepare(obstacle_set)
-        build[i], prepare[i] = built - begin, time.perf_counter() - built
+        fresh_filter.prepare(obstacle_set)
+        prepared = time.perf_counter()
+        moved = base.translated(offsets)
+        translated = time.perf_counter()
+        moved_filter.prepare(moved)
+        times['build'][i], times['prepare'][i] = built - begin, prepared - built
+        times['translate'][i], times['reuse'][i] = (translated - prepared,
+                                                    time.perf_counter() - translated)
     return {'bench': 'core_rebuild', 'model': model_name, 'barrier': barrier,
             'obstacles': count, 'moving': moving, 'vertices': VERTICES,
-            **_percentiles('from_obstacles', build), **_percentiles('prepare', prepare),
-            **_percentiles('total', build + prepare), 'rebuilds': rebuilds,
-            'load_avg_1min': round(os.getloadavg()[0], 2)}
+            **_percentiles('from_obstacles', times['build']),
+            **_percentiles('prepare', times['prepare']),
+            **_percentiles('total', times['build'] + times['prepare']),
+            **_percentiles('translated_total', times['translate'] + times['reuse']),
+            'rebuilds': rebuilds, 'load_avg_1min': round(os.getloadavg()[0], 2)}
 
 
 def rebuild_records(models, counts, moving, rebuilds):
     """Time the rebuild for every model, barrier and obstacle count; print a table."""
     records = []
     print(f'{"rebuild":<10} {"barrier":<18} {"N":>4} {"set p50":>8} {"prep p50":>8} '
-          f'{"total p50":>9} {"total p99":>9}  (us, {moving} moving)')
+          f'{"total p50":>9} {"total p99":>9} {"moved p50":>9} {"moved p99":>9}'
+          f'  (us, {moving} moving)')
     for model_name in models:
         for barrier in CONE_MODELS:
             for count in counts:
@@ -143,8 +166,9 @@ def rebuild_records(models, counts, moving, rebuilds):
                 records.append(record)
                 print(f'{model_name:<10} {barrier:<18} {count:>4} '
                       f'{record["from_obstacles_p50_us"]:>8.1f} {record["prepare_p50_us"]:>8.1f} '
-                      f'{record["total_p50_us"]:>9.1f} {record["total_p99_us"]:>9.1f}',
-                      flush=True)
+                      f'{record["total_p50_us"]:>9.1f} {record["total_p99_us"]:>9.1f} '
+                      f'{record["translated_total_p50_us"]:>9.1f} '
+                      f'{record["translated_total_p99_us"]:>9.1f}', flush=True)
     return records
 
 

@@ -26,8 +26,9 @@ reference time ``t_ref`` (the newest stamp held)::
 The filter then extrapolates all of them together by the state's age.
 ``obstacle_set`` gives the same as the filter's ``ObstacleSet``; while the
 obstacles in the frame keep their shapes and rotations (in the same order) it
-only translates the set of the last call (``PolygonBatch.translated``) instead
-of rebuilding it (convexity checks, decomposition).
+only translates the set of the last call (``ObstacleSet.translated``) instead
+of rebuilding it (convexity checks, decomposition), and the filter moves the
+geometry it prepared for that set instead of preparing it again.
 
 ``outline_polygon`` turns degenerate outlines into polygons: one distinct point
 becomes a square of side ``thickness``; collinear points become a rectangle of
@@ -279,9 +280,7 @@ class ObstacleTracker:
             velocity[position_dim:] = [0.0] * (3 - position_dim)
             rows += [(*t.moved(t_ref), *velocity)] * len(t.shape.polygons)
         moves = np.array(rows, dtype=float).reshape(-1, 6)[base.owner]
-        return ObstacleSet(footprints=base.footprints.translated(moves[:, :2]),
-                           velocities=moves[:, 3:], z_ranges=base.z_ranges + moves[:, 2:3],
-                           owner=base.owner, keys=base.keys), t_ref, wrong_frame
+        return base.translated(moves[:, :3], moves[:, 3:]), t_ref, wrong_frame
 
 
 def extrapolation_age(state_stamp, t_ref, max_extrapolation):

@@ -4,9 +4,17 @@ An obstacle is a polygonal footprint (convex or simple non-convex) in the
 odometry frame, translating at constant velocity, optionally bounded in z
 (a vertical prism, for 3-D models).  Non-convex footprints are split into
 convex parts when the set is built; every part is one constraint row.
+
+Obstacles that only move (other robots, moving boxes, tracked markers whose
+shape is unchanged) need not be rebuilt: ``ObstacleSet.translated`` moves the
+parts of a built set, and the set it returns remembers the set it was built
+from (``base``) and by how much each part moved (``offsets``), so that the
+filter translates the geometry it prepared for ``base`` instead of preparing
+it again.
 """
 import math
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
@@ -29,7 +37,10 @@ class Obstacle:
 class ObstacleSet:
     """Convex obstacle parts as padded arrays: footprints, velocities (N,3), z ranges (N,2).
 
-    ``owner[n]`` is the index into ``keys`` of the obstacle part ``n`` came from.
+    ``owner[n]`` is the index into ``keys`` of the obstacle part ``n`` came from.  A set
+    made by ``translated`` has ``base``, the set it was translated from (itself never a
+    translation), and ``offsets`` (N, 3): part n is base part n moved by ``offsets[n]``
+    in x, y and z; otherwise both are None.
     """
 
     footprints: PolygonBatch
@@ -37,6 +48,8 @@ class ObstacleSet:
     z_ranges: np.ndarray
     owner: np.ndarray
     keys: tuple = ()
+    base: Optional['ObstacleSet'] = field(default=None, repr=False, compare=False)
+    offsets: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
     @classmethod
     def empty(cls):
@@ -65,6 +78,32 @@ class ObstacleSet:
             velocities, z_ranges = velocities[owner], z_ranges[owner]
         return cls(footprints=footprints, velocities=velocities, z_ranges=z_ranges, owner=owner,
                    keys=tuple(obstacle.key for obstacle in obstacles))
+
+    def translated(self, offsets, velocities=None):
+        """Return the set with part n moved by ``offsets[n]`` ((N, 2) x, y or (N, 3) x, y, z).
+
+        ``velocities`` (N, 3) replaces the parts' velocities (default: kept).  The result's
+        ``base`` is this set's base, or this set if it has none, with the offsets added up,
+        so a chain of translations computes every vertex from the base in one addition
+        (``PolygonBatch.translated``, which reuses the base's edge table).
+        """
+        count = len(self)
+        offsets = np.asarray(offsets, dtype=np.float64)
+        if offsets.ndim != 2 or offsets.shape[0] != count or offsets.shape[1] not in (2, 3):
+            raise ValueError(f'offsets must have shape ({count}, 2) or ({count}, 3), '
+                             f'got {offsets.shape}')
+        velocities = self.velocities if velocities is None else np.asarray(velocities,
+                                                                          dtype=np.float64)
+        if velocities.shape != (count, 3):
+            raise ValueError(f'velocities must have shape ({count}, 3), got {velocities.shape}')
+        moves = np.zeros((count, 3))
+        moves[:, :offsets.shape[1]] = offsets
+        base = self
+        if self.base is not None:
+            base, moves = self.base, moves + self.offsets
+        return ObstacleSet(footprints=base.footprints.translated(moves[:, :2]),
+                           velocities=velocities, z_ranges=base.z_ranges + moves[:, 2:],
+                           owner=base.owner, keys=base.keys, base=base, offsets=moves)
 
     def __len__(self):
         """Return the number of convex parts."""

@@ -36,6 +36,13 @@ compute viewpoints, cones, barrier terms and the QP rows for all obstacles;
 ``SafetyFilter`` compiles them on construction (``warm_up``) so that the first
 real step is as fast as the others.
 
+Preparation: per obstacle set the cone model's geometry (inflated polygons,
+enclosing circles, vertical shadows) is computed once and cached.  A set that
+is a translation of a base set (``ObstacleSet.translated``: moving obstacles,
+other robots, tracked markers) reuses the base's cached geometry and moves the
+viewpoints the other way (``polyc2bf_ros.core.views``): the same cones to
+rounding, without preparing or copying any geometry per step.
+
 Fallbacks, always flagged in ``FilterInfo.status``:
 
 * ``slack``: the QP is infeasible; solve it again with one shared slack
@@ -193,13 +200,16 @@ class Evaluation:
 class _Prepared:
     """Everything per obstacle set that does not change between steps, and row buffers.
 
-    ``velocities`` (N, d) are the obstacles' c_dot in the robot's d dimensions;
-    ``rows_a`` (N, m), ``rows_b``, ``index`` and ``residual`` (N,) are scratch space
-    for the QP rows (the first ``count`` entries of a step are valid).
+    ``velocities`` (N, d) are the obstacles' c_dot in the robot's d dimensions and
+    ``offsets`` (N, d) how far they moved from where ``views`` has them (zero unless
+    the set is a translation, see ``polyc2bf_ros.core.views``); ``rows_a`` (N, m),
+    ``rows_b``, ``index`` and ``residual`` (N,) are scratch space for the QP rows (the
+    first ``count`` entries of a step are valid).
     """
 
     views: tuple
     velocities: np.ndarray
+    offsets: np.ndarray
     finite: bool
     rows_a: np.ndarray
     rows_b: np.ndarray
@@ -210,6 +220,12 @@ class _Prepared:
     def count(self):
         """Return the number of obstacle parts."""
         return self.velocities.shape[0]
+
+    def translated(self, offsets, velocities):
+        """Return the same views and buffers with obstacles moved by ``offsets`` (N, d)."""
+        return _Prepared(views=self.views, velocities=velocities, offsets=offsets,
+                         finite=self.finite, rows_a=self.rows_a, rows_b=self.rows_b,
+                         index=self.index, residual=self.residual)
 
 
 @kernel
@@ -285,8 +301,8 @@ class SafetyFilter:
         self._row_settings = (float(self.config.margin), float(self.config.gamma),
                               self._lower, self._upper, bool(self.config.prune))
         self._epsilon = float(self.config.velocity_epsilon)
-        self._cache_key = None
-        self._cache = None
+        self._cache_key = self._cache = None
+        self._base_key = self._base = None
         self.warm_up()
 
     def warm_up(self):
@@ -301,6 +317,8 @@ class SafetyFilter:
             Obstacle(polygon=square + [-1.0, 2.0])])
         state = np.zeros(self.model.state_dim)
         self.step(state, scene, (self._lower + self._upper) / 2, 0.01)
+        # A translated set takes another path (the base's views, viewpoints moved).
+        self.step(state, scene.translated(np.full((2, 3), 0.1)), self._upper, 0.01)
         self.escape_direction(self.evaluate(state, scene), scene)
         # And the QP front end's shortcut, which a step the fast path answers skips.
         self.solver.solve(self._upper + 1.0, self._weights, np.eye(self.model.input_dim)[:1],
@@ -411,7 +429,8 @@ class SafetyFilter:
             _, cone_vertical, valid_vertical, term_vertical = seen[1]
             vertical, usable = choose_planes(valid, cone_block[2:4], valid_vertical,
                                              cone_vertical[2:4], prepared.views[1],
-                                             ref.position, prepared.velocities, age)
+                                             ref.position, prepared.velocities,
+                                             prepared.offsets, age)
             cone_block = np.where(vertical, cone_vertical, cone_block)
             valid = np.where(vertical, valid_vertical, valid)
             term_block = np.where(vertical, term_vertical, term_block)
@@ -421,7 +440,7 @@ class SafetyFilter:
 
     def _view_terms(self, view, prepared, ref, age):
         """Return viewpoints, cone block, validity and barrier-term block of one plane."""
-        viewpoints = view.viewpoints(ref.position, prepared.velocities, age)
+        viewpoints = view.viewpoints(ref.position, prepared.velocities, prepared.offsets, age)
         cone_block = np.empty((CONE_ROWS, prepared.count))
         valid = np.empty(prepared.count, dtype=np.bool_)
         self.cone_model.fill(view.prepared, viewpoints, cone_block, valid)
@@ -438,17 +457,34 @@ class SafetyFilter:
         self._prepare(obstacles)
 
     def _prepare(self, obstacles):
-        """Build (and cache per obstacle set) the planar views of the obstacles."""
+        """Build (and cache per obstacle set) the planar views of the obstacles.
+
+        A translation of a base set (``ObstacleSet.translated``) takes the views of its
+        base, prepared once and cached beside, and its offsets move the viewpoints.
+        """
         if obstacles is self._cache_key:
             return self._cache
         finite = obstacles.is_finite()
-        if not finite:
-            obstacles = ObstacleSet.empty()
+        dim = self.model.position_dim
+        if finite and obstacles.base is not None:
+            # base + finite offsets is finite, so the base's geometry is (its velocities
+            # are replaced).
+            if obstacles.base is not self._base_key:
+                self._base_key, self._base = obstacles.base, self._fresh(obstacles.base, True)
+            prepared = self._base.translated(
+                np.ascontiguousarray(obstacles.offsets[:, :dim]),
+                np.ascontiguousarray(obstacles.velocities[:, :dim]))
+        else:
+            prepared = self._fresh(obstacles if finite else ObstacleSet.empty(), finite)
+        self._cache_key, self._cache = (obstacles if finite else None), prepared
+        return prepared
+
+    def _fresh(self, obstacles, finite):
+        """Prepare the views of ``obstacles`` and row buffers for as many parts."""
         dim, count = self.model.position_dim, len(obstacles)
-        self._cache_key = obstacles if finite else None
-        self._cache = _Prepared(
+        return _Prepared(
             views=prepare_views(obstacles, self.cone_model, dim, self.config.robot_radius),
-            velocities=np.ascontiguousarray(obstacles.velocities[:, :dim]), finite=finite,
+            velocities=np.ascontiguousarray(obstacles.velocities[:, :dim]),
+            offsets=np.zeros((count, dim)), finite=finite,
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
             index=np.empty(count, dtype=np.intp), residual=np.empty(count))
-        return self._cache

@@ -26,6 +26,14 @@ the robot's reference point lies within the footprint's extent along l_n grown
 by ``band_margin`` (the robot radius), or where the horizontal cone does not
 exist (the robot above or below the footprint).  Among the candidates the
 smaller ||k|| wins, as in the paper.
+
+Translated sets (``ObstacleSet.translated``) keep the views of their base:
+the cone of a polygon moved by o, seen from q, is the cone of the polygon seen
+from q - o (p, k and s are differences of points), and a band moves with its
+prism.  So obstacle n moved by o_n (x, y, z) is seen from the viewpoint
+P_n (r - age c_dot_n - o_n) and compared with its band at
+<l_n, r - age c_dot_n - o_n>; a set built from scratch has o = 0 (subtracting
+0.0 changes no bit).
 """
 import math
 from dataclasses import dataclass
@@ -54,20 +62,23 @@ class View:
     long_axes: Optional[np.ndarray] = None
     band: Optional[np.ndarray] = None
 
-    def viewpoints(self, position, velocities, age):
-        """Return the (2, N) viewpoints P_n (r - age c_dot_n) (obstacles moved by ``age`` s)."""
+    def viewpoints(self, position, velocities, offsets, age):
+        """Return the (2, N) viewpoints P_n (r - age c_dot_n - o_n) (see module docstring).
+
+        Obstacles moved by ``age`` s and by ``offsets`` (N, d) from where the view has them.
+        """
         out = np.empty((2, self.projections.shape[0]))
-        _viewpoints(self.projections, position, velocities, float(age), out)
+        _viewpoints(self.projections, position, velocities, offsets, float(age), out)
         return out
 
 
 @kernel
-def _viewpoints(projections, position, velocities, age, out):
-    """Write P_n (r - age c_dot_n): the robot seen from obstacle n's frame, in its plane."""
+def _viewpoints(projections, position, velocities, offsets, age, out):
+    """Write P_n (r - age c_dot_n - o_n): the robot seen from obstacle n's frame."""
     for n in range(projections.shape[0]):
         x = y = 0.0
         for d in range(position.shape[0]):
-            offset = position[d] - age * velocities[n, d]
+            offset = position[d] - age * velocities[n, d] - offsets[n, d]
             x += projections[n, 0, d] * offset
             y += projections[n, 1, d] * offset
         out[0, n], out[1, n] = x, y
@@ -106,11 +117,11 @@ def _vertical_view(obstacles, cone_model, band_margin):
 
 @kernel
 def _choose_planes(valid_h, k_h, valid_v, k_v, enabled_v, long_axes, band, position,
-                   velocities, age, vertical, usable):
+                   velocities, offsets, age, vertical, usable):
     """Per obstacle: is the vertical plane used, and is any cone usable (module docstring)."""
     for n in range(valid_h.shape[0]):
-        along = (long_axes[n, 0] * (position[0] - age * velocities[n, 0])
-                 + long_axes[n, 1] * (position[1] - age * velocities[n, 1]))
+        along = (long_axes[n, 0] * (position[0] - age * velocities[n, 0] - offsets[n, 0])
+                 + long_axes[n, 1] * (position[1] - age * velocities[n, 1] - offsets[n, 1]))
         candidate = valid_v[n] and enabled_v[n] and (
             not valid_h[n] or band[n, 0] <= along <= band[n, 1])
         rank_h = math.hypot(k_h[0, n], k_h[1, n]) if valid_h[n] else math.inf
@@ -119,13 +130,14 @@ def _choose_planes(valid_h, k_h, valid_v, k_v, enabled_v, long_axes, band, posit
         usable[n] = valid_h[n] or candidate
 
 
-def choose_planes(valid_h, k_h, valid_v, k_v, view, position, velocities, age):
+def choose_planes(valid_h, k_h, valid_v, k_v, view, position, velocities, offsets, age):
     """Return (vertical, usable) per obstacle from cone validity and rays k in both planes.
 
-    ``view`` is the vertical view; ``k_h``, ``k_v`` are (2, N).
+    ``view`` is the vertical view; ``k_h``, ``k_v`` are (2, N); ``offsets`` (N, 3) how far
+    the obstacles moved from where the view has them.
     """
     count = valid_h.shape[0]
     take, usable = np.empty(count, dtype=bool), np.empty(count, dtype=bool)
     _choose_planes(valid_h, k_h, valid_v, k_v, view.enabled, view.long_axes, view.band,
-                   position, velocities, float(age), take, usable)
+                   position, velocities, offsets, float(age), take, usable)
     return take, usable

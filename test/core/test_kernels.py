@@ -235,7 +235,7 @@ def test_quadrotor_body_point_kernel_matches_numpy(seed):
 @settings(max_examples=100, deadline=None)
 @given(polygons=polygon_lists, seed=st.integers(0, 2 ** 32 - 1))
 def test_plane_choice_follows_the_rule(polygons, seed):
-    """3-D views: viewpoints P_n (r - age c_dot) and the plane chosen per obstacle.
+    """3-D views: viewpoints P_n (r - age c_dot - o_n) and the plane chosen per obstacle.
 
     Vertical is chosen iff its cone is usable, it is a candidate (the robot within the
     footprint's long extent grown by the margin, or no horizontal cone), and its ||k||
@@ -250,16 +250,17 @@ def test_plane_choice_follows_the_rule(polygons, seed):
     horizontal, vertical = prepare_views(obstacles, cone_model, 3, 0.2)
     position, age = rng.uniform(-3, 3, 3), rng.uniform(-1, 1)
     velocities = np.ascontiguousarray(obstacles.velocities)
+    offsets = rng.uniform(-1, 1, (count, 3)) * rng.integers(0, 2)  # moved, or not
+    seen_from = position - age * velocities - offsets
     cones = []
     for view in (horizontal, vertical):
-        viewpoints = view.viewpoints(position, velocities, age)
+        viewpoints = view.viewpoints(position, velocities, offsets, age)
         np.testing.assert_allclose(
-            viewpoints, np.einsum('nid,nd->in', view.projections, position - age * velocities),
-            **CLOSE)
+            viewpoints, np.einsum('nid,nd->in', view.projections, seen_from), **CLOSE)
         cones.append(cone_model.cones(view.prepared, viewpoints))
     take, usable = choose_planes(cones[0].valid, cones[0].k, cones[1].valid, cones[1].k,
-                                 vertical, position, velocities, age)
-    along = (vertical.long_axes * (position[:2] - age * velocities[:, :2])).sum(axis=1)
+                                 vertical, position, velocities, offsets, age)
+    along = (vertical.long_axes * seen_from[:, :2]).sum(axis=1)
     in_band = (vertical.band[:, 0] <= along) & (along <= vertical.band[:, 1])
     candidate = cones[1].valid & vertical.enabled & (in_band | ~cones[0].valid)
     rank_h = np.where(cones[0].valid, cones[0].k_norm, np.inf)
@@ -283,7 +284,8 @@ def test_far_prism_below_the_robot_is_seen_in_the_horizontal_plane():
     filt = SafetyFilter(model, FilterConfig(robot_radius=0.3))
     state = np.array([0.0, -6.0, 1.0, 0.0, 0.0, 0.0])
     k_norms = [filt.cone_model.cones(view.prepared, view.viewpoints(
-        state[:3], np.zeros((1, 3)), 0.0)).k_norm[0] for view in filt._prepare(wall).views]
+        state[:3], np.zeros((1, 3)), np.zeros((1, 3)), 0.0)).k_norm[0]
+        for view in filt._prepare(wall).views]
     assert k_norms[1] < 1.0 < 10.0 < k_norms[0]
     assert filt.evaluate(state, wall).plane[0] == 0
     state[:3] = [0.6, 8.0, 0.95]
