@@ -180,42 +180,89 @@ class _Robot:
                           self.latency)
 
 
+@dataclasses.dataclass
+class _Layout:
+    """A robot's obstacle set as built at one obstacle version, and how to move it.
+
+    ``index`` (N,): per part, its footprint's row in ``_ObstacleView._rows``;
+    ``anchors`` (N, 3): that row's (x, y) of the first vertex and z_min at build time;
+    ``current`` the set translated to physics step ``step`` (one object per step, so the
+    filter's per-set cache holds within a step).
+    """
+
+    version: int
+    base: ObstacleSet
+    moves: bool
+    index: np.ndarray
+    anchors: np.ndarray
+    step: int = -1
+    current: ObstacleSet = None
+
+
 class _ObstacleView:
-    """Per robot, the ObstacleSet the node would hold, rebuilt only when something moved."""
+    """Per robot, the ObstacleSet the node would hold: built once, then translated.
+
+    Per obstacle version (pop-ups) and robot the set is built from the
+    footprints (``ObstacleSet.from_obstacles``).  While something moves, each
+    period translates it by each footprint's displacement since (of its first
+    vertex and z_min) and gives it the current velocities, as the node's
+    ``ObstacleTracker`` does for pose-only marker updates; the filter then
+    moves the geometry it prepared for the built set.
+    """
 
     def __init__(self, world):
         """Prepare the robot-marker polygons of every robot."""
         self.world = world
         self._robot_polygons = {name: _cylinder_polygon(world.robot_spec(name).radius)
                                 for name in world.robot_names}
-        self._cache = {}
-        self._dynamic = {}
+        self._layouts = {}
+        self._rows_key = None
+        self._rows = None
 
-    def _moves(self, robot, footprints):
-        """Return whether any of ``robot``'s obstacles moves (per obstacle version)."""
-        key = (robot, self.world.obstacle_version)
-        if key not in self._dynamic:
-            self._dynamic[key] = any(f.robot or np.any(f.velocity) for f in footprints)
-        return self._dynamic[key]
+    def _now(self):
+        """Return every footprint (obstacles, then all robots) and their rows, once per step.
 
-    def obstacles(self, robot):
-        """Return ``robot``'s ObstacleSet at the world's current time."""
-        footprints = self.world.obstacle_footprints(robot)
-        version = self.world.obstacle_version
-        key = (version, self.world.steps if self._moves(robot, footprints) else None)
-        cached = self._cache.get(robot)
-        if cached is not None and cached[0] == key:
-            return cached[1]
+        Row: first vertex x, y, z_min, velocity (3).
+        """
+        key = (self.world.obstacle_version, self.world.steps)
+        if key != self._rows_key:
+            footprints = self.world.obstacle_footprints()
+            self._rows_key = key
+            self._rows = footprints, np.array(
+                [(*f.polygon[0].tolist(), f.z_min, *f.velocity.tolist()) for f in footprints],
+                dtype=float).reshape(-1, 6)
+        return self._rows
+
+    def _layout(self, robot):
+        """Build ``robot``'s set at the current obstacle version (every footprint but its own)."""
+        footprints, rows = self._now()
+        select = [i for i, f in enumerate(footprints) if not (f.robot and f.name == robot)]
         items = []
-        for f in footprints:
+        for i in select:
+            f = footprints[i]
             polygon = f.polygon
             if f.robot:
                 polygon = self._robot_polygons[f.name] + np.mean(f.polygon, axis=0)
             items.append(Obstacle(polygon=polygon, velocity=np.asarray(f.velocity, dtype=float),
                                   z_min=f.z_min, z_max=f.z_max, key=f.name))
-        obstacles = ObstacleSet.from_obstacles(items)
-        self._cache[robot] = (key, obstacles)
-        return obstacles
+        base = ObstacleSet.from_obstacles(items)
+        index = np.asarray(select, dtype=np.intp)[base.owner]
+        moves = any(footprints[i].robot or np.any(footprints[i].velocity) for i in select)
+        return _Layout(self.world.obstacle_version, base, moves, index, rows[index, :3])
+
+    def obstacles(self, robot):
+        """Return ``robot``'s ObstacleSet at the world's current time."""
+        layout = self._layouts.get(robot)
+        if layout is None or layout.version != self.world.obstacle_version:
+            layout = self._layouts[robot] = self._layout(robot)
+        if not layout.moves:
+            return layout.base
+        step = self.world.steps
+        if layout.step != step:
+            rows = self._now()[1][layout.index]
+            layout.step = step
+            layout.current = layout.base.translated(rows[:, :3] - layout.anchors, rows[:, 3:])
+        return layout.current
 
 
 def obstacle_free(scenario):
@@ -250,9 +297,9 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
         for k in range(steps):
             commands = {}
             for name, robot in robots.items():
-                state = world.robot_state(name)
+                # The state recorded after the last period's physics (nothing moved since).
                 obstacles = view.obstacles(name) if robot.filter is not None else None
-                commands[name] = robot.command(k, state, obstacles)
+                commands[name] = robot.command(k, robot.states[k], obstacles)
             for name, command in commands.items():
                 world.set_command(name, command, robots[name].kind)
             for _ in range(substeps):

@@ -2,7 +2,13 @@
 
 Like the paper's PD reference controllers, these stand in for any planner.
 Each returns the model's input (accelerations or rotor thrusts).
+
+They run every control period for every robot of a simulation, so the small
+vector algebra is spelled out on floats; norms and dot products stay numpy's
+(``v.dot(v)``, ``@``) and angles ``np.arctan2`` (its SIMD version rounds
+differently from ``math.atan2``), so the commands are the same to the bit.
 """
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -10,10 +16,17 @@ import numpy as np
 from polyc2bf_ros.core import crazyflie as cf
 from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 
+_GRAVITY_UP = np.array([0.0, 0.0, cf.GRAVITY])
+
+
+def _norm(vector):
+    """Return the Euclidean norm of a 1-D vector (what ``np.linalg.norm`` computes)."""
+    return math.sqrt(vector.dot(vector))
+
 
 def _clip_norm(vector, limit):
     """Scale ``vector`` down so that its norm is at most ``limit``."""
-    norm = np.linalg.norm(vector)
+    norm = _norm(vector)
     return vector if norm <= limit else vector * (limit / norm)
 
 
@@ -35,13 +48,13 @@ class UnicycleGoalController:
     def velocity_command(self, state, goal):
         """Return the desired [v, omega]."""
         error = np.asarray(goal, dtype=float)[:2] - state[:2]
-        distance = np.linalg.norm(error)
+        distance = _norm(error)
         if distance < self.goal_tolerance:
             return np.zeros(2)
         heading = np.arctan2(error[1], error[0]) - state[2]
         heading = (heading + np.pi) % (2 * np.pi) - np.pi
         speed = min(self.distance_gain * distance, self.max_speed) * max(np.cos(heading), 0.0)
-        turn = np.clip(self.heading_gain * heading, -self.max_turn_rate, self.max_turn_rate)
+        turn = min(max(self.heading_gain * heading, -self.max_turn_rate), self.max_turn_rate)
         return np.array([speed, turn])
 
     def __call__(self, state, goal):
@@ -89,17 +102,20 @@ class QuadrotorGoalController:
         """Return [T, tau_x, tau_y, tau_z]."""
         error = np.asarray(goal, dtype=float)[:3] - state[0:3]
         accel = _clip_norm(self.position_gain * error, self.max_accel)
-        accel = accel - self.velocity_gain * state[3:6] + np.array([0.0, 0.0, cf.GRAVITY])
-        rot = rotation_matrix(*state[6:9])
+        accel = accel - self.velocity_gain * state[3:6] + _GRAVITY_UP
+        roll, pitch, yaw = state[6:9].tolist()
+        rot = rotation_matrix(roll, pitch, yaw)
         thrust = self.mass * accel @ rot[:, 2]
-        z_desired = accel / np.linalg.norm(accel)
-        # Attitude error in the body frame: rotate body z onto z_desired, and yaw to zero.
-        tilt_error = rot.T @ np.cross(rot[:, 2], z_desired)
-        yaw_error = -((state[8] + np.pi) % (2 * np.pi) - np.pi)
+        # Attitude error in the body frame: rotate body z onto z_desired = a*/|a*|, yaw to 0.
+        (bx, by, bz), (dx, dy, dz) = rot[:, 2].tolist(), (accel / _norm(accel)).tolist()
+        tilt_error = rot.T @ np.array([by * dz - bz * dy, bz * dx - bx * dz, bx * dy - by * dx])
+        yaw_error = -((yaw + math.pi) % (2 * math.pi) - math.pi)
         attitude_error = np.array([tilt_error[0], tilt_error[1], yaw_error])
-        torque = cf.INERTIA @ (self.attitude_gain * attitude_error
-                               - self.rate_gain * state[9:12])
-        return np.concatenate([[thrust], torque])
+        wrench = np.empty(4)
+        wrench[0] = thrust
+        wrench[1:] = cf.INERTIA @ (self.attitude_gain * attitude_error
+                                   - self.rate_gain * state[9:12])
+        return wrench
 
     def __call__(self, state, goal):
         """Return rotor thrusts (not clipped; the filter clips to the input box)."""
