@@ -513,8 +513,8 @@ class SimWorld:
         inf means farther than ``max_distance``.  Obstacles whose bounding box, and
         robots whose reach, is farther than ``max_distance`` from this robot's reach
         are skipped unqueried; a robot pair is queried once per physics step.
+        Robot bodies are moved to their plants' poses only when a query runs.
         """
-        self._sync_bodies()
         plant = self._robots[robot]
         centres = self._robot_snapshot()[1]
         others = [name for name in self._robots if name != robot]
@@ -553,6 +553,7 @@ class SimWorld:
         SEARCH_STEP beyond the bound, and doubles until some pair is found; the
         minimum over a non-empty answer is exact.
         """
+        self._sync_bodies()
         threshold = min(lower_bound + SEARCH_STEP, max_distance) if lower_bound > 0.0 else 0.0
         while True:
             points = pb.getClosestPoints(body_a, body_b, threshold, physicsClientId=self._client)
