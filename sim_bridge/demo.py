@@ -137,7 +137,7 @@ def _printer(stream):
     def show(sim_time, duration):
         tenth = int(10.0 * sim_time / duration) if duration > 0 else 10
         if tty:
-            if time.monotonic() - last['wall'] < 0.5:
+            if time.monotonic() - last['wall'] < 0.5 and sim_time < duration:
                 return
             last['wall'] = time.monotonic()
         elif tenth <= last['tenth']:

@@ -280,7 +280,8 @@ def run_closed_loop(scenario, run_dir, barrier='polyc2bf_inflated', duration=Non
     override the scenario's.  ``timeout`` (wall s, default 60 + 20 x sim duration per
     robot) bounds the wait for the bridge, which is then stopped with SIGINT (its bag is
     closed cleanly).  ``progress(sim_time, duration)``, if given, is called from a
-    /clock subscriber thread as the run advances.
+    /clock subscriber thread as the run advances, and once with the full duration when
+    the bridge completes the run.
     """
     reference = scenario.name if hasattr(scenario, 'name') else scenario_reference(scenario)
     scenario = load_scenario(reference)
@@ -337,6 +338,9 @@ def run_closed_loop(scenario, run_dir, barrier='polyc2bf_inflated', duration=Non
             monitor.close()
     # The bridge's own exit status, or 1 when the launcher had to stop the run.
     status = 1 if message or not procs else procs[-1].returncode
+    if progress is not None and status == 0:
+        # A run shorter than DDS discovery shows no /clock at all: end at 100 % anyway.
+        progress(sim_duration, sim_duration)
     if status != 0 and not message:
         message = f'sim_bridge exited with status {status}:\n' + _log_tail(logs['bridge'])
     return RunResult(status=status, run_dir=run_dir, bag_path=bag_path,
