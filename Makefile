@@ -8,11 +8,12 @@ VENV := .venv
 PY := $(VENV)/bin/python
 DEPS_STAMP := $(VENV)/.deps-installed
 PKG_STAMP := $(VENV)/.pkg-installed
-# Nodes start in ~0.4 s from numba's cache instead of compiling for ~6 s (DDS tests rely on it).
-COMPILE_KERNELS := from polyc2bf_ros.core.safety_filter import compile_kernels; compile_kernels()
+# The filter's kernels are compiled ahead of time into polyc2bf_ros/core/_kernels*.so
+# (polyc2bf_ros/core/jit.py): nodes then start in ~0.2 s without numba/LLVM in memory.
+BUILD_KERNELS := PYTHONPATH=$(CURDIR) $(PY) -m polyc2bf_ros.core.build_kernels
 PKG_SOURCES := setup.py setup.cfg package.xml \
 	$(shell find polyc2bf_ros sim_bridge config launch resource -type f \
-	        -not -name '*.pyc' -not -path '*/__pycache__/*' 2>/dev/null)
+	        -not -name '*.pyc' -not -name '_kernels*' -not -path '*/__pycache__/*' 2>/dev/null)
 
 # DDS never leaves this machine. Tests pick a ROS_DOMAIN_ID per pytest worker
 # (test/conftest.py).
@@ -38,11 +39,10 @@ $(DEPS_STAMP): requirements.lock | $(PY)
 	@touch $@
 
 $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
+	@echo "== compiling the filter's kernels ahead of time (numba pycc, about a minute)"
+	$(BUILD_KERNELS)
 	@echo "== installing polyc2bf_ros into $(VENV)"
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation .
-	@echo "== compiling the filter's numba kernels into their on-disk caches (installed and source tree)"
-	cd / && $(abspath $(PY)) -c "$(COMPILE_KERNELS)"
-	PYTHONPATH=$(CURDIR) $(PY) -c "$(COMPILE_KERNELS)"
 	@touch $@
 
 test: $(PKG_STAMP)

@@ -19,10 +19,10 @@ are timed.  Beside it (``moved`` columns) the same motion as a translation of
 the first set (``ObstacleSet.translated`` + ``prepare``, which reuses the
 first set's prepared geometry): what pose-only updates cost.
 
-Start-up: the filter's kernels are compiled by numba on first use and cached
-on disk; two fresh processes sharing an empty cache directory time the import
-and the construction of a filter for every model and barrier, once compiling
-(``cold``) and once loading the cache (``warm``).
+Start-up: fresh processes time the import and the construction of a filter
+for every model and barrier, and report their RSS: with the kernels built
+ahead of time (``polyc2bf_ros.core.jit``), then just in time by numba with an
+empty cache directory (compiling) and with the cache that run filled.
 """
 import argparse
 import json
@@ -178,25 +178,32 @@ start = time.perf_counter()
 from polyc2bf_ros.core.safety_filter import compile_kernels
 imported = time.perf_counter()
 compile_kernels()
-print(json.dumps([imported - start, time.perf_counter() - imported]))
+constructed = time.perf_counter()
+rss = [int(line.split()[1]) for line in open('/proc/self/status') if line.startswith('VmRSS')]
+print(json.dumps([imported - start, constructed - imported, rss[0] / 1024]))
 """
+STARTUP_MODES = (('ahead_of_time', 'aot'), ('jit_cold_cache', 'jit'), ('jit_warm_cache', 'jit'))
 
 
 def startup_records():
-    """Return cold- and warm-cache start-up records, each from a fresh process."""
+    """Return start-up records (import, one filter per model and barrier, RSS), fresh processes.
+
+    Ahead of time (the built extension), then just in time with an empty numba
+    cache (compiling) and again with the cache it filled (loading).
+    """
     records = []
     with tempfile.TemporaryDirectory() as cache:
-        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
-        for label in ('cold', 'warm'):
+        for label, mode in STARTUP_MODES:
+            env = dict(os.environ, NUMBA_CACHE_DIR=cache, POLYC2BF_KERNELS=mode)
             result = subprocess.run([sys.executable, '-c', STARTUP_SCRIPT], env=env, check=True,
                                     capture_output=True, text=True)
-            import_s, construct_s = json.loads(result.stdout.splitlines()[-1])
-            records.append({'bench': 'core_startup', 'cache': label,
+            import_s, construct_s, rss_mb = json.loads(result.stdout.splitlines()[-1])
+            records.append({'bench': 'core_startup', 'kernels': label,
                             'import_s': round(import_s, 3),
-                            'construct_all_s': round(construct_s, 3),
+                            'construct_all_s': round(construct_s, 3), 'rss_mb': round(rss_mb, 1),
                             'load_avg_1min': round(os.getloadavg()[0], 2)})
-            print(f'start-up, {label} cache: import {import_s:.2f} s, one filter per model '
-                  f'and barrier {construct_s:.2f} s', flush=True)
+            print(f'start-up, {label}: import {import_s:.2f} s, one filter per model '
+                  f'and barrier {construct_s:.2f} s, RSS {rss_mb:.0f} MB', flush=True)
     return records
 
 

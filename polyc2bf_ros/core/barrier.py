@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import F1, F2, F3, kernel, signature
 
 
 @dataclass(slots=True)
@@ -47,7 +47,7 @@ class BarrierTerms:
         return cls(h=block[0], lf_h=block[1], lg_h=block[2:])
 
 
-@kernel
+@kernel(signature('void', F2, F1, F2, F3, F2, F1, F1, F2, 'f8', F2))
 def _barrier_terms(p, s, ds_dp, projections, velocities, position_rate, drift, input_matrix,
                    velocity_epsilon, out):
     """Write h, Lf h, Lg h of every obstacle into the rows of ``out`` (see module docstring)."""

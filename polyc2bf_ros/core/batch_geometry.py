@@ -31,13 +31,13 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import B1, F1, F2, F3, I1, kernel, signature
 
 REL_TOL = 1e-12
 """Sine of the smallest angle treated as a real turn of a polygon boundary."""
 
 
-@kernel
+@kernel(signature('void', F3, I1, B1))
 def convex_ccw(vertices, counts, ok):
     """Write per polygon whether it is convex, CCW and simple (module docstring)."""
     for n in range(counts.shape[0]):
@@ -66,7 +66,7 @@ def convex_ccw(vertices, counts, ok):
         ok[n] = good and area > 0.0 and crossings == 1
 
 
-@kernel
+@kernel(signature('b1', F2, I1, F3))
 def pad(points, counts, vertices):
     """Copy concatenated polygons (sum of counts, 2) into (N, V, 2), repeating each last vertex.
 
@@ -85,7 +85,7 @@ def pad(points, counts, vertices):
     return finite
 
 
-@kernel
+@kernel(signature('void', F2, F2, I1, F2, F2, F2))
 def edge_rows(x, y, counts, edge_x, edge_y, inv_sq):
     """Fill the edges v_next(k) - v_k and 1 / |e|^2 (0 for a zero edge) of (N, W) vertex rows.
 
@@ -120,7 +120,7 @@ def _lowest(x, y, count):
     return best
 
 
-@kernel
+@kernel(signature('void', F3, I1, 'f8', 'i8', F2, F2, I1))
 def minkowski_regular(vertices, counts, radius, segments, x, y, out_counts):
     """Write the Minkowski sums P_n + Q as (N, V + segments) vertex rows (module docstring).
 
@@ -173,7 +173,7 @@ def _circle_through_three(ax, ay, bx, by, cx, cy):
     return ax + ox, ay + oy, math.sqrt(ox * ox + oy * oy)
 
 
-@kernel
+@kernel(signature('UniTuple(f8, 3)', F2, 'i8'))
 def enclosing_circle(points, count):
     """Return (centre x, centre y, radius) of the smallest circle holding points[:count]."""
     order = np.arange(count)
@@ -207,14 +207,14 @@ def enclosing_circle(points, count):
     return cx, cy, r
 
 
-@kernel
+@kernel(signature('void', F3, I1, F2, F1))
 def enclosing_circles(vertices, counts, centres, radii):
     """Write each polygon's minimum enclosing circle: centres (2, N), radii (N,)."""
     for n in range(counts.shape[0]):
         centres[0, n], centres[1, n], radii[n] = enclosing_circle(vertices[n], counts[n])
 
 
-@kernel
+@kernel(signature('UniTuple(f8, 2)', F2, 'i8', 'f8', 'f8'))
 def extent(points, count, ax, ay):
     """Return (min, max) of <v, a> over points[:count]."""
     low, high = math.inf, -math.inf
@@ -224,7 +224,7 @@ def extent(points, count, ax, ay):
     return low, high
 
 
-@kernel
+@kernel(signature('UniTuple(f8, 2)', F2, 'i8'))
 def thin_axis(points, count):
     """Return the unit outward edge normal (a_x, a_y) of minimum width (module docstring)."""
     best, best_x, best_y = math.inf, 1.0, 0.0
@@ -240,7 +240,7 @@ def thin_axis(points, count):
     return best_x, best_y
 
 
-@kernel
+@kernel(signature('void', F3, I1, F2, 'f8', F3, F2, F3, F2, B1))
 def vertical_shadows(vertices, counts, z_ranges, band_margin, projections, long_axes, shadows,
                      band, enabled):
     """Write each prism's vertical view (module docstring).

@@ -40,7 +40,7 @@ import numpy as np
 
 from polyc2bf_ros.core import batch_geometry
 from polyc2bf_ros.core.geometry import PolygonBatch
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 
 _TINY = 1e-12
 CONE_ROWS = 7
@@ -172,7 +172,7 @@ def _nearest_edge(x, y, edge_x, edge_y, inv_sq, count, qx, qy):
     return best, nearest, best_x, best_y, inside
 
 
-@kernel
+@kernel(signature('void', F2, F2, F2, F2, F2, I1, F2, 'f8', F2, B1))
 def _polygon_cones(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, extension, out, valid):
     """Build PolyC2BF cones from silhouette vertices (see module docstring).
 
@@ -228,7 +228,7 @@ def _polygon_cones(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, extension, 
         valid[n] = seen
 
 
-@kernel
+@kernel(signature('void', F2, F2, F2, F2, F2, I1, F2, 'f8', F2))
 def _polygon_exits(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, extension, out):
     """Write the shortest way out of each polygon grown by ``extension`` (module docstring)."""
     shared = viewpoints.shape[1] == 1
@@ -313,7 +313,7 @@ class Circles:
         return self.radii.size
 
 
-@kernel
+@kernel(signature('void', F2, F1, F2, F2, B1))
 def _circle_cones(centres, radii, viewpoints, out, valid):
     """Build C3BF cones: s = sqrt(|p|^2 - R^2), ds/dp = p / s.
 
@@ -336,7 +336,7 @@ def _circle_cones(centres, radii, viewpoints, out, valid):
         valid[n] = clearance_sq > 0.0
 
 
-@kernel
+@kernel(signature('void', F2, F1, F2, F2))
 def _circle_exits(centres, radii, viewpoints, out):
     """Write the shortest way out of each circle: (q - c)/|q - c|, depth R - |q - c|."""
     shared = viewpoints.shape[1] == 1

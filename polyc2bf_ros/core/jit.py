@@ -1,21 +1,179 @@
-"""Compiled kernels of the per-step hot path (numba ``njit``), cached on disk.
+"""Compiled kernels of the per-step hot path: ahead of time, or numba ``njit``.
 
 One small numpy call costs about a microsecond, so a filter step written as ~100
 vectorised numpy calls spends most of its time in call overhead.  The hot path
 therefore runs as a few compiled loops over the obstacles (``kernel``), each
-with the math of its module's docstring.  Conventions:
+with the math of its module's docstring.
 
-* ``cache=True``: the machine code is stored beside the source (or in numba's
-  per-user cache when that is read-only), so only the first process on a
-  machine compiles; later ones load it in milliseconds.
+Two ways to run the same source:
+
+* **Ahead of time** (the default once built): ``make`` runs
+  ``python -m polyc2bf_ros.core.build_kernels``, which compiles every kernel
+  that Python calls into one extension module, ``core/_kernels*.so``, beside a
+  digest of the core's sources.  A process then loads the kernels without
+  numba or LLVM: about 60 MB less memory and no start-up compilation.  Each
+  one sits behind ``Guarded``, which checks dtype, rank and contiguity of every
+  array argument (compiled code trusts its arguments: a float32 or strided
+  array would be misread) and raises TypeError naming the kernel otherwise.
+* **Just in time** (``numba.njit``, cached on disk): when the extension is
+  missing, or the sources changed since it was built (the digest differs, so a
+  stale build is never used), or ``POLYC2BF_KERNELS=jit``.  Numba compiles a
+  kernel lazily for the types of its first call (helpers may be defined after
+  their callers), so this mode is lenient where the guard is strict: the tests
+  run ahead of time.
+
+``POLYC2BF_KERNELS`` = ``auto`` (default) | ``aot`` (fail if not built) | ``jit``.
+
+Conventions for kernels:
+
 * ``error_model='numpy'``: division by zero gives inf / NaN as in numpy instead
   of raising, so a kernel computes exactly what the numpy formulation would.
 * Hot-path kernels write into arrays the caller allocated and return at most a
   few scalars: handing an array back from compiled code costs about a
   microsecond.
-* Call them with C-contiguous float64 arrays, Python floats and bools: other
-  types compile another version on first use (seconds, on the hot path).
+* ``@kernel(signature('void', F2, 'f8', ...))`` marks a kernel called from
+  Python, with its numba signature (C-contiguous arrays ``F1``-``F3``;
+  ``'f8[:, :]'`` where callers pass strided views); a bare ``@kernel`` marks a
+  helper called only from other kernels.
 """
-import numba
+import hashlib
+import os
+import re
+import warnings
+from pathlib import Path
 
-kernel = numba.njit(cache=True, nogil=True, error_model='numpy')
+import numpy as np
+
+CORE = Path(__file__).resolve().parent
+DIGEST_FILE = CORE / '_kernels.digest'
+MODE_VARIABLE = 'POLYC2BF_KERNELS'
+MODES = ('auto', 'aot', 'jit')
+JIT_OPTIONS = {'cache': True, 'nogil': True, 'error_model': 'numpy'}
+
+#: Argument types of exported kernels: C-contiguous float64 arrays of rank 1-3, int64 and
+#: bool vectors (numba's notation; scalars are 'f8', 'i8', 'b1').
+F1, F2, F3 = 'f8[::1]', 'f8[:, ::1]', 'f8[:, :, ::1]'
+I1, B1 = 'i8[::1]', 'b1[::1]'
+
+#: Kernels called from Python, filled in just-in-time mode for the ahead-of-time build:
+#: export name -> (numba dispatcher, signature string).
+EXPORTS = {}
+
+_DTYPES = {'f8': np.dtype(np.float64), 'i8': np.dtype(np.int64), 'b1': np.dtype(np.bool_)}
+_ARRAY = re.compile(r'^(f8|i8|b1)\[([^\]]*)\]$')
+
+
+def signature(result, *arguments):
+    """Return the numba signature string ``result(arguments...)``."""
+    return f'{result}({", ".join(arguments)})'
+
+
+def source_digest():
+    """Return the SHA-256 of every Python source of the core (what the kernels are built from)."""
+    digest = hashlib.sha256()
+    for path in sorted(CORE.rglob('*.py')):
+        digest.update(path.relative_to(CORE).as_posix().encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def export_name(module, name):
+    """Return the extension's symbol for kernel ``name`` of ``module`` (core.views._viewpoints)."""
+    return module.replace('polyc2bf_ros.', '').replace('.', '_') + '__' + name.lstrip('_')
+
+
+def _load_ahead_of_time():
+    """Return the built extension module, or None to compile just in time."""
+    mode = os.environ.get(MODE_VARIABLE, 'auto')
+    if mode not in MODES:
+        raise ValueError(f'{MODE_VARIABLE} must be one of {", ".join(MODES)}, got {mode!r}')
+    if mode == 'jit':
+        return None
+    try:
+        from polyc2bf_ros.core import _kernels
+        built_from = DIGEST_FILE.read_text().strip()
+    except (ImportError, OSError) as exc:
+        if mode == 'aot':
+            raise RuntimeError(f'{MODE_VARIABLE}=aot but the kernels are not built ({exc}); '
+                               'run: python -m polyc2bf_ros.core.build_kernels') from exc
+        return None
+    if built_from != source_digest():
+        message = ('the ahead-of-time kernels were built from other sources than these; '
+                   'compiling just in time (rebuild: python -m polyc2bf_ros.core.build_kernels)')
+        if mode == 'aot':
+            raise RuntimeError(message)
+        warnings.warn(message, RuntimeWarning, stacklevel=2)
+        return None
+    return _kernels
+
+
+AHEAD_OF_TIME = _load_ahead_of_time()
+
+
+def argument_checks(signature):
+    """Return per argument of ``signature`` None (a scalar) or (dtype, ndim, contiguous)."""
+    depth, start = 0, len(signature) - 1
+    while True:  # the argument list is the last parenthesised group
+        depth += {')': 1, '(': -1}.get(signature[start], 0)
+        if depth == 0:
+            break
+        start -= 1
+    arguments = signature[start + 1:-1]
+    checks = []
+    for argument in re.split(r',\s*(?![^\[]*\])', arguments):
+        match = _ARRAY.match(argument.strip())
+        if match is None:
+            checks.append(None)
+            continue
+        dims = [d.strip() for d in match.group(2).split(',')]
+        checks.append((_DTYPES[match.group(1)], len(dims), dims[-1] == '::1'))
+    return tuple(checks)
+
+
+class Guarded:
+    """An ahead-of-time kernel that refuses arrays of another dtype, rank or layout."""
+
+    def __init__(self, name, function, signature):
+        """Wrap ``function`` (compiled for ``signature``)."""
+        self.__name__ = name
+        self._function = function
+        self._arrays = tuple((index, check) for index, check in
+                             enumerate(argument_checks(signature)) if check is not None)
+
+    def __call__(self, *args):
+        """Check the array arguments, then run the compiled kernel."""
+        for index, (dtype, ndim, contiguous) in self._arrays:
+            array = args[index]
+            if not (type(array) is np.ndarray and array.dtype == dtype and array.ndim == ndim
+                    and (array.flags.c_contiguous or not contiguous)):
+                raise TypeError(f'kernel {self.__name__}: argument {index} must be a '
+                                f'{"C-contiguous " if contiguous else ""}{dtype} array of '
+                                f'rank {ndim}, got {getattr(array, "dtype", type(array))} '
+                                f'{getattr(array, "shape", "")}')
+        return self._function(*args)
+
+
+def _njit(function):
+    """Return ``function`` compiled by numba on first call (and cached on disk)."""
+    import numba
+    return numba.njit(**JIT_OPTIONS)(function)
+
+
+def kernel(signature_or_helper):
+    """Decorate a kernel: ``@kernel(signature(...))`` exported, bare ``@kernel`` a helper.
+
+    Ahead of time, an exported kernel is the extension's compiled function
+    (guarded) and a helper stays Python (the compiled kernels contain it).
+    """
+    if callable(signature_or_helper):
+        return signature_or_helper if AHEAD_OF_TIME is not None else _njit(signature_or_helper)
+    signature = signature_or_helper
+
+    def decorate(function):
+        name = export_name(function.__module__, function.__name__)
+        if AHEAD_OF_TIME is not None:
+            return Guarded(name, getattr(AHEAD_OF_TIME, name), signature)
+        compiled = _njit(function)
+        EXPORTS[name] = (compiled, signature)
+        return compiled
+    return decorate

@@ -19,7 +19,7 @@ from typing import Optional
 import numpy as np
 
 from polyc2bf_ros.core.geometry import decompose_convex, is_convex, PolygonBatch
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import F2, F3, kernel, signature
 
 
 @dataclass(frozen=True)
@@ -114,7 +114,7 @@ class ObstacleSet:
         return _finite(self.footprints.vertices, self.velocities, self.z_ranges)
 
 
-@kernel
+@kernel(signature('b1', F3, 'f8[:, :]', F2))
 def _finite(vertices, velocities, z_ranges):
     """Return True when vertices and velocities are finite and no z bound is NaN."""
     for value in vertices.ravel():

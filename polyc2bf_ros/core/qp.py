@@ -30,7 +30,7 @@ import daqp
 import numpy as np
 from proxsuite import proxqp
 
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import F1, F2, kernel, signature
 
 FAST_PATH_TOL = 1e-12
 """``x_ref`` is returned as is when ``A x_ref >= b - FAST_PATH_TOL`` and it lies in the box."""
@@ -77,7 +77,7 @@ def _fallback(x_ref, lower, upper):
     return x
 
 
-@kernel
+@kernel(signature('f8', F2, F1, F1, F1))
 def row_residuals(A, x, b, out):
     """Write ``A x - b`` into ``out``; return its smallest entry (inf without rows, NaN if any)."""
     smallest = math.inf
@@ -91,7 +91,7 @@ def row_residuals(A, x, b, out):
     return smallest
 
 
-@kernel
+@kernel(signature('b1', F1, F1, F2, F1, F1, F1, F1))
 def _single_active(x_ref, weights, A, b, lower, upper, x):
     """Try the optima with few active constraints; True if ``x`` is the optimum.
 

@@ -31,10 +31,10 @@ solution is exactly the same.  The QP front end answers most steps without a
 solver run: u_ref (u_nom, or the escape input) itself when it lies in the box
 and meets every row, or its projection onto one row (``qp._single_active``).
 
-Hot path: per step, a handful of compiled kernels (``polyc2bf_ros.core.jit``)
-compute viewpoints, cones, barrier terms and the QP rows for all obstacles;
-``SafetyFilter`` compiles them on construction (``warm_up``) so that the first
-real step is as fast as the others.
+Hot path: per step, a handful of compiled kernels (``polyc2bf_ros.core.jit``:
+built ahead of time, or by numba) compute viewpoints, cones, barrier terms and
+the QP rows for all obstacles; ``SafetyFilter`` runs them all on construction
+(``warm_up``) so that the first real step is as fast as the others.
 
 Preparation: per obstacle set the cone model's geometry (inflated polygons,
 enclosing circles, vertical shadows) is computed once and cached.  A set that
@@ -74,7 +74,7 @@ import numpy as np
 
 from polyc2bf_ros.core.barrier import barrier_terms, BarrierTerms
 from polyc2bf_ros.core.cones import CONE_MODELS, CONE_ROWS, Cones, make_cone_model
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp import (
@@ -228,7 +228,7 @@ class _Prepared:
                          index=self.index, residual=self.residual)
 
 
-@kernel
+@kernel(signature('UniTuple(i8, 2)', F1, F1, F2, B1, 'f8', 'f8', F1, F1, 'b1', F2, F1, I1, F1))
 def _assemble_rows(h, lf_h, lg_h, usable, margin, gamma, lower, upper, prune, rows_a, rows_b,
                    index, h_out):
     """Write the unit-norm QP rows of the needed obstacle parts; return (rows, unusable parts).
@@ -267,9 +267,10 @@ def _assemble_rows(h, lf_h, lg_h, usable, margin, gamma, lower, upper, prune, ro
 
 
 def compile_kernels():
-    """Build one filter per model and barrier: every kernel is compiled into numba's cache.
+    """Build one filter per model and barrier, so every kernel has run once.
 
-    Worth running once after installing (a cold cache costs a first filter ~5 s).
+    Just in time (``polyc2bf_ros.core.jit``) this compiles them all into numba's
+    on-disk cache (~10 s cold); with the kernels built ahead of time it is quick.
     """
     for model in MODEL_NAMES:
         for barrier in CONE_MODELS:

@@ -43,7 +43,7 @@ import numpy as np
 
 from polyc2bf_ros.core import batch_geometry
 from polyc2bf_ros.core.geometry import PolygonBatch
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import B1, F1, F2, F3, kernel, signature
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ class View:
         return out
 
 
-@kernel
+@kernel(signature('void', F3, F1, F2, F2, 'f8', F2))
 def _viewpoints(projections, position, velocities, offsets, age, out):
     """Write P_n (r - age c_dot_n - o_n): the robot seen from obstacle n's frame."""
     for n in range(projections.shape[0]):
@@ -115,7 +115,7 @@ def _vertical_view(obstacles, cone_model, band_margin):
                  long_axes=long_axes, band=band)
 
 
-@kernel
+@kernel(signature('void', B1, F2, B1, F2, B1, F2, F2, F1, F2, F2, 'f8', B1, B1))
 def _choose_planes(valid_h, k_h, valid_v, k_v, enabled_v, long_axes, band, position,
                    velocities, offsets, age, vertical, usable):
     """Per obstacle: is the vertical plane used, and is any cone usable (module docstring)."""

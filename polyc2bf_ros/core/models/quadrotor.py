@@ -25,11 +25,11 @@ import math
 import numpy as np
 
 from polyc2bf_ros.core import crazyflie as cf
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import F1, F2, kernel, signature
 from polyc2bf_ros.core.models.base import ReferenceKinematics, register_model, RobotModel
 
 
-@kernel
+@kernel(signature(F2, 'f8', 'f8', 'f8'))
 def rotation_matrix(roll, pitch, yaw):
     """Return R = Rz(yaw) Ry(pitch) Rx(roll), body to world."""
     cr, sr = math.cos(roll), math.sin(roll)
@@ -67,7 +67,7 @@ def _times(matrix, v):
             matrix[2, 0] * v[0] + matrix[2, 1] * v[1] + matrix[2, 2] * v[2])
 
 
-@kernel
+@kernel(signature('void', F1, F1, F2, F2, F2, 'f8', 'f8', F1, F1, F1, F2))
 def _body_point(x, b, inertia, inertia_inv, torque_map, mass, gravity, position, velocity,
                 drift, input_matrix):
     """Write r, r_dot, drift and B of the body point b (module docstring) into the outputs."""

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import F1, F2, kernel, signature
 from polyc2bf_ros.core.models.base import (
     damped_brake,
     ReferenceKinematics,
@@ -30,7 +30,7 @@ from polyc2bf_ros.core.models.base import (
 )
 
 
-@kernel
+@kernel(signature('void', F1, 'f8', F1, F1, F1, F2))
 def _offset_point(x, offset, position, velocity, drift, input_matrix):
     """Write r, r_dot, drift and B of the point ``offset`` ahead of the axle (module docstring)."""
     px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]

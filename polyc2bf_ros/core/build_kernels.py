@@ -1,0 +1,62 @@
+"""Compile the core's exported kernels ahead of time into ``core/_kernels*.so``.
+
+    python -m polyc2bf_ros.core.build_kernels
+
+Imports every core module with ``POLYC2BF_KERNELS=jit`` (so each exported
+kernel registers itself in ``jit.EXPORTS`` with its signature), compiles them
+into one extension module with numba's ``pycc`` for this machine's CPU, and
+writes the digest of the sources beside it (``jit`` uses the extension only
+while the digest matches).  Each export is a thin function calling the numba
+kernel, so the kernel keeps its ``error_model='numpy'`` and the helpers it calls.
+Needs numba and a C compiler; takes about a minute.
+"""
+import importlib
+import os
+import pkgutil
+import sys
+import time
+import warnings
+
+
+def _forwarder(kernel, arity):
+    """Return a Python function of ``arity`` arguments that returns ``kernel(*arguments)``."""
+    names = ', '.join(f'a{i}' for i in range(arity))
+    namespace = {'kernel': kernel}
+    exec(f'def forward({names}):\n    return kernel({names})\n', namespace)  # noqa: S102
+    return namespace['forward']
+
+
+def build(verbose=True):
+    """Compile every exported kernel; return the path of the extension module."""
+    os.environ['POLYC2BF_KERNELS'] = 'jit'
+    import polyc2bf_ros.core as core
+    from polyc2bf_ros.core import jit
+    if jit.AHEAD_OF_TIME is not None:
+        raise RuntimeError('polyc2bf_ros.core.jit was imported in ahead-of-time mode before '
+                           'the build; run the build in a fresh process')
+    for module in pkgutil.walk_packages(core.__path__, f'{core.__name__}.'):
+        if module.name.rsplit('.', 1)[-1] not in ('build_kernels', '_kernels'):
+            importlib.import_module(module.name)
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')  # pycc is pending deprecation in numba
+        from numba.pycc import CC
+    compiler = CC('_kernels')
+    compiler.output_dir = str(jit.CORE)
+    compiler.target_cpu = 'host'
+    compiler.verbose = False
+    for name, (kernel, signature) in sorted(jit.EXPORTS.items()):
+        arity = len(jit.argument_checks(signature))
+        compiler.export(name, signature)(_forwarder(kernel, arity))
+    start = time.perf_counter()
+    if verbose:
+        print(f'compiling {len(jit.EXPORTS)} kernels ahead of time into {jit.CORE}/_kernels*.so',
+              flush=True)
+    compiler.compile()
+    jit.DIGEST_FILE.write_text(jit.source_digest() + '\n')
+    if verbose:
+        print(f'done in {time.perf_counter() - start:.0f} s', flush=True)
+    return compiler.output_file
+
+
+if __name__ == '__main__':
+    sys.exit(0 if build() else 1)
