@@ -12,7 +12,7 @@ Two ways to run the same source:
   that Python calls into one extension module, ``core/_kernels*.so``, beside a
   digest of the core's sources.  A process then loads the kernels without
   numba or LLVM: about 60 MB less memory and no start-up compilation.  Each
-  one sits behind ``Guarded``, which checks dtype, rank and contiguity of every
+  one sits behind ``guarded``, which checks dtype, rank and contiguity of every
   array argument (compiled code trusts its arguments: a float32 or strided
   array would be misread) and raises TypeError naming the kernel otherwise.
 * **Just in time** (``numba.njit``, cached on disk): when the extension is
@@ -130,27 +130,50 @@ def argument_checks(signature):
     return tuple(checks)
 
 
-class Guarded:
-    """An ahead-of-time kernel that refuses arrays of another dtype, rank or layout."""
+def check_arguments(name, checks, args):
+    """Raise TypeError unless every array argument has the dtype, rank and layout of ``checks``."""
+    for index, check in enumerate(checks):
+        if check is None:
+            continue
+        dtype, ndim, contiguous = check
+        array = args[index]
+        if not (type(array) is np.ndarray and array.dtype == dtype and array.ndim == ndim
+                and (array.flags.c_contiguous or not contiguous)):
+            raise TypeError(f'kernel {name}: argument {index} must be a '
+                            f'{"C-contiguous " if contiguous else ""}{dtype} array of rank '
+                            f'{ndim}, got {getattr(array, "dtype", type(array))} '
+                            f'{getattr(array, "shape", "")}')
 
-    def __init__(self, name, function, signature):
-        """Wrap ``function`` (compiled for ``signature``)."""
-        self.__name__ = name
-        self._function = function
-        self._arrays = tuple((index, check) for index, check in
-                             enumerate(argument_checks(signature)) if check is not None)
 
-    def __call__(self, *args):
-        """Check the array arguments, then run the compiled kernel."""
-        for index, (dtype, ndim, contiguous) in self._arrays:
-            array = args[index]
-            if not (type(array) is np.ndarray and array.dtype == dtype and array.ndim == ndim
-                    and (array.flags.c_contiguous or not contiguous)):
-                raise TypeError(f'kernel {self.__name__}: argument {index} must be a '
-                                f'{"C-contiguous " if contiguous else ""}{dtype} array of '
-                                f'rank {ndim}, got {getattr(array, "dtype", type(array))} '
-                                f'{getattr(array, "shape", "")}')
-        return self._function(*args)
+def guarded(name, function, signature):
+    """Return ``function`` behind ``check_arguments`` for its ``signature``.
+
+    The check runs on every call, so its common case is generated as one
+    expression per kernel (identity of the dtype, rank, contiguity: ~0.1 us per
+    array); anything it does not recognise goes to ``check_arguments``, which
+    compares dtypes by equality and raises.
+    """
+    checks = argument_checks(signature)
+    names = [f'a{index}' for index in range(len(checks))]
+    dtypes = {f'{check[0].name}': check[0] for check in checks if check is not None}
+    tests = ['True']
+    for argument, check in zip(names, checks):
+        if check is not None:
+            dtype, ndim, contiguous = check
+            tests.append(f'{argument}.__class__ is ndarray and {argument}.dtype is {dtype.name} '
+                         f'and {argument}.ndim == {ndim}'
+                         + (f' and {argument}.flags.c_contiguous' if contiguous else ''))
+    arguments = ', '.join(names)
+    source = (f'def {name}({arguments}):\n'
+              f'    if not ({" and ".join(tests)}):\n'
+              f'        check_arguments(name, checks, ({arguments},))\n'
+              f'    return function({arguments})\n')
+    namespace = {'ndarray': np.ndarray, 'check_arguments': check_arguments, 'name': name,
+                 'checks': checks, 'function': function, **dtypes}
+    exec(source, namespace)  # noqa: S102
+    wrapper = namespace[name]
+    wrapper.compiled = function
+    return wrapper
 
 
 def _njit(function):
@@ -172,7 +195,7 @@ def kernel(signature_or_helper):
     def decorate(function):
         name = export_name(function.__module__, function.__name__)
         if AHEAD_OF_TIME is not None:
-            return Guarded(name, getattr(AHEAD_OF_TIME, name), signature)
+            return guarded(name, getattr(AHEAD_OF_TIME, name), signature)
         compiled = _njit(function)
         EXPORTS[name] = (compiled, signature)
         return compiled
