@@ -34,6 +34,8 @@ from polyc2bf_ros.core.jit import F1, F2, kernel, signature
 
 FAST_PATH_TOL = 1e-12
 """``x_ref`` is returned as is when ``A x_ref >= b - FAST_PATH_TOL`` and it lies in the box."""
+PAIR_POOL = 8
+"""``_single_active`` tries all pairs of at most this many rows violated at clip(x_ref)."""
 FEASIBILITY_TOL = 1e-9
 """An optimal answer satisfies every row and bound to this absolute tolerance."""
 
@@ -103,7 +105,10 @@ def _single_active(x_ref, weights, A, b, lower, upper, x):
         one row i:   x_F = x_ref_F + lam W_F^-1 a_iF,   lam = (b_i - a_i x) / (a_iF W_F^-1 a_iF')
         rows i, j:   x = x_ref + W^-1 A_S' lam,   (A_S W^-1 A_S') lam = b_S - A_S x_ref
 
-    (j is the row violated farthest after projecting onto i.)  A candidate is the
+    (j is the row violated farthest after projecting onto i), and then every pair of
+    the rows violated at clip(x_ref) when there are at most ``PAIR_POOL`` of them
+    (the two rows the farthest-violation rule picks are often not the active pair
+    when x_ref lies far outside the box).  A candidate is the
     optimum when every row holds (to ``FAST_PATH_TOL``), x lies in the box and the
     multipliers are >= 0: lam, and mu_j = +-(w_j (x_j - x_ref_j) - lam a_ij) for a held
     bound (+ at a lower, - at an upper one).  The usual filter step (one or two active
@@ -118,7 +123,9 @@ def _single_active(x_ref, weights, A, b, lower, upper, x):
         return True
     if clipped and _one_row_candidate(x_ref, weights, A, b, lower, upper, False, x):
         return True
-    return _two_row_candidate(x_ref, weights, A, b, lower, upper, x)
+    if _two_row_candidate(x_ref, weights, A, b, lower, upper, x):
+        return True
+    return _violated_pairs(x_ref, weights, A, b, lower, upper, x)
 
 
 @kernel
@@ -172,17 +179,9 @@ def _one_row_candidate(x_ref, weights, A, b, lower, upper, hold, x):
 
 
 @kernel
-def _two_row_candidate(x_ref, weights, A, b, lower, upper, x):
-    """Build and check the two-row, no-bound candidate of ``_single_active``."""
+def _pair_candidate(x_ref, weights, A, b, lower, upper, first, second, x):
+    """Build and check the candidate with rows ``first`` and ``second`` active and no bound."""
     n = x_ref.shape[0]
-    first, lam = _farthest_row(x_ref, x_ref, weights, A, b, -1)
-    if first < 0:
-        return False
-    for j in range(n):
-        x[j] = x_ref[j] + lam * A[first, j] / weights[j]
-    second, _ = _farthest_row(x, x, weights, A, b, first)
-    if second < 0:
-        return False
     g11 = g12 = g22 = 0.0
     r1, r2 = b[first], b[second]
     for j in range(n):
@@ -202,6 +201,42 @@ def _two_row_candidate(x_ref, weights, A, b, lower, upper, x):
         if not lower[j] <= x[j] <= upper[j]:
             return False
     return _meets_rows(A, b, x)
+
+
+@kernel
+def _two_row_candidate(x_ref, weights, A, b, lower, upper, x):
+    """Try the pair: the row violated farthest at x_ref, then farthest after projecting."""
+    first, lam = _farthest_row(x_ref, x_ref, weights, A, b, -1)
+    if first < 0:
+        return False
+    for j in range(x_ref.shape[0]):
+        x[j] = x_ref[j] + lam * A[first, j] / weights[j]
+    second, _ = _farthest_row(x, x, weights, A, b, first)
+    if second < 0:
+        return False
+    return _pair_candidate(x_ref, weights, A, b, lower, upper, first, second, x)
+
+
+@kernel
+def _violated_pairs(x_ref, weights, A, b, lower, upper, x):
+    """Try every pair among the rows violated at clip(x_ref), if there are at most PAIR_POOL."""
+    pool = np.empty(PAIR_POOL, dtype=np.int64)
+    count = 0
+    for i in range(b.shape[0]):
+        value = -b[i]
+        for j in range(x_ref.shape[0]):
+            value += A[i, j] * min(max(x_ref[j], lower[j]), upper[j])
+        if value < -FAST_PATH_TOL:
+            if count == PAIR_POOL:
+                return False
+            pool[count] = i
+            count += 1
+    for first in range(count):
+        for second in range(first + 1, count):
+            if _pair_candidate(x_ref, weights, A, b, lower, upper, pool[first], pool[second],
+                               x):
+                return True
+    return False
 
 
 def _feasible(x, A, b, lower, upper):

@@ -341,6 +341,24 @@ def test_single_active_shortcut_is_the_optimum_when_it_answers(seed, n, m, outsi
         np.testing.assert_allclose(x, expected.x, rtol=0.0, atol=1e-9)
 
 
+def test_single_active_shortcut_tries_every_pair_of_violated_rows():
+    """x_ref far outside the box: the farthest-violation rule picks the wrong pair.
+
+    Rows x <= 0.5 y and x <= -0.5 y meet at the optimum (0, 0); 10 x <= 10 is the row
+    violated farthest at x_ref = (50, 0) but inactive there.  Only the enumeration of
+    the pairs violated at clip(x_ref) finds the optimum without the backend.
+    """
+    A = np.array([[-1.0, 0.5], [-1.0, -0.5], [-10.0, 0.0]])
+    b = np.array([0.0, 0.0, -10.0])
+    lower, upper, weights = np.array([-2.0, -4.0]), np.array([2.0, 4.0]), np.ones(2)
+    x_ref, x = np.array([50.0, 0.0]), np.empty(2)
+    assert not qp._two_row_candidate(x_ref, weights, A, b, lower, upper, x)
+    assert qp._single_active(x_ref, weights, A, b, lower, upper, x)
+    expected = qp.ReferenceSolver().solve(x_ref, weights, A, b, lower, upper)
+    np.testing.assert_allclose(x, expected.x, rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(x, [0.0, 0.0], atol=1e-12)
+
+
 def test_single_active_shortcut_answers_one_or_two_rows_and_refuses_three():
     """One or two violated rows: their projection.  Three rows active: no answer."""
     lower, upper, weights = np.full(3, -5.0), np.full(3, 5.0), np.ones(3)
