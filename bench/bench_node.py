@@ -37,9 +37,10 @@ section 8).  DDS stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``)
 ``--obstacle-updates`` instead times the node's obstacle handling in-process
 (``run_obstacle_updates``): messages shaped like the sim bridge's (``--robots``
 cylinders and ``--moving`` outlines every period, plus ``--obstacles`` static
-outlines in every full set), ``_on_obstacles`` per message kind, with rclpy's
-deserialization of the same message and the next filter step beside it;
-results in ``bench/results/node_obstacles.json``.
+outlines in every full set), ``_on_obstacles`` per message kind (it reads the
+serialized message and applies it), with what rclpy's deserialization of the
+same message would cost and the next filter step beside it; results in
+``bench/results/node_obstacles.json``.
 """
 import argparse
 import json
@@ -410,7 +411,7 @@ def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_ever
             start = time.perf_counter()
             deserialize_message(data, MarkerArray)
             parsed = time.perf_counter()
-            node._on_obstacles(msg)
+            node._on_obstacles(data)
             handled = time.perf_counter()
             node._filter.filter(state, 0.0, command, node._obstacle_set, 0.0)
             stepped = time.perf_counter()
@@ -431,7 +432,7 @@ def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_ever
             'obstacles': static + robots + moving, 'samples': len(handle),
             'on_obstacles_p50_us': round(float(p50), 1), 'on_obstacles_p99_us': round(
                 float(p99), 1),
-            'deserialize_p50_us': round(float(np.median(parse)), 1),
+            'rclpy_deserialize_p50_us': round(float(np.median(parse)), 1),
             'next_step_p50_us': round(float(np.median(step)), 1),
             'obstacles_in_use': in_use, 'obstacles_tracked': tracked,
             'barrier': node._barrier, 'load_avg_1min': round(os.getloadavg()[0], 2)})
@@ -440,7 +441,7 @@ def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_ever
 
 def print_obstacle_table(records):
     """One row per message kind."""
-    keys = ('message', 'markers', 'samples', 'deserialize_p50_us', 'on_obstacles_p50_us',
+    keys = ('message', 'markers', 'samples', 'rclpy_deserialize_p50_us', 'on_obstacles_p50_us',
             'on_obstacles_p99_us', 'next_step_p50_us', 'obstacles_in_use', 'load_avg_1min')
     print(' '.join(f'{key:>{max(len(key), 8)}}' for key in keys))
     for r in records:

@@ -22,8 +22,10 @@ carries them in its six numbers ``(linear|force xyz, angular|torque xyz)``::
     point_mass_3d  [vx, vy, vz]     = linear.x, .y, .z          (angular.z passed through)
     quadrotor      [T, tx, ty, tz]  = force.z, torque.x, .y, .z
 
-On the node's hot path odometry and commands stay serialized (CDR): see
-``read_odometry`` and ``SerializedCommand`` below.
+On the node's hot path odometry, commands and obstacle MarkerArrays stay
+serialized (CDR): see ``read_odometry``, ``SerializedCommand`` and
+``read_marker_array`` below (the marker functions take a typed ``Marker`` or a
+``MarkerView`` alike).
 
 Markers -> obstacles (``apply_markers``).  Each marker becomes one or more
 polygons in its header frame plus a z range, after applying the marker pose
@@ -229,6 +231,9 @@ class _Layout:
         self.length = struct.Struct(order + 'I')
         self.pose = struct.Struct(order + '7d')
         self.six = struct.Struct(order + '6d')
+        self.marker_ids = struct.Struct(order + '3i')
+        self.pose_scale = struct.Struct(order + '10d')
+        self.double = np.dtype(order + 'f8')
 
 
 _LAYOUTS = {b'\x00\x01': _Layout('<'), b'\x00\x00': _Layout('>')}
@@ -293,6 +298,147 @@ def read_odometry(data):
     return OdometryView(sec, nanosec, frame, child_frame, pose, twist)
 
 
+class Time(NamedTuple):
+    """``builtin_interfaces/Time`` as read from CDR."""
+
+    sec: int
+    nanosec: int
+
+
+class Header(NamedTuple):
+    """``std_msgs/Header`` as read from CDR."""
+
+    stamp: Time
+    frame_id: str
+
+
+class XYZ(NamedTuple):
+    """A Point or Vector3."""
+
+    x: float
+    y: float
+    z: float
+
+
+class Quaternion(NamedTuple):
+    """A geometry_msgs/Quaternion."""
+
+    x: float
+    y: float
+    z: float
+    w: float
+
+
+class Pose(NamedTuple):
+    """A geometry_msgs/Pose."""
+
+    position: XYZ
+    orientation: Quaternion
+
+
+class MarkerView(NamedTuple):
+    """The fields of a serialized ``visualization_msgs/Marker`` that obstacles use.
+
+    Same names as the message, so the marker functions below take either;
+    ``points`` is an (N, 3) array.
+    """
+
+    header: Header
+    ns: str
+    id: int
+    type: int
+    action: int
+    pose: Pose
+    scale: XYZ
+    points: np.ndarray
+
+
+class MarkerArrayView(NamedTuple):
+    """A serialized ``visualization_msgs/MarkerArray``: its markers as ``MarkerView``."""
+
+    markers: tuple
+
+
+def _skip_sequence(data, layout, offset, item_size, item_align):
+    """Offset after a CDR sequence (length at ``offset``) of fixed-size items."""
+    offset = _aligned(offset, 4)
+    count = layout.length.unpack_from(data, offset)[0]
+    offset += 4
+    if count:
+        offset = _aligned(offset, item_align) + count * item_size
+    if offset > len(data):
+        raise ValueError(f'sequence of {count} items runs past the end of the message')
+    return offset
+
+
+def _read_marker(data, layout, offset):
+    """``(MarkerView, offset after)`` of the Marker serialized at ``offset``.
+
+    Field order of Jazzy's Marker.msg: header, ns, id, type, action, pose, scale,
+    color, lifetime, frame_locked, points, colors, texture_resource, texture
+    (CompressedImage: header, format, data), uv_coordinates, text, mesh_resource,
+    mesh_file (filename, data), mesh_use_embedded_materials.
+    """
+    offset = _aligned(offset, 4)
+    sec, nanosec = layout.stamp.unpack_from(data, offset)
+    frame, offset = _string(data, layout, offset + 8)
+    ns, offset = _string(data, layout, offset)
+    offset = _aligned(offset, 4)
+    marker_id, kind, action = layout.marker_ids.unpack_from(data, offset)
+    offset = _aligned(offset + 12, 8)
+    px, py, pz, qx, qy, qz, qw, sx, sy, sz = layout.pose_scale.unpack_from(data, offset)
+    offset += 80 + 16 + 8 + 1  # pose and scale, color (4 float32), lifetime, frame_locked
+    offset = _aligned(offset, 4)
+    count = layout.length.unpack_from(data, offset)[0]
+    offset += 4
+    points = np.empty((0, 3))
+    if count:
+        offset = _aligned(offset, 8)
+        if offset + 24 * count > len(data):
+            raise ValueError(f'{count} points run past the end of the message')
+        points = np.frombuffer(data, layout.double, 3 * count, offset).astype(
+            np.float64).reshape(count, 3)  # a native, writable copy
+        offset += 24 * count
+    offset = _skip_sequence(data, layout, offset, 16, 4)  # colors
+    _, offset = _string(data, layout, offset)  # texture_resource
+    offset = _aligned(offset, 4) + 8  # texture.header.stamp
+    for _ in range(2):  # texture.header.frame_id, texture.format
+        _, offset = _string(data, layout, offset)
+    offset = _skip_sequence(data, layout, offset, 1, 1)  # texture.data
+    offset = _skip_sequence(data, layout, offset, 8, 4)  # uv_coordinates
+    for _ in range(3):  # text, mesh_resource, mesh_file.filename
+        _, offset = _string(data, layout, offset)
+    offset = _skip_sequence(data, layout, offset, 1, 1) + 1  # mesh_file.data, use_materials
+    view = MarkerView(Header(Time(sec, nanosec), frame.decode(errors='replace')),
+                      ns.decode(errors='replace'), marker_id, kind, action,
+                      Pose(XYZ(px, py, pz), Quaternion(qx, qy, qz, qw)), XYZ(sx, sy, sz),
+                      points)
+    return view, offset
+
+
+def read_marker_array(data):
+    """``MarkerArrayView`` of a serialized MarkerArray; ``ValueError`` if malformed.
+
+    Reads only what obstacles need (``MarkerView``) and skips colours, text,
+    textures and meshes; rclpy's own deserialization builds every field as a
+    Python object and costs 10-50x more per message.
+    """
+    layout = _layout(data)
+    try:
+        count = layout.length.unpack_from(data, 4)[0]
+        if count > len(data):
+            raise ValueError(f'{count} markers in {len(data)} bytes')
+        markers, offset = [], 8
+        for _ in range(count):
+            marker, offset = _read_marker(data, layout, offset)
+            markers.append(marker)
+    except struct.error as exc:
+        raise ValueError(f'truncated MarkerArray: {exc}') from None
+    if offset > len(data):
+        raise ValueError('truncated MarkerArray')
+    return MarkerArrayView(tuple(markers))
+
+
 class SerializedCommand:
     """A received serialized Twist, TwistStamped or WrenchStamped and its six numbers.
 
@@ -327,6 +473,9 @@ _SOLIDS = (Marker.CUBE, Marker.CYLINDER, Marker.SPHERE)
 
 
 def _points(points):
+    """(N, 3) array of a marker's points: a message's Point list, or a view's array."""
+    if isinstance(points, np.ndarray):
+        return points
     return np.array([(p.x, p.y, p.z) for p in points], dtype=float).reshape(-1, 3)
 
 
@@ -371,7 +520,7 @@ def _source(marker, tilt, wall_thickness, cylinder_sides):
               None if tilt is None else (q.x, q.y, q.z, q.w))
     if marker.type in _SOLIDS:
         return source
-    return source + tuple((p.x, p.y, p.z) for p in marker.points)
+    return source + (_points(marker.points).tobytes(),)
 
 
 def marker_shape(marker, wall_thickness, cylinder_sides, tilt=None, source=None):

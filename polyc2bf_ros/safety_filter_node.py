@@ -23,9 +23,10 @@ the wrench into rotor thrusts and back.  A stop is a zero twist, or the
 model's braking (hover) wrench.  Nothing is published before the first
 nominal command; after it, every step publishes.
 
-Hot path: odometry and commands are taken serialized and only the numbers
-used are read (``conversions``, CDR section); the answer is a copy of the
-command's bytes with its six numbers replaced, so its header is the input's.
+Hot path: odometry, commands and obstacle MarkerArrays are taken serialized
+and only the fields used are read (``conversions``, CDR section; an unreadable
+obstacle message brakes until a readable one arrives); the answer is a copy of
+the command's bytes with its six numbers replaced, so its header is the input's.
 Diagnostics and markers are built on their own slow timers.
 """
 import dataclasses
@@ -196,7 +197,8 @@ class SafetyFilterNode(Node):
         self.create_subscription(Odometry, 'odom', self._on_odom, sensor_qos, raw=True)
         self.create_subscription(command_type, command_in, self._on_command, command_qos,
                                  raw=True)
-        self.create_subscription(MarkerArray, 'obstacles', self._on_obstacles, latched_qos)
+        self.create_subscription(MarkerArray, 'obstacles', self._on_obstacles, latched_qos,
+                                 raw=True)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 1)
         self.create_service(SetBool, '~/enable', self._on_enable)
@@ -338,10 +340,18 @@ class SafetyFilterNode(Node):
         if self._per_command:
             self._step(now)
 
-    def _on_obstacles(self, msg):
-        """Apply marker updates to the tracker and rebuild the filter's obstacle set."""
+    def _on_obstacles(self, data):
+        """Apply serialized marker updates to the tracker and rebuild the obstacle set."""
         self._watchdog.feed('obstacles', time.monotonic())
-        conversions.apply_markers(self._tracker, msg, self.get_clock().now().nanoseconds * 1e-9,
+        try:
+            markers = conversions.read_marker_array(data)
+        except ValueError as exc:
+            # Unreadable: which obstacles it held is unknown, so brake until a good one.
+            self._obstacle_error = f'malformed obstacle message: {exc}'
+            self._bad_message(f'obstacles ({exc})')
+            return
+        conversions.apply_markers(self._tracker, markers,
+                                  self.get_clock().now().nanoseconds * 1e-9,
                                   self._wall_thickness, self._cylinder_sides)
         if self._tracker.has_invalid:
             self._bad_message('obstacles')

@@ -7,7 +7,8 @@ import pytest
 from geometry_msgs.msg import Point, Twist, TwistStamped, WrenchStamped
 from hypothesis import given, settings, strategies as st
 from rclpy.serialization import deserialize_message, serialize_message
-from visualization_msgs.msg import Marker, MarkerArray
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker, MarkerArray, UVCoordinate
 
 from node_harness import odometry, wall
 from polyc2bf_ros import conversions
@@ -164,6 +165,137 @@ def test_big_endian_and_malformed_bytes():
         conversions.SerializedCommand(data[:30], stamped=True)
     with pytest.raises(ValueError, match='truncated'):
         conversions.read_odometry(serialize_message(odometry())[:100])
+
+
+_TEXT = st.text(st.characters(blacklist_categories=('Cs',), blacklist_characters='\x00'),
+                max_size=12)  # what a C string in UTF-8 holds
+_FLOATS = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+@st.composite
+def _markers(draw):
+    """Draw a Marker with every field set, the ones obstacles skip included."""
+    marker = Marker(ns=draw(_TEXT), id=draw(st.integers(-2**31, 2**31 - 1)),
+                    type=draw(st.integers(0, 12)), action=draw(st.sampled_from([0, 2, 3])))
+    marker.header.frame_id = draw(_FRAMES)
+    marker.header.stamp.sec = draw(st.integers(0, 2**31 - 1))
+    marker.header.stamp.nanosec = draw(st.integers(0, 999_999_999))
+    p, q, scale = marker.pose.position, marker.pose.orientation, marker.scale
+    p.x, p.y, p.z, q.x, q.y, q.z, q.w, scale.x, scale.y, scale.z = draw(
+        st.lists(_FLOATS, min_size=10, max_size=10))
+    marker.frame_locked = draw(st.booleans())
+    marker.points = [Point(x=x, y=y, z=z) for x, y, z in draw(
+        st.lists(st.tuples(_FLOATS, _FLOATS, _FLOATS), max_size=6))]
+    marker.colors = [ColorRGBA(r=0.5)] * draw(st.integers(0, 3))
+    marker.texture_resource, marker.text, marker.mesh_resource = (draw(_TEXT) for _ in range(3))
+    marker.texture.header.frame_id, marker.texture.format = draw(_TEXT), draw(_TEXT)
+    marker.texture.data = draw(st.binary(max_size=9))
+    marker.uv_coordinates = [UVCoordinate(u=0.25, v=0.5)] * draw(st.integers(0, 3))
+    marker.mesh_file.filename = draw(_TEXT)
+    marker.mesh_file.data = draw(st.binary(max_size=9))
+    marker.mesh_use_embedded_materials = draw(st.booleans())
+    return marker
+
+
+def _same_marker(view, marker):
+    """Assert that the fields a MarkerView carries equal the message's."""
+    header, pose = marker.header, marker.pose
+    assert view.header.frame_id == header.frame_id
+    assert view.header.stamp == (header.stamp.sec, header.stamp.nanosec)
+    assert (view.ns, view.id, view.type, view.action) == (marker.ns, marker.id, marker.type,
+                                                          marker.action)
+    assert view.pose.position == (pose.position.x, pose.position.y, pose.position.z)
+    assert view.pose.orientation == (pose.orientation.x, pose.orientation.y,
+                                     pose.orientation.z, pose.orientation.w)
+    assert view.scale == (marker.scale.x, marker.scale.y, marker.scale.z)
+    assert view.points.tolist() == [[p.x, p.y, p.z] for p in marker.points]
+
+
+@settings(max_examples=60, deadline=None)
+@given(markers=st.lists(_markers(), max_size=4))
+def test_serialized_marker_arrays_agree_with_rclpy(markers):
+    """``read_marker_array`` finds every used field behind any strings, colours and meshes."""
+    data = serialize_message(MarkerArray(markers=markers))
+    views = conversions.read_marker_array(data).markers
+    assert len(views) == len(markers)
+    for view, marker in zip(views, markers):
+        _same_marker(view, marker)
+    for cut in sorted({len(data) - 1, len(data) // 2, 5}):
+        if markers:
+            with pytest.raises(ValueError, match='truncated|past the end|markers in'):
+                conversions.read_marker_array(data[:cut])
+
+
+def test_marker_views_give_the_obstacles_messages_give():
+    """The node's path (serialized -> views) and typed messages build the same obstacle set."""
+    tilted = _solid(Marker.CUBE, scale=(1.0, 2.0, 0.5))
+    tilted.id = 2
+    tilted.pose.orientation.x, tilted.pose.orientation.w = math.sin(0.2), math.cos(0.2)
+    msg = MarkerArray(markers=[wall([(2.0, -1.0), (2.0, 1.0)], marker_id=i) for i in range(3)]
+                      + [_solid(Marker.CYLINDER, scale=(0.6, 0.6, 1.0)), tilted])
+    sets = []
+    for given_msg in (msg, conversions.read_marker_array(serialize_message(msg))):
+        tracker = ObstacleTracker()
+        conversions.apply_markers(tracker, given_msg, 1.0, 0.05, 12)
+        sets.append(tracker.obstacle_set('odom', 3)[0])
+    typed, viewed = sets
+    assert len(typed) == len(viewed) == 5
+    np.testing.assert_array_equal(typed.footprints.vertices, viewed.footprints.vertices)
+    np.testing.assert_array_equal(typed.z_ranges, viewed.z_ranges)
+
+
+def test_big_endian_marker_arrays_read_the_same():
+    """CDR in big-endian byte order (encapsulation 0x0000) gives the same views."""
+    msg = MarkerArray(markers=[wall([(2.0, -1.0), (2.0, 1.0), (3.0, 0.5)])])
+    little = conversions.read_marker_array(serialize_message(msg)).markers[0]
+    big = conversions.read_marker_array(_big_endian_marker_array(msg)).markers[0]
+    assert big[:7] == little[:7]
+    np.testing.assert_array_equal(big.points, little.points)
+    assert big.points.dtype == np.float64 and big.points.flags.writeable
+
+
+def _big_endian_marker_array(msg):
+    """Serialize a MarkerArray of LINE_STRIP markers (no optional content) as big-endian CDR."""
+    out = bytearray(b'\x00\x00\x00\x00')
+
+    def align(size):
+        out.extend(bytes(-(len(out) - 4) % size))
+
+    def put(fmt, *values):
+        align(struct.calcsize('>' + fmt.lstrip('0123456789')[0]))
+        out.extend(struct.pack('>' + fmt, *values))
+
+    def string(text):
+        raw = text.encode() + b'\x00'
+        put('I', len(raw))
+        out.extend(raw)
+
+    put('I', len(msg.markers))
+    for m in msg.markers:
+        put('iI', m.header.stamp.sec, m.header.stamp.nanosec)
+        string(m.header.frame_id)
+        string(m.ns)
+        put('3i', m.id, m.type, m.action)
+        p, q, s = m.pose.position, m.pose.orientation, m.scale
+        put('10d', p.x, p.y, p.z, q.x, q.y, q.z, q.w, s.x, s.y, s.z)
+        put('4f', 0.0, 0.0, 0.0, 0.0)
+        put('iI', 0, 0)
+        put('?', False)
+        put('I', len(m.points))
+        for point in m.points:
+            put('3d', point.x, point.y, point.z)
+        put('I', 0)  # colors
+        string('')  # texture_resource
+        put('iI', 0, 0)
+        string('')
+        string('')
+        put('I', 0)  # texture data
+        put('I', 0)  # uv_coordinates
+        for _ in range(3):  # text, mesh_resource, mesh_file.filename
+            string('')
+        put('I', 0)  # mesh_file.data
+        put('?', False)
+    return bytes(out)
 
 
 def test_non_finite_odometry_is_refused_even_inside_the_quaternion():

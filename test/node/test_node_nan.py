@@ -2,6 +2,7 @@
 import math
 
 import pytest
+from rclpy.serialization import serialize_message
 
 from node_harness import (
     Harness,
@@ -35,7 +36,8 @@ def test_non_finite_inputs_brake_and_never_reach_the_output():
         def feed():
             io.odom.publish(inputs['odom'])
             io.cmd.publish(inputs['cmd'])
-            io.obstacles.publish(markers(inputs['wall']))
+            obstacles = inputs['wall']
+            io.obstacles.publish(obstacles if isinstance(obstacles, bytes) else markers(obstacles))
 
         def moving():
             return bool(out) and out[-1][1].linear.x > 0.4
@@ -55,7 +57,8 @@ def test_non_finite_inputs_brake_and_never_reach_the_output():
                           ('cmd', twist(math.nan)),
                           ('cmd', twist(0.5, omega=-math.inf)),
                           ('cmd', b'\x00\x01\x00\x00\x00\x00'),
-                          ('wall', bad_wall)):
+                          ('wall', bad_wall),
+                          ('wall', serialize_message(markers(good['wall']))[:-40])):
             inputs[name] = bad
             assert h.spin_until(stopped, 5.0, feed, 1.0 / RATE), f'no brake on bad {name}'
             if isinstance(bad, bytes):  # refused as malformed, not merely gone stale
