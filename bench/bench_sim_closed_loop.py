@@ -24,8 +24,9 @@ TwistStamped: one hop each, as odom -> nominal -> filter -> bridge), 3000
 rounds after warm-up.  Both sides wait on lean rcl wait sets, so this is the
 bound no Python node of this design can beat: 1 / (120 Hz * round time).
 
-Records are merged into ``--out``: records of the same case with
-``closed_loop: true`` are replaced, the sim-only ones of bench/bench_sim.py kept.
+Records (``transport: dds``) are merged into ``--out``: this benchmark's
+earlier records of the same cases are replaced; the world-alone and in-process
+records of bench/bench_sim.py are kept.
 """
 import argparse
 import json
@@ -154,6 +155,7 @@ def run_case(case, duration, workdir, record_filter_markers):
     for (kind, _), before, after in zip(processes, first[1], samples[-1][1]):
         cpu_ms[kind] = cpu_ms.get(kind, 0.0) + 1e3 * (after - before) / periods
     return {'bench': 'sim', 'case': case, 'robots': robots, 'closed_loop': True,
+            'transport': 'dds',
             'filter': with_filter, 'filter_markers_recorded': record_filter_markers,
             'real_time_factor': result['real_time_factor'], 'rss_mb': round(rss, 1),
             'sim_seconds': result['sim_time_s'], 'wall_seconds': result['wall_time_s'],
@@ -237,6 +239,7 @@ def floor(hops, workdir):
         stop_processes(relays, timeout=10)
     times = 1e3 * np.array(times)
     return {'bench': 'sim', 'case': f'dds_floor_{hops}_hops', 'closed_loop': True,
+            'transport': 'dds',
             'hops': hops, 'rounds': FLOOR_ROUNDS,
             'round_ms_mean': round(float(times.mean()), 3),
             'round_ms_p50': round(float(np.percentile(times, 50)), 3),
@@ -249,7 +252,7 @@ def merge(out, records):
     """Replace this benchmark's records of the same cases in ``out``, keep all others."""
     existing = json.loads(out.read_text()) if out.exists() else []
     cases = {r['case'] for r in records}
-    kept = [r for r in existing if not (r.get('closed_loop') and r.get('case') in cases)]
+    kept = [r for r in existing if not (r.get('transport') == 'dds' and r.get('case') in cases)]
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(kept + records, indent=1) + '\n')
 
