@@ -356,6 +356,7 @@ class SimWorld:
         self.steps = 0
         self._gui = gui
         self._synced_step = 0
+        self._states = {}
         self._client = pb.connect(pb.GUI if gui else pb.DIRECT)
         client = self._client
         pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
@@ -451,8 +452,16 @@ class SimWorld:
             self.obstacle_version += 1
 
     def robot_state(self, robot):
-        """Return ``robot``'s state in the core model's layout (unicycle or quadrotor)."""
-        return self._robots[robot].robot_state()
+        """Return ``robot``'s state in the core model's layout (unicycle or quadrotor).
+
+        Read from the plant once per physics step (a Crazyflie's costs four
+        PyBullet queries), a copy per call.
+        """
+        step, state = self._states.get(robot, (None, None))
+        if step != self.steps:
+            state = self._robots[robot].robot_state()
+            self._states[robot] = (self.steps, state)
+        return state.copy()
 
     def body_twist(self, robot):
         """Return ``robot``'s twist in its body frame: (vx, vy, vz, wx, wy, wz)."""
