@@ -110,15 +110,15 @@ def _load_ahead_of_time():
 AHEAD_OF_TIME = _load_ahead_of_time()
 
 
-def argument_checks(signature):
-    """Return per argument of ``signature`` None (a scalar) or (dtype, ndim, contiguous)."""
-    depth, start = 0, len(signature) - 1
+def argument_checks(numba_signature):
+    """Return per argument of a signature None (a scalar) or (dtype, ndim, contiguous)."""
+    depth, start = 0, len(numba_signature) - 1
     while True:  # the argument list is the last parenthesised group
-        depth += {')': 1, '(': -1}.get(signature[start], 0)
+        depth += {')': 1, '(': -1}.get(numba_signature[start], 0)
         if depth == 0:
             break
         start -= 1
-    arguments = signature[start + 1:-1]
+    arguments = numba_signature[start + 1:-1]
     checks = []
     for argument in re.split(r',\s*(?![^\[]*\])', arguments):
         match = _ARRAY.match(argument.strip())
