@@ -139,8 +139,7 @@ class _Robot:
         self.states[0] = state
         self.nominal = np.zeros((steps, dim))
         self.commands = np.zeros((steps, dim))
-        self.u_nom = np.zeros((steps, inputs))
-        self.u = np.zeros((steps, inputs))
+        self.inputs = inputs
         self.statuses = []
         self.latency = np.full(steps, np.nan)
 
@@ -159,24 +158,35 @@ class _Robot:
             status = info.status.value
         self.nominal[k] = nominal
         self.commands[k] = command
-        interface = self.reference.interface
-        if interface is not None:
-            # u_nom = (v_cmd - v) / tau as the filter sees it; u from v_safe = v + u T,
-            # with v = [v, omega] of the unicycle state (the quadruped's model).
-            self.u_nom[k] = interface.nominal_input(state, nominal)
-            self.u[k] = (command - state[3:5]) / interface.period
-        else:
-            self.u_nom[k] = crazyflie.thrusts_from_wrench(nominal)
-            self.u[k] = crazyflie.thrusts_from_wrench(command)
         self.statuses.append(status)
         return command
+
+    def _model_inputs(self):
+        """Return (u_nom, u) per period, in the model's inputs, from the recorded commands.
+
+        Velocity commands: u_nom = (v_cmd - v) / tau as the filter sees it, u from
+        v_safe = v + u T with v = [v, omega] of the unicycle state; wrenches: the
+        rotor thrusts M^-1 w.  Computed after the run, outside the timed loop.
+        """
+        steps = len(self.times)
+        u_nom, u = np.zeros((steps, self.inputs)), np.zeros((steps, self.inputs))
+        interface = self.reference.interface
+        for k in range(steps):
+            state = self.states[k]
+            if interface is not None:
+                u_nom[k] = interface.nominal_input(state, self.nominal[k])
+                u[k] = (self.commands[k] - state[3:5]) / interface.period
+            else:
+                u_nom[k] = crazyflie.thrusts_from_wrench(self.nominal[k])
+                u[k] = crazyflie.thrusts_from_wrench(self.commands[k])
+        return u_nom, u
 
     def trace(self):
         """Return the recorded RobotTrace."""
         model = self.reference.model
         return RobotTrace(self.spec.name, self.spec.type, self.spec.goal,
                           (model.input_lower, model.input_upper), self.times, self.states,
-                          self.nominal, self.commands, self.u_nom, self.u, self.statuses,
+                          self.nominal, self.commands, *self._model_inputs(), self.statuses,
                           self.latency)
 
 
