@@ -234,6 +234,10 @@ class _Layout:
         self.marker_ids = struct.Struct(order + '3i')
         self.pose_scale = struct.Struct(order + '10d')
         self.double = np.dtype(order + 'f8')
+        # A Marker's fields from colors to mesh_file.data when all are empty (zero padding).
+        empty, nothing = self.length.pack(1) + bytes(4), self.length.pack(0)
+        self.empty_marker_tail = (nothing + empty + self.stamp.pack(0, 0) + empty * 2
+                                  + nothing * 2 + empty * 3 + nothing)
 
 
 _LAYOUTS = {b'\x00\x01': _Layout('<'), b'\x00\x00': _Layout('>')}
@@ -371,6 +375,23 @@ def _skip_sequence(data, layout, offset, item_size, item_align):
     return offset
 
 
+def _skip_marker_tail(data, layout, offset):
+    """Offset after a Marker's fields from colors to mesh_use_embedded_materials (unused)."""
+    offset = _aligned(offset, 4)
+    if data.startswith(layout.empty_marker_tail, offset):  # all empty: one comparison
+        return offset + len(layout.empty_marker_tail) + 1
+    offset = _skip_sequence(data, layout, offset, 16, 4)  # colors
+    _, offset = _string(data, layout, offset)  # texture_resource
+    offset = _aligned(offset, 4) + 8  # texture.header.stamp
+    for _ in range(2):  # texture.header.frame_id, texture.format
+        _, offset = _string(data, layout, offset)
+    offset = _skip_sequence(data, layout, offset, 1, 1)  # texture.data
+    offset = _skip_sequence(data, layout, offset, 8, 4)  # uv_coordinates
+    for _ in range(3):  # text, mesh_resource, mesh_file.filename
+        _, offset = _string(data, layout, offset)
+    return _skip_sequence(data, layout, offset, 1, 1) + 1  # mesh_file.data, use_materials
+
+
 def _read_marker(data, layout, offset):
     """``(MarkerView, offset after)`` of the Marker serialized at ``offset``.
 
@@ -399,16 +420,7 @@ def _read_marker(data, layout, offset):
         points = np.frombuffer(data, layout.double, 3 * count, offset).astype(
             np.float64).reshape(count, 3)  # a native, writable copy
         offset += 24 * count
-    offset = _skip_sequence(data, layout, offset, 16, 4)  # colors
-    _, offset = _string(data, layout, offset)  # texture_resource
-    offset = _aligned(offset, 4) + 8  # texture.header.stamp
-    for _ in range(2):  # texture.header.frame_id, texture.format
-        _, offset = _string(data, layout, offset)
-    offset = _skip_sequence(data, layout, offset, 1, 1)  # texture.data
-    offset = _skip_sequence(data, layout, offset, 8, 4)  # uv_coordinates
-    for _ in range(3):  # text, mesh_resource, mesh_file.filename
-        _, offset = _string(data, layout, offset)
-    offset = _skip_sequence(data, layout, offset, 1, 1) + 1  # mesh_file.data, use_materials
+    offset = _skip_marker_tail(data, layout, offset)
     view = MarkerView(Header(Time(sec, nanosec), frame.decode(errors='replace')),
                       ns.decode(errors='replace'), marker_id, kind, action,
                       Pose(XYZ(px, py, pz), Quaternion(qx, qy, qz, qw)), XYZ(sx, sy, sz),
