@@ -432,8 +432,8 @@ def read_marker_array(data):
     """``MarkerArrayView`` of a serialized MarkerArray; ``ValueError`` if malformed.
 
     Reads only what obstacles need (``MarkerView``) and skips colours, text,
-    textures and meshes; rclpy's own deserialization builds every field as a
-    Python object and costs 10-50x more per message.
+    textures and meshes: 6-8x faster than rclpy's deserialization, which builds
+    every field as a Python object (12 markers: 0.16 ms against 1.3 ms here).
     """
     layout = _layout(data)
     try:
