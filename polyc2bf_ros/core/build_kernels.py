@@ -4,7 +4,8 @@
 
 Imports every core module with ``POLYC2BF_KERNELS=jit`` (so each exported
 kernel registers itself in ``jit.EXPORTS`` with its signature), compiles them
-into one extension module with numba's ``pycc`` for this machine's CPU, and
+into one extension module with numba's ``pycc`` for a generic CPU of this
+architecture (as fast here as tuning for the host, and safe to copy), and
 writes the digest of the sources beside it (``jit`` uses the extension only
 while the digest matches).  Each export is a thin function calling the numba
 kernel, so the kernel keeps its ``error_model='numpy'`` and the helpers it calls.
@@ -42,7 +43,7 @@ def build(verbose=True):
         from numba.pycc import CC
     compiler = CC('_kernels')
     compiler.output_dir = str(jit.CORE)
-    compiler.target_cpu = 'host'
+    compiler.target_cpu = 'generic'  # runs on any x86-64 (no host-only instructions)
     compiler.verbose = False
     for name, (kernel, signature) in sorted(jit.EXPORTS.items()):
         arity = len(jit.argument_checks(signature))
