@@ -164,6 +164,18 @@ def _factors(record):
     return f'{record["real_time_factor"]:.1f} ({runs[0]:.1f}-{runs[-1]:.1f})'
 
 
+def _table(title, header, cases, run, repeats, cells):
+    """Run ``run(case)`` ``repeats`` times per case; print a row per case; return the records."""
+    print(f'{title}\n{"case":<24} {"robots":>6} {"RTF wall (range)":>18} {header}')
+    records = []
+    for name in cases:
+        record = repeated(lambda: run(name), repeats)
+        records.append(record)
+        print(f'{name:<24} {record["robots"]:>6} {_factors(record):>18} {cells(record)}',
+              flush=True)
+    return records
+
+
 def main(argv=None):
     """Run every case, print a table and write the JSON records."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -174,24 +186,16 @@ def main(argv=None):
                         metavar='1..10', help='runs per case; the median is reported')
     parser.add_argument('--out', default='bench/results/sim.json')
     args = parser.parse_args(argv)
-    print(f'{"case":<24} {"robots":>6} {"RTF wall (range)":>18} {"RTF cpu":>8} {"physics":>8} '
-          f'{"RSS MB":>7} {"build s":>8}')
-    records = []
-    for name in args.case or CASES:
-        record = repeated(lambda: run_case(name, args.seconds), args.repeats)
-        records.append(record)
-        print(f'{name:<24} {record["robots"]:>6} {_factors(record):>18} '
-              f'{record["cpu_real_time_factor"]:>8.1f} {record["physics_share"]:>8.0%} '
-              f'{record["rss_mb"]:>7.0f} {record["build_s"]:>8.2f}', flush=True)
-    print(f'\nclosed loop in process (nominal law + CommandFilter + world, no DDS)\n'
-          f'{"case":<24} {"robots":>6} {"RTF wall (range)":>18} {"filter p50 us":>14} '
-          f'{"p99 us":>8} {"non-ok":>7} {"RSS MB":>7}')
-    for name in args.case or CASES:
-        record = repeated(lambda: run_closed_loop_case(name, args.seconds), args.repeats)
-        records.append(record)
-        print(f'{name:<24} {record["robots"]:>6} {_factors(record):>18} '
-              f'{record["filter_p50_us"]:>14.0f} {record["filter_p99_us"]:>8.0f} '
-              f'{record["non_ok_steps"]:>7} {record["rss_mb"]:>7.0f}', flush=True)
+    cases = args.case or list(CASES)
+    records = _table('world alone', f'{"RTF cpu":>8} {"physics":>8} {"RSS MB":>7} {"build s":>8}',
+                     cases, lambda name: run_case(name, args.seconds), args.repeats,
+                     lambda r: (f'{r["cpu_real_time_factor"]:>8.1f} {r["physics_share"]:>8.0%} '
+                                f'{r["rss_mb"]:>7.0f} {r["build_s"]:>8.2f}'))
+    records += _table('\nclosed loop in process (nominal law + CommandFilter + world, no DDS)',
+                      f'{"filter p50 us":>14} {"p99 us":>8} {"non-ok":>7} {"RSS MB":>7}', cases,
+                      lambda name: run_closed_loop_case(name, args.seconds), args.repeats,
+                      lambda r: (f'{r["filter_p50_us"]:>14.0f} {r["filter_p99_us"]:>8.0f} '
+                                 f'{r["non_ok_steps"]:>7} {r["rss_mb"]:>7.0f}'))
     write_records(records, args.out)
     return records
 
