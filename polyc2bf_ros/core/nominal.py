@@ -4,9 +4,9 @@ Like the paper's PD reference controllers, these stand in for any planner.
 Each returns the model's input (accelerations or rotor thrusts).
 
 They run every control period for every robot of a simulation, so the small
-vector algebra is spelled out on floats; norms and dot products stay numpy's
-(``v.dot(v)``, ``@``) and angles ``np.arctan2`` (its SIMD version rounds
-differently from ``math.atan2``), so the commands are the same to the bit.
+vector algebra is spelled out on floats (norms and dot products stay numpy's,
+``v.dot(v)``, and angles ``np.arctan2``, whose SIMD version rounds differently
+from ``math.atan2``), and the quadrotor's law is one compiled kernel.
 """
 import math
 from dataclasses import dataclass
@@ -14,9 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from polyc2bf_ros.core import crazyflie as cf
+from polyc2bf_ros.core.jit import F1, F2, kernel, signature
 from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 
-_GRAVITY_UP = np.array([0.0, 0.0, cf.GRAVITY])
+_INERTIA = np.ascontiguousarray(cf.INERTIA, dtype=np.float64)
 
 
 def _norm(vector):
@@ -99,24 +100,50 @@ class QuadrotorGoalController:
     mass: float = cf.MASS
 
     def wrench(self, state, goal):
-        """Return [T, tau_x, tau_y, tau_z]."""
-        error = np.asarray(goal, dtype=float)[:3] - state[0:3]
-        accel = _clip_norm(self.position_gain * error, self.max_accel)
-        accel = accel - self.velocity_gain * state[3:6] + _GRAVITY_UP
-        roll, pitch, yaw = state[6:9].tolist()
-        rot = rotation_matrix(roll, pitch, yaw)
-        thrust = self.mass * accel @ rot[:, 2]
-        # Attitude error in the body frame: rotate body z onto z_desired = a*/|a*|, yaw to 0.
-        (bx, by, bz), (dx, dy, dz) = rot[:, 2].tolist(), (accel / _norm(accel)).tolist()
-        tilt_error = rot.T @ np.array([by * dz - bz * dy, bz * dx - bx * dz, bx * dy - by * dx])
-        yaw_error = -((yaw + math.pi) % (2 * math.pi) - math.pi)
-        attitude_error = np.array([tilt_error[0], tilt_error[1], yaw_error])
+        """Return [T, tau_x, tau_y, tau_z] (``_quadrotor_wrench``: the law in one kernel)."""
         wrench = np.empty(4)
-        wrench[0] = thrust
-        wrench[1:] = cf.INERTIA @ (self.attitude_gain * attitude_error
-                                   - self.rate_gain * state[9:12])
+        _quadrotor_wrench(np.ascontiguousarray(state, dtype=np.float64),
+                          np.ascontiguousarray(goal, dtype=np.float64), float(self.position_gain),
+                          float(self.velocity_gain), float(self.max_accel),
+                          float(self.attitude_gain), float(self.rate_gain), float(self.mass),
+                          _INERTIA, wrench)
         return wrench
 
     def __call__(self, state, goal):
         """Return rotor thrusts (not clipped; the filter clips to the input box)."""
         return cf.thrusts_from_wrench(self.wrench(state, goal))
+
+
+@kernel(signature('void', F1, F1, 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', F2, F1))
+def _quadrotor_wrench(state, goal, position_gain, velocity_gain, max_accel, attitude_gain,
+                      rate_gain, mass, inertia, out):
+    """Write ``QuadrotorGoalController``'s [T, tau] into ``out`` (law in the class docstring).
+
+    e = goal - p; a* = k_p e scaled to norm <= a_max, - k_d v + g e_z; with R the
+    body-to-world rotation and b = R e_z, T = m <a*, b>; e_R = R^T (b x a*/|a*|) in
+    x, y and -wrap(yaw) in z; tau = I (k_R e_R - k_w w).
+    """
+    ex = position_gain * (goal[0] - state[0])
+    ey = position_gain * (goal[1] - state[1])
+    ez = position_gain * (goal[2] - state[2])
+    norm = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if norm > max_accel:
+        scale = max_accel / norm
+        ex, ey, ez = ex * scale, ey * scale, ez * scale
+    ax = ex - velocity_gain * state[3]
+    ay = ey - velocity_gain * state[4]
+    az = ez - velocity_gain * state[5] + cf.GRAVITY
+    rot = rotation_matrix(state[6], state[7], state[8])
+    bx, by, bz = rot[0, 2], rot[1, 2], rot[2, 2]
+    out[0] = mass * (ax * bx + ay * by + az * bz)
+    length = math.sqrt(ax * ax + ay * ay + az * az)
+    dx, dy, dz = ax / length, ay / length, az / length
+    cx, cy, cz = by * dz - bz * dy, bz * dx - bx * dz, bx * dy - by * dx
+    error = (attitude_gain * (rot[0, 0] * cx + rot[1, 0] * cy + rot[2, 0] * cz)
+             - rate_gain * state[9],
+             attitude_gain * (rot[0, 1] * cx + rot[1, 1] * cy + rot[2, 1] * cz)
+             - rate_gain * state[10],
+             attitude_gain * -((state[8] + math.pi) % (2.0 * math.pi) - math.pi)
+             - rate_gain * state[11])
+    for i in range(3):
+        out[1 + i] = inertia[i, 0] * error[0] + inertia[i, 1] * error[1] + inertia[i, 2] * error[2]
