@@ -14,8 +14,6 @@ Call ``RunMetrics.update()`` once per control period (it runs one batch of
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from sim_bridge.world import COLLISION_TOLERANCE
 
 GOAL_TOLERANCE = 0.25  # m
@@ -49,27 +47,26 @@ class RunMetrics:
         self.world = world
         self.goal_tolerance = float(goal_tolerance)
         self.robots = {name: RobotMetrics() for name in world.robot_names}
-        self._goals = {name: world.robot_spec(name).goal for name in world.robot_names}
+        self._goals = {name: world.robot_spec(name).goal.tolist() for name in world.robot_names}
         self._last = {name: self._position(name) for name in world.robot_names}
 
     def _position(self, robot):
-        """Return the robot's position in its goal's dimension."""
-        goal = self._goals[robot]
-        return self.world.robot_state(robot)[:goal.size]
+        """Return the robot's position in its goal's dimension, as a list."""
+        return self.world.robot_state(robot)[:len(self._goals[robot])].tolist()
 
     def update(self):
         """Sample every robot at the world's current time."""
         time = round(self.world.time, 6)
         for name, metrics in self.robots.items():
             position = self._position(name)
-            metrics.path_length_m += float(np.linalg.norm(position - self._last[name]))
+            metrics.path_length_m += math.dist(position, self._last[name])
             self._last[name] = position
-            clearance = float(np.min(self.world.clearances(name), initial=math.inf))
+            clearance = min(self.world.clearances(name).tolist(), default=math.inf)
             metrics.min_clearance_m = min(metrics.min_clearance_m, clearance)
             if clearance < -COLLISION_TOLERANCE and not metrics.collision:
                 metrics.collision, metrics.collision_time_s = True, time
             if (not metrics.goal_reached
-                    and np.linalg.norm(position - self._goals[name]) <= self.goal_tolerance):
+                    and math.dist(position, self._goals[name]) <= self.goal_tolerance):
                 metrics.goal_reached, metrics.time_to_goal_s = True, time
 
     def to_json(self):
