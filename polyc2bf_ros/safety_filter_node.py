@@ -156,6 +156,7 @@ class SafetyFilterNode(Node):
         self._tracker = ObstacleTracker()
         self._obstacle_set = ObstacleSet.empty()
         self._obstacle_error = ''
+        self._unreadable_obstacles = ''
         self._wrong_frame = {}
         self._t_ref = math.nan
 
@@ -341,15 +342,19 @@ class SafetyFilterNode(Node):
             self._step(now)
 
     def _on_obstacles(self, data):
-        """Apply serialized marker updates to the tracker and rebuild the obstacle set."""
-        self._watchdog.feed('obstacles', time.monotonic())
+        """Apply serialized marker updates to the tracker and rebuild the obstacle set.
+
+        An unreadable message brakes until the next readable one (which obstacles it
+        held is unknown) and does not count as fresh obstacles for the watchdog.
+        """
         try:
             markers = conversions.read_marker_array(data)
         except ValueError as exc:
-            # Unreadable: which obstacles it held is unknown, so brake until a good one.
-            self._obstacle_error = f'malformed obstacle message: {exc}'
+            self._unreadable_obstacles = f'malformed obstacle message: {exc}'
             self._bad_message(f'obstacles ({exc})')
             return
+        self._unreadable_obstacles = ''
+        self._watchdog.feed('obstacles', time.monotonic())
         conversions.apply_markers(self._tracker, markers,
                                   self.get_clock().now().nanoseconds * 1e-9,
                                   self._wall_thickness, self._cylinder_sides)
@@ -412,7 +417,7 @@ class SafetyFilterNode(Node):
             self._publish_stop(cmd)
             return
         if not (self._odom_valid and self._cmd_valid and not self._tracker.has_invalid
-                and not self._obstacle_error):
+                and not self._obstacle_error and not self._unreadable_obstacles):
             self._counts['invalid_input'] += 1
             self._publish_stop(cmd)
             return
@@ -492,8 +497,7 @@ class SafetyFilterNode(Node):
         errors, warnings = [], []
         if rejected:
             errors.append(f'{len(rejected)} obstacles rejected')
-        if self._obstacle_error:
-            errors.append(self._obstacle_error)
+        errors += [e for e in (self._obstacle_error, self._unreadable_obstacles) if e]
         if window['invalid_input']:
             errors.append('NaN/Inf input: braking')
         if not self._enabled:
