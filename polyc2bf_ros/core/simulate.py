@@ -5,7 +5,7 @@ PyBullet bridge is the full-physics counterpart.  The filter runs every
 ``control_period``; between samples the input is held and the model's own
 dynamics are integrated with RK4 at ``physics_step``.
 """
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -75,11 +75,8 @@ def rollout(model, safety_filter, controller, x0, goal, obstacles, duration,
         inputs.append(u)
         nominal.append(u_nom)
         statuses.append(info.status)
-        moved = obstacles.footprints.translated(
-            np.broadcast_to((age + period) * obstacles.velocities[:, :2],
-                            (len(obstacles), 2))) if len(obstacles) else obstacles.footprints
-        clearances.append(clearance(model, x, replace(obstacles, footprints=moved),
-                                    safety_filter.config.robot_radius))
+        moved = obstacles.translated((age + period) * obstacles.velocities[:, :2])
+        clearances.append(clearance(model, x, moved, safety_filter.config.robot_radius))
     return Rollout(states=np.array(states), inputs=np.array(inputs),
                    nominal=np.array(nominal), statuses=statuses,
                    clearances=np.array(clearances))
