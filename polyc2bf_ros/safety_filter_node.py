@@ -412,7 +412,7 @@ class SafetyFilterNode(Node):
         if not self._enabled:
             self._pass_through(cmd, now)
             return
-        if self._watchdog.stale(now):
+        if self._watchdog.any_stale(now):
             self._counts['stale_stop'] += 1
             self._publish_stop(cmd)
             return

@@ -47,34 +47,43 @@ class BarrierTerms:
         return cls(h=block[0], lf_h=block[1], lg_h=block[2:])
 
 
+@kernel
+def barrier_column(px, py, shape, ds_dpx, ds_dpy, projections, velocities, position_rate,
+                   drift, input_matrix, eps_sq, out, first, n):
+    """Write h, Lf h, Lg h of one cone into rows ``first``... of column ``n`` of ``out``.
+
+    The cone of obstacle n is given by p = (px, py), s = ``shape`` and ds/dp, the obstacles'
+    projections P (N, 2, d) and velocities c_dot (N, d) (see the module docstring).
+    """
+    dim, inputs = input_matrix.shape
+    vx = vy = ax = ay = 0.0
+    for d in range(dim):
+        rate = velocities[n, d] - position_rate[d]
+        vx += projections[n, 0, d] * rate
+        vy += projections[n, 1, d] * rate
+        ax -= projections[n, 0, d] * drift[d]
+        ay -= projections[n, 1, d] * drift[d]
+    speed = math.sqrt(vx * vx + vy * vy + eps_sq)
+    dh_dpx, dh_dpy = vx + speed * ds_dpx, vy + speed * ds_dpy
+    dh_dvx, dh_dvy = px + (shape / speed) * vx, py + (shape / speed) * vy
+    out[first, n] = px * vx + py * vy + speed * shape
+    out[first + 1, n] = dh_dpx * vx + dh_dpy * vy + (dh_dvx * ax + dh_dvy * ay)
+    for j in range(inputs):
+        bx = by = 0.0
+        for d in range(dim):
+            bx += projections[n, 0, d] * input_matrix[d, j]
+            by += projections[n, 1, d] * input_matrix[d, j]
+        out[first + 2 + j, n] = -(bx * dh_dvx + by * dh_dvy)
+
+
 @kernel(signature('void', F2, F1, F2, F3, F2, F1, F1, F2, 'f8', F2))
 def _barrier_terms(p, s, ds_dp, projections, velocities, position_rate, drift, input_matrix,
                    velocity_epsilon, out):
-    """Write h, Lf h, Lg h of every obstacle into the rows of ``out`` (see module docstring)."""
-    dim, inputs = input_matrix.shape
+    """Write h, Lf h, Lg h of every obstacle into the rows of ``out`` (``barrier_column``)."""
     eps_sq = velocity_epsilon * velocity_epsilon
     for n in range(s.shape[0]):
-        projection = projections[n]
-        vx = vy = ax = ay = 0.0
-        for d in range(dim):
-            rate = velocities[n, d] - position_rate[d]
-            vx += projection[0, d] * rate
-            vy += projection[1, d] * rate
-            ax += projection[0, d] * drift[d]
-            ay += projection[1, d] * drift[d]
-        ax, ay = -ax, -ay
-        speed = math.sqrt(vx * vx + vy * vy + eps_sq)
-        px, py, shape = p[0, n], p[1, n], s[n]
-        dh_dpx, dh_dpy = vx + speed * ds_dp[0, n], vy + speed * ds_dp[1, n]
-        dh_dvx, dh_dvy = px + (shape / speed) * vx, py + (shape / speed) * vy
-        out[0, n] = px * vx + py * vy + speed * shape
-        out[1, n] = dh_dpx * vx + dh_dpy * vy + (dh_dvx * ax + dh_dvy * ay)
-        for j in range(inputs):
-            bx = by = 0.0
-            for d in range(dim):
-                bx += projection[0, d] * input_matrix[d, j]
-                by += projection[1, d] * input_matrix[d, j]
-            out[2 + j, n] = -(bx * dh_dvx + by * dh_dvy)
+        barrier_column(p[0, n], p[1, n], s[n], ds_dp[0, n], ds_dp[1, n], projections,
+                       velocities, position_rate, drift, input_matrix, eps_sq, out, 0, n)
 
 
 def barrier_terms(cones, projections, velocities, reference, velocity_epsilon,

@@ -50,8 +50,7 @@ class CommandFilter:
 
     def filter(self, state, yaw, command, obstacles, obstacle_age=0.0):
         """Return ``(safe command, FilterInfo)`` for a nominal ``command`` at ``state``."""
-        command = np.asarray(command, dtype=float)
-        if not (np.isfinite(command).all() and math.isfinite(yaw)):
+        if not (all(map(math.isfinite, command)) and math.isfinite(yaw)):
             info = FilterInfo(status=FilterStatus.INVALID_INPUT,
                               message='non-finite nominal command or yaw')
             return self.stop(state), info

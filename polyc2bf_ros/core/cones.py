@@ -31,6 +31,12 @@ circle, the depth is ``extension - d(q)`` (``R - |q - c|`` for a circle) and the
 direction is grad d: (q - c)/|q - c| for the nearest boundary point c outside,
 the outward normal of the nearest edge inside (for a convex polygon the
 nearest boundary point from inside lies on that edge).
+
+On the filter's hot path ``plane`` runs, per obstacle, the viewpoint, the cone
+and the barrier terms in one compiled pass; it is built from the same
+per-obstacle functions as ``fill`` and ``barrier.barrier_terms``
+(``polygon_cone``, ``circle_cone``, ``barrier_column``), so both give the same
+numbers.
 """
 import abc
 import math
@@ -39,12 +45,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from polyc2bf_ros.core import batch_geometry
+from polyc2bf_ros.core.barrier import barrier_column
 from polyc2bf_ros.core.geometry import PolygonBatch
-from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
+from polyc2bf_ros.core.jit import B1, F1, F2, F3, I1, kernel, signature
+from polyc2bf_ros.core.views import viewpoint
 
 _TINY = 1e-12
 CONE_ROWS = 7
 """Rows of a cone block: p (2), k (2), s (1), ds_dp (2), one column per obstacle."""
+PLANE_ROWS = 2 + CONE_ROWS
+"""Rows of a plane block before the barrier terms: viewpoint (2), then the cone."""
 
 
 def dot2(a, b):
@@ -138,6 +148,26 @@ class ConeModel(abc.ABC):
     def fill(self, prepared, viewpoints, block, valid):
         """Write the cones seen from ``viewpoints`` (2, 1 or N) into ``block`` and ``valid``."""
 
+    def plane(self, prepared, view, velocities, offsets, age, reference, velocity_epsilon):
+        """Return (block, valid) of one plane: per obstacle, viewpoint, cone, barrier terms.
+
+        The filter's hot path in one compiled pass: ``block`` (``PLANE_ROWS`` + 2 + m, N)
+        holds rows 0-1 the viewpoints P_n (r - age c_dot_n - o_n) of ``view``
+        (``polyc2bf_ros.core.views``), then the cone (``CONE_ROWS``, as ``fill``), then h,
+        Lf h, Lg h (``polyc2bf_ros.core.barrier``) at the ``reference`` kinematics.
+        """
+        count = view.projections.shape[0]
+        block = np.empty((PLANE_ROWS + 2 + reference.input_matrix.shape[1], count))
+        valid = np.empty(count, dtype=np.bool_)
+        self.fill_plane(prepared, view.projections, velocities, offsets, float(age), reference,
+                        velocity_epsilon, block, valid)
+        return block, valid
+
+    @abc.abstractmethod
+    def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
+                   velocity_epsilon, block, valid):
+        """Write ``plane``'s block and validity."""
+
     def exits(self, prepared, viewpoints):
         """Return (3, N): the unit outward direction (rows 0-1) and the depth (row 2).
 
@@ -155,77 +185,118 @@ class ConeModel(abc.ABC):
 
 
 @kernel
-def _nearest_edge(x, y, edge_x, edge_y, inv_sq, count, qx, qy):
-    """Return (|d|^2, k, d_x, d_y, inside) for the polygon's edge nearest to q.
+def _nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy):
+    """Return (|d|^2, k, d_x, d_y, inside) for the edge of polygon ``n`` nearest to q.
 
     d = r_k - t_k e_k is the offset of q from edge k's nearest point, r_k = q - v_k,
     t_k = clip(<r_k, e_k> / |e_k|^2, 0, 1); inside: q is left of (or on) every edge.
     """
     best, nearest, best_x, best_y, inside = math.inf, 0, 0.0, 0.0, True
     for k in range(count):
-        rx, ry = -(x[k] - qx), -(y[k] - qy)
-        t = min(max((rx * edge_x[k] + ry * edge_y[k]) * inv_sq[k], 0.0), 1.0)
-        dx, dy = rx - t * edge_x[k], ry - t * edge_y[k]
+        rx, ry = -(x[n, k] - qx), -(y[n, k] - qy)
+        t = min(max((rx * edge_x[n, k] + ry * edge_y[n, k]) * inv_sq[n, k], 0.0), 1.0)
+        dx, dy = rx - t * edge_x[n, k], ry - t * edge_y[n, k]
         if dx * dx + dy * dy < best:
             best, nearest, best_x, best_y = dx * dx + dy * dy, k, dx, dy
-        inside = inside and edge_x[k] * ry >= edge_y[k] * rx
+        inside = inside and edge_x[n, k] * ry >= edge_y[n, k] * rx
     return best, nearest, best_x, best_y, inside
+
+
+@kernel
+def polygon_cone(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, extension):
+    """Return (px, py, kx, ky, s, ds_dpx, ds_dpy, valid): the PolyC2BF cone of polygon n.
+
+    Silhouette vertices (module docstring): edge k faces the viewpoint q when q is
+    strictly right of it, cross(e_k, v_k - q) > 0; the facing edges form one chain: A
+    is the vertex where it ends (the first whose incoming edge faces and outgoing edge
+    does not), B the one where it starts.  With ``extension`` > 0 the cone is only
+    valid when q is farther than it from the polygon.
+    """
+    last = count - 1
+    incoming = edge_x[n, last] * (y[n, last] - qy) > edge_y[n, last] * (x[n, last] - qx)
+    a = b = -1
+    seen = False
+    for k in range(count):
+        facing = edge_x[n, k] * (y[n, k] - qy) > edge_y[n, k] * (x[n, k] - qx)
+        if incoming and not facing and a < 0:
+            a = k
+        if facing and not incoming and b < 0:
+            b = k
+        seen = seen or facing
+        incoming = facing
+        if a >= 0 and b >= 0:
+            break  # both ends of the (single) facing chain found
+    a, b = max(a, 0), max(b, 0)
+    ax, ay = x[n, a] - qx, y[n, a] - qy
+    bx, by = x[n, b] - qx, y[n, b] - qy
+    px, py = 0.5 * (ax + bx), 0.5 * (ay + by)
+    if extension != 0.0:
+        ux, uy = bx - ax, by - ay
+        scale = extension / max(math.sqrt(ux * ux + uy * uy), _TINY)
+        ux *= scale
+        uy *= scale
+        ax, ay, bx, by = ax - ux, ay - uy, bx + ux, by + uy
+    a_norm = max(math.sqrt(ax * ax + ay * ay), _TINY)
+    b_norm = max(math.sqrt(bx * bx + by * by), _TINY)
+    a_cos = (px * ax + py * ay) / a_norm
+    b_cos = (px * bx + py * by) / b_norm
+    if a_cos < b_cos:  # the closer vertex makes the larger angle with p
+        s, k_norm, kx, ky = a_cos, a_norm, ax, ay
+    else:
+        s, k_norm, kx, ky = b_cos, b_norm, bx, by
+    hx, hy = kx / k_norm, ky / k_norm
+    if seen and extension > 0.0:
+        square = _nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)[0]
+        seen = math.sqrt(square) > extension
+    return (px, py, kx, ky, s, hx + (px - s * hx) / k_norm, hy + (py - s * hy) / k_norm,
+            seen)
+
+
+@kernel
+def store_cone(out, first, n, cone):
+    """Write ``cone``'s p, k, s, ds/dp into rows ``first``... of column ``n``; return valid."""
+    out[first, n], out[first + 1, n], out[first + 2, n], out[first + 3, n] = cone[:4]
+    out[first + 4, n], out[first + 5, n], out[first + 6, n] = cone[4:7]
+    return cone[7]
+
+
+@kernel
+def fill_plane_terms(block, projections, velocities, position_rate, drift, input_matrix,
+                     eps_sq):
+    """Write the barrier terms of the cones in a plane ``block`` (rows ``PLANE_ROWS``...).
+
+    A loop of its own after the cones: one loop doing both ran ~40 % slower (numba 0.68).
+    """
+    for n in range(block.shape[1]):
+        barrier_column(block[2, n], block[3, n], block[6, n], block[7, n], block[8, n],
+                       projections, velocities, position_rate, drift, input_matrix, eps_sq,
+                       block, PLANE_ROWS, n)
 
 
 @kernel(signature('void', F2, F2, F2, F2, F2, I1, F2, 'f8', F2, B1))
 def _polygon_cones(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, extension, out, valid):
-    """Build PolyC2BF cones from silhouette vertices (see module docstring).
-
-    Edge k faces the viewpoint q when q is strictly right of it, cross(e_k, v_k - q) > 0;
-    the facing edges form one chain: A is the vertex where it ends (the first whose
-    incoming edge faces and outgoing edge does not), B the one where it starts.  With
-    ``extension`` > 0 the cone is only valid when q is farther than it from the polygon.
-    """
+    """Write the ``polygon_cone`` of every polygon seen from ``viewpoints`` (2, 1 or N)."""
     shared = viewpoints.shape[1] == 1
     for n in range(counts.shape[0]):
         j = 0 if shared else n
-        qx = viewpoints[0, j]
-        qy = viewpoints[1, j]
-        last = counts[n] - 1
-        incoming = edge_x[n, last] * (y[n, last] - qy) > edge_y[n, last] * (x[n, last] - qx)
-        a = b = -1
-        seen = False
-        for k in range(counts[n]):
-            facing = edge_x[n, k] * (y[n, k] - qy) > edge_y[n, k] * (x[n, k] - qx)
-            if incoming and not facing and a < 0:
-                a = k
-            if facing and not incoming and b < 0:
-                b = k
-            seen = seen or facing
-            incoming = facing
-            if a >= 0 and b >= 0:
-                break  # both ends of the (single) facing chain found
-        a, b = max(a, 0), max(b, 0)
-        ax, ay = x[n, a] - qx, y[n, a] - qy
-        bx, by = x[n, b] - qx, y[n, b] - qy
-        px, py = 0.5 * (ax + bx), 0.5 * (ay + by)
-        if extension != 0.0:
-            ux, uy = bx - ax, by - ay
-            scale = extension / max(math.sqrt(ux * ux + uy * uy), _TINY)
-            ux *= scale
-            uy *= scale
-            ax, ay, bx, by = ax - ux, ay - uy, bx + ux, by + uy
-        a_norm = max(math.sqrt(ax * ax + ay * ay), _TINY)
-        b_norm = max(math.sqrt(bx * bx + by * by), _TINY)
-        a_cos = (px * ax + py * ay) / a_norm
-        b_cos = (px * bx + py * by) / b_norm
-        if a_cos < b_cos:  # the closer vertex makes the larger angle with p
-            s, k_norm, kx, ky = a_cos, a_norm, ax, ay
-        else:
-            s, k_norm, kx, ky = b_cos, b_norm, bx, by
-        hx, hy = kx / k_norm, ky / k_norm
-        out[0, n], out[1, n], out[2, n], out[3, n], out[4, n] = px, py, kx, ky, s
-        out[5, n] = hx + (px - s * hx) / k_norm
-        out[6, n] = hy + (py - s * hy) / k_norm
-        if seen and extension > 0.0:
-            seen = math.sqrt(_nearest_edge(x[n], y[n], edge_x[n], edge_y[n], inv_sq[n],
-                                           counts[n], qx, qy)[0]) > extension
-        valid[n] = seen
+        valid[n] = store_cone(out, 0, n, polygon_cone(
+            x, y, edge_x, edge_y, inv_sq, counts[n], n, viewpoints[0, j], viewpoints[1, j],
+            extension))
+
+
+@kernel(signature('void', F2, F2, F2, F2, F2, I1, 'f8', F3, F1, F2, F2, 'f8', F1, F1, F2, 'f8',
+                  F2, B1))
+def _polygon_plane(x, y, edge_x, edge_y, inv_sq, counts, extension, projections, position,
+                   velocities, offsets, age, position_rate, drift, input_matrix,
+                   velocity_epsilon, block, valid):
+    """Per polygon: viewpoint, ``polygon_cone`` and barrier terms (``ConeModel.fill_plane``)."""
+    for n in range(counts.shape[0]):
+        qx, qy = viewpoint(projections, position, velocities, offsets, age, n)
+        block[0, n], block[1, n] = qx, qy
+        valid[n] = store_cone(block, 2, n, polygon_cone(x, y, edge_x, edge_y, inv_sq, counts[n],
+                                                        n, qx, qy, extension))
+    fill_plane_terms(block, projections, velocities, position_rate, drift, input_matrix,
+                     velocity_epsilon * velocity_epsilon)
 
 
 @kernel(signature('void', F2, F2, F2, F2, F2, I1, F2, 'f8', F2))
@@ -234,8 +305,8 @@ def _polygon_exits(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, extension, 
     shared = viewpoints.shape[1] == 1
     for n in range(counts.shape[0]):
         j = 0 if shared else n
-        square, k, dx, dy, inside = _nearest_edge(x[n], y[n], edge_x[n], edge_y[n], inv_sq[n],
-                                                  counts[n], viewpoints[0, j], viewpoints[1, j])
+        square, k, dx, dy, inside = _nearest_edge(x, y, edge_x, edge_y, inv_sq, counts[n], n,
+                                                  viewpoints[0, j], viewpoints[1, j])
         distance = math.sqrt(square)
         if inside or distance == 0.0:  # the nearest edge's outward normal
             norm = math.sqrt(inv_sq[n, k])
@@ -255,6 +326,14 @@ class _PolygonCone(ConeModel):
         _polygon_cones(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                        prepared.inv_sq, prepared.counts, viewpoints, self.extension, block,
                        valid)
+
+    def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
+                   velocity_epsilon, block, valid):
+        """Run the fused silhouette kernel."""
+        _polygon_plane(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                       prepared.inv_sq, prepared.counts, self.extension, projections,
+                       reference.position, velocities, offsets, age, reference.velocity,
+                       reference.drift, reference.input_matrix, velocity_epsilon, block, valid)
 
     def fill_exits(self, prepared, viewpoints, out):
         """Run the exit kernel."""
@@ -313,27 +392,45 @@ class Circles:
         return self.radii.size
 
 
+@kernel
+def circle_cone(cx, cy, radius, qx, qy):
+    """Return (px, py, kx, ky, s, ds_dpx, ds_dpy, valid): the C3BF cone of one circle.
+
+    s = sqrt(|p|^2 - R^2), ds/dp = p / s; the boundary ray k is p rotated by the
+    half-angle phi (cos phi = s / |p|, sin phi = R / |p|) and scaled to the tangent
+    length s.
+    """
+    px, py = cx - qx, cy - qy
+    distance_sq = px * px + py * py
+    clearance_sq = distance_sq - radius * radius
+    s = math.sqrt(max(clearance_sq, _TINY))
+    distance = math.sqrt(max(distance_sq, _TINY))
+    cos_phi, sin_phi = s / distance, radius / distance
+    return (px, py, cos_phi * (cos_phi * px - sin_phi * py),
+            cos_phi * (sin_phi * px + cos_phi * py), s, px / s, py / s, clearance_sq > 0.0)
+
+
 @kernel(signature('void', F2, F1, F2, F2, B1))
 def _circle_cones(centres, radii, viewpoints, out, valid):
-    """Build C3BF cones: s = sqrt(|p|^2 - R^2), ds/dp = p / s.
-
-    The boundary ray k is p rotated by the half-angle phi (cos phi = s / |p|,
-    sin phi = R / |p|) and scaled to the tangent length s.
-    """
+    """Write the ``circle_cone`` of every circle seen from ``viewpoints`` (2, 1 or N)."""
     shared = viewpoints.shape[1] == 1
     for n in range(radii.shape[0]):
         j = 0 if shared else n
-        px, py = centres[0, n] - viewpoints[0, j], centres[1, n] - viewpoints[1, j]
-        distance_sq = px * px + py * py
-        clearance_sq = distance_sq - radii[n] * radii[n]
-        s = math.sqrt(max(clearance_sq, _TINY))
-        distance = math.sqrt(max(distance_sq, _TINY))
-        cos_phi, sin_phi = s / distance, radii[n] / distance
-        out[0, n], out[1, n], out[4, n] = px, py, s
-        out[2, n] = cos_phi * (cos_phi * px - sin_phi * py)
-        out[3, n] = cos_phi * (sin_phi * px + cos_phi * py)
-        out[5, n], out[6, n] = px / s, py / s
-        valid[n] = clearance_sq > 0.0
+        valid[n] = store_cone(out, 0, n, circle_cone(centres[0, n], centres[1, n], radii[n],
+                                                     viewpoints[0, j], viewpoints[1, j]))
+
+
+@kernel(signature('void', F2, F1, F3, F1, F2, F2, 'f8', F1, F1, F2, 'f8', F2, B1))
+def _circle_plane(centres, radii, projections, position, velocities, offsets, age,
+                  position_rate, drift, input_matrix, velocity_epsilon, block, valid):
+    """Per circle: viewpoint, ``circle_cone`` and barrier terms (``ConeModel.fill_plane``)."""
+    for n in range(radii.shape[0]):
+        qx, qy = viewpoint(projections, position, velocities, offsets, age, n)
+        block[0, n], block[1, n] = qx, qy
+        valid[n] = store_cone(block, 2, n, circle_cone(centres[0, n], centres[1, n], radii[n],
+                                                       qx, qy))
+    fill_plane_terms(block, projections, velocities, position_rate, drift, input_matrix,
+                     velocity_epsilon * velocity_epsilon)
 
 
 @kernel(signature('void', F2, F1, F2, F2))
@@ -369,6 +466,13 @@ class CircleCone(ConeModel):
     def fill(self, prepared, viewpoints, block, valid):
         """Run the circle kernel."""
         _circle_cones(prepared.centres, prepared.radii, viewpoints, block, valid)
+
+    def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
+                   velocity_epsilon, block, valid):
+        """Run the fused circle kernel."""
+        _circle_plane(prepared.centres, prepared.radii, projections, reference.position,
+                      velocities, offsets, age, reference.velocity, reference.drift,
+                      reference.input_matrix, velocity_epsilon, block, valid)
 
     def fill_exits(self, prepared, viewpoints, out):
         """Run the circle exit kernel."""

@@ -176,10 +176,10 @@ def guarded(name, function, signature):
     return wrapper
 
 
-def _njit(function):
+def _njit(function, **options):
     """Return ``function`` compiled by numba on first call (and cached on disk)."""
     import numba
-    return numba.njit(**JIT_OPTIONS)(function)
+    return numba.njit(**JIT_OPTIONS, **options)(function)
 
 
 def kernel(signature_or_helper):
@@ -189,7 +189,9 @@ def kernel(signature_or_helper):
     (guarded) and a helper stays Python (the compiled kernels contain it).
     """
     if callable(signature_or_helper):
-        return signature_or_helper if AHEAD_OF_TIME is not None else _njit(signature_or_helper)
+        if AHEAD_OF_TIME is not None:
+            return signature_or_helper
+        return _njit(signature_or_helper, inline='always')
     signature = signature_or_helper
 
     def decorate(function):

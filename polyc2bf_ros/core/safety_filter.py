@@ -31,10 +31,11 @@ solution is exactly the same.  The QP front end answers most steps without a
 solver run: u_ref (u_nom, or the escape input) itself when it lies in the box
 and meets every row, or its projection onto one row (``qp._single_active``).
 
-Hot path: per step, a handful of compiled kernels (``polyc2bf_ros.core.jit``:
-built ahead of time, or by numba) compute viewpoints, cones, barrier terms and
-the QP rows for all obstacles; ``SafetyFilter`` runs them all on construction
-(``warm_up``) so that the first real step is as fast as the others.
+Hot path: per step, a few compiled kernels (``polyc2bf_ros.core.jit``: built
+ahead of time, or by numba): per plane one pass computes viewpoints, cones and
+barrier terms of all obstacles (``ConeModel.plane``), one more the QP rows;
+``SafetyFilter`` runs them all on construction (``warm_up``) so that the first
+real step is as fast as the others.
 
 Preparation: per obstacle set the cone model's geometry (inflated polygons,
 enclosing circles, vertical shadows) is computed once and cached.  A set that
@@ -72,15 +73,14 @@ from typing import Optional
 
 import numpy as np
 
-from polyc2bf_ros.core.barrier import barrier_terms, BarrierTerms
-from polyc2bf_ros.core.cones import CONE_MODELS, CONE_ROWS, Cones, make_cone_model
+from polyc2bf_ros.core.barrier import BarrierTerms
+from polyc2bf_ros.core.cones import CONE_MODELS, Cones, make_cone_model, PLANE_ROWS
 from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp import (
     make_solver,
     QPStatus,
-    row_residuals,
     solve_with_shared_slack,
     SOLVERS,
 )
@@ -88,6 +88,7 @@ from polyc2bf_ros.core.views import choose_planes, prepare_views
 
 ACTIVE_TOLERANCE = 1e-7
 _MIN_ROW_NORM = 1e-12
+_K_ROWS = slice(4, 6)  # the boundary rays k in a plane block (after viewpoint and p)
 
 
 class FilterStatus(str, enum.Enum):
@@ -171,17 +172,29 @@ class FilterInfo:
 
 @dataclass(slots=True)
 class Evaluation:
-    """Per obstacle part: cones and barrier terms in the plane used, and which are usable.
+    """Per obstacle part: viewpoint, cone and barrier terms in the plane used (``block``).
 
-    ``vertical`` (N,) tells where a 3-D model uses the vertical plane (None for planar
-    models); ``viewpoints`` holds each plane's (2, N) viewpoints, for the escape direction.
+    ``block`` is a ``ConeModel.plane`` block; ``valid`` (N,) where its cone exists,
+    ``usable`` where any plane's does; ``vertical`` (N,) tells where a 3-D model uses
+    the vertical plane (None for planar models); ``viewpoints`` holds each plane's
+    (2, N) viewpoints, for the escape direction.
     """
 
-    cones: Cones
-    terms: BarrierTerms
+    block: np.ndarray
+    valid: np.ndarray
     usable: np.ndarray
     vertical: Optional[np.ndarray]
     viewpoints: tuple
+
+    @property
+    def cones(self):
+        """Return the cones (views into ``block``)."""
+        return Cones.from_block(self.block[2:PLANE_ROWS], self.valid)
+
+    @property
+    def terms(self):
+        """Return h, Lf h, Lg h (views into ``block``)."""
+        return BarrierTerms.from_block(self.block[PLANE_ROWS:])
 
     @property
     def inside(self):
@@ -200,13 +213,14 @@ class Evaluation:
 class _Prepared:
     """Everything per obstacle set that does not change between steps, and row buffers.
 
-    ``velocities`` (N, d) are the obstacles' c_dot in the robot's d dimensions and
-    ``offsets`` (N, d) how far they moved from where ``views`` has them (zero unless
-    the set is a translation, see ``polyc2bf_ros.core.views``); ``rows_a`` (N, m),
-    ``rows_b``, ``index`` and ``residual`` (N,) are scratch space for the QP rows (the
-    first ``count`` entries of a step are valid).
+    ``count`` obstacle parts; ``velocities`` (N, d) are their c_dot in the robot's d
+    dimensions and ``offsets`` (N, d) how far they moved from where ``views`` has them
+    (zero unless the set is a translation, see ``polyc2bf_ros.core.views``); ``rows_a``
+    (N, m), ``rows_b`` and ``index`` (N,) are scratch space for the QP rows (the first
+    rows of a step are valid).
     """
 
+    count: int
     views: tuple
     velocities: np.ndarray
     offsets: np.ndarray
@@ -214,31 +228,41 @@ class _Prepared:
     rows_a: np.ndarray
     rows_b: np.ndarray
     index: np.ndarray
-    residual: np.ndarray
-
-    @property
-    def count(self):
-        """Return the number of obstacle parts."""
-        return self.velocities.shape[0]
 
     def translated(self, offsets, velocities):
         """Return the same views and buffers with obstacles moved by ``offsets`` (N, d)."""
-        return _Prepared(views=self.views, velocities=velocities, offsets=offsets,
-                         finite=self.finite, rows_a=self.rows_a, rows_b=self.rows_b,
-                         index=self.index, residual=self.residual)
+        return _Prepared(count=self.count, views=self.views, velocities=velocities,
+                         offsets=offsets, finite=self.finite, rows_a=self.rows_a,
+                         rows_b=self.rows_b, index=self.index)
 
 
-@kernel(signature('UniTuple(i8, 2)', F1, F1, F2, B1, 'f8', 'f8', F1, F1, 'b1', F2, F1, I1, F1))
-def _assemble_rows(h, lf_h, lg_h, usable, margin, gamma, lower, upper, prune, rows_a, rows_b,
-                   index, h_out):
+@kernel(signature('i8', F2, F1, F1, I1, 'f8', I1))
+def _active_parts(rows_a, x, rows_b, index, tolerance, out):
+    """Write the obstacle ``index`` of every row with a_i x - b_i <= ``tolerance``; count them."""
+    active = 0
+    for i in range(rows_b.shape[0]):
+        value = 0.0
+        for j in range(x.shape[0]):
+            value += rows_a[i, j] * x[j]
+        if value - rows_b[i] <= tolerance:
+            out[active] = index[i]
+            active += 1
+    return active
+
+
+@kernel(signature('UniTuple(i8, 2)', F2, B1, 'f8', 'f8', F1, F1, 'b1', F2, F1, I1, F1))
+def _assemble_rows(terms, usable, margin, gamma, lower, upper, prune, rows_a, rows_b, index,
+                   h_out):
     """Write the unit-norm QP rows of the needed obstacle parts; return (rows, unusable parts).
 
-    Row of part n: Lg h_n u >= b_n = m - Lf h_n - gamma h_n, divided by |Lg h_n| (the same
-    feasible set, but a well-scaled QP: row norms span 1e1..1e4 for the quadrotor, and a
-    slack measured in input units).  With ``prune``, a row that holds for every u in the
-    box, sum_j min(a_j lower_j, a_j upper_j) >= b_n, is dropped.  ``h_out`` gets h, NaN
-    where no cone is usable (the part is left out: the escape input handles it).
+    ``terms`` (2 + m, N) holds rows h, Lf h, Lg h.  Row of part n: Lg h_n u >= b_n =
+    m - Lf h_n - gamma h_n, divided by |Lg h_n| (the same feasible set, but a
+    well-scaled QP: row norms span 1e1..1e4 for the quadrotor, and a slack measured in
+    input units).  With ``prune``, a row that holds for every u in the box,
+    sum_j min(a_j lower_j, a_j upper_j) >= b_n, is dropped.  ``h_out`` gets h, NaN where
+    no cone is usable (the part is left out: the escape input handles it).
     """
+    h, lf_h, lg_h = terms[0], terms[1], terms[2:]
     count = inside = 0
     for n in range(h.shape[0]):
         if not usable[n]:
@@ -295,6 +319,7 @@ class SafetyFilter:
         self.cone_model = make_cone_model(self.config.barrier, self.config.robot_radius,
                                           self.config.inflation_segments)
         self.solver = make_solver(self.config.solver)
+        self._state_shape, self._input_shape = (model.state_dim,), (model.input_dim,)
         self._weights = np.ones(model.input_dim)
         self._lower = np.ascontiguousarray(model.input_lower, dtype=np.float64)
         self._upper = np.ascontiguousarray(model.input_upper, dtype=np.float64)
@@ -330,7 +355,7 @@ class SafetyFilter:
         start = time.perf_counter()
         state = np.asarray(state, dtype=float)
         u_nom = np.ascontiguousarray(u_nom, dtype=float)
-        if state.shape != (self.model.state_dim,) or u_nom.shape != (self.model.input_dim,):
+        if state.shape != self._state_shape or u_nom.shape != self._input_shape:
             raise ValueError(f'{self.model.name}: state must have shape '
                              f'({self.model.state_dim},) and u_nom ({self.model.input_dim},), '
                              f'got {state.shape} and {u_nom.shape}')
@@ -345,9 +370,8 @@ class SafetyFilter:
                 status=FilterStatus.OK, solve_time_s=time.perf_counter() - start)
         ref = self.model.reference(state)
         evaluation = self._evaluate(prepared, ref, obstacle_age)
-        terms = evaluation.terms
         h = np.empty(prepared.count)
-        count, inside = _assemble_rows(terms.h, terms.lf_h, terms.lg_h, evaluation.usable,
+        count, inside = _assemble_rows(evaluation.block[PLANE_ROWS:], evaluation.usable,
                                        *self._row_settings, prepared.rows_a, prepared.rows_b,
                                        prepared.index, h)
         u_ref, status, message = u_nom, FilterStatus.OK, ''
@@ -369,9 +393,9 @@ class SafetyFilter:
                                    h, evaluation.cones)
             if status == FilterStatus.OK:
                 status = FilterStatus.SLACK
-        residual = prepared.residual[:count]
-        row_residuals(rows_a, u, rows_b, residual)
-        active = prepared.index[:count][residual <= ACTIVE_TOLERANCE + slack]
+        active = np.empty(count, dtype=np.intp)
+        active = active[:_active_parts(rows_a, u, rows_b, prepared.index,
+                                       ACTIVE_TOLERANCE + slack, active)]
         return u, FilterInfo(
             status=status, h=h, active=active, solve_time_s=time.perf_counter() - start,
             num_obstacles=prepared.count, num_constraints=count, slack=float(slack),
@@ -423,32 +447,21 @@ class SafetyFilter:
 
     def _evaluate(self, prepared, ref, age):
         """Evaluate cones and barrier terms in every plane; 3-D: pick the plane per part."""
-        seen = [self._view_terms(view, prepared, ref, age) for view in prepared.views]
-        _, cone_block, valid, term_block = seen[0]
-        vertical, usable = None, valid
-        if len(seen) > 1:
-            _, cone_vertical, valid_vertical, term_vertical = seen[1]
-            vertical, usable = choose_planes(valid, cone_block[2:4], valid_vertical,
-                                             cone_vertical[2:4], prepared.views[1],
-                                             ref.position, prepared.velocities,
-                                             prepared.offsets, age)
-            cone_block = np.where(vertical, cone_vertical, cone_block)
-            valid = np.where(vertical, valid_vertical, valid)
-            term_block = np.where(vertical, term_vertical, term_block)
-        return Evaluation(cones=Cones.from_block(cone_block, valid),
-                          terms=BarrierTerms.from_block(term_block), usable=usable,
-                          vertical=vertical, viewpoints=tuple(view[0] for view in seen))
-
-    def _view_terms(self, view, prepared, ref, age):
-        """Return viewpoints, cone block, validity and barrier-term block of one plane."""
-        viewpoints = view.viewpoints(ref.position, prepared.velocities, prepared.offsets, age)
-        cone_block = np.empty((CONE_ROWS, prepared.count))
-        valid = np.empty(prepared.count, dtype=np.bool_)
-        self.cone_model.fill(view.prepared, viewpoints, cone_block, valid)
-        term_block = np.empty((2 + self.model.input_dim, prepared.count))
-        barrier_terms(Cones.from_block(cone_block, valid), view.projections,
-                      prepared.velocities, ref, self._epsilon, term_block)
-        return viewpoints, cone_block, valid, term_block
+        planes = [self.cone_model.plane(view.prepared, view, prepared.velocities,
+                                        prepared.offsets, age, ref, self._epsilon)
+                  for view in prepared.views]
+        block, valid = planes[0]
+        viewpoints = tuple(plane_block[:2] for plane_block, _ in planes)
+        if len(planes) == 1:
+            return Evaluation(block, valid, valid, None, viewpoints)
+        block_vertical, valid_vertical = planes[1]
+        vertical, usable = choose_planes(valid, block[_K_ROWS], valid_vertical,
+                                         block_vertical[_K_ROWS], prepared.views[1],
+                                         ref.position, prepared.velocities, prepared.offsets,
+                                         age)
+        return Evaluation(np.where(vertical, block_vertical, block),
+                          np.where(vertical, valid_vertical, valid), usable, vertical,
+                          viewpoints)
 
     def prepare(self, obstacles):
         """Precompute the geometry of an obstacle set now (``step`` does it on first use).
@@ -484,8 +497,9 @@ class SafetyFilter:
         """Prepare the views of ``obstacles`` and row buffers for as many parts."""
         dim, count = self.model.position_dim, len(obstacles)
         return _Prepared(
+            count=count,
             views=prepare_views(obstacles, self.cone_model, dim, self.config.robot_radius),
             velocities=np.ascontiguousarray(obstacles.velocities[:, :dim]),
             offsets=np.zeros((count, dim)), finite=finite,
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
-            index=np.empty(count, dtype=np.intp), residual=np.empty(count))
+            index=np.empty(count, dtype=np.intp))

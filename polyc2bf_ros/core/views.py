@@ -72,16 +72,22 @@ class View:
         return out
 
 
+@kernel
+def viewpoint(projections, position, velocities, offsets, age, n):
+    """Return (x, y) = P_n (r - age c_dot_n - o_n): the robot seen from obstacle n's frame."""
+    x = y = 0.0
+    for d in range(position.shape[0]):
+        offset = position[d] - age * velocities[n, d] - offsets[n, d]
+        x += projections[n, 0, d] * offset
+        y += projections[n, 1, d] * offset
+    return x, y
+
+
 @kernel(signature('void', F3, F1, F2, F2, 'f8', F2))
 def _viewpoints(projections, position, velocities, offsets, age, out):
-    """Write P_n (r - age c_dot_n - o_n): the robot seen from obstacle n's frame."""
+    """Write every obstacle's ``viewpoint`` into the columns of ``out`` (2, N)."""
     for n in range(projections.shape[0]):
-        x = y = 0.0
-        for d in range(position.shape[0]):
-            offset = position[d] - age * velocities[n, d] - offsets[n, d]
-            x += projections[n, 0, d] * offset
-            y += projections[n, 1, d] * offset
-        out[0, n], out[1, n] = x, y
+        out[0, n], out[1, n] = viewpoint(projections, position, velocities, offsets, age, n)
 
 
 def prepare_views(obstacles, cone_model, dim, band_margin):

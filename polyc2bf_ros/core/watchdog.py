@@ -55,12 +55,21 @@ class Watchdog:
 
     def is_stale(self, name, now):
         """Return True if ``name`` never arrived or is older than its (non-zero) timeout."""
-        last = self._last[name]
-        if last is None:
-            return True
-        timeout = self._timeouts[name]
-        return timeout > 0.0 and now - last >= timeout
+        return _expired(self._last[name], self._timeouts[name], now)
 
     def stale(self, now):
         """Names of all stale inputs, in construction order (empty tuple if none)."""
         return tuple(name for name in self._timeouts if self.is_stale(name, now))
+
+    def any_stale(self, now):
+        """Return whether any input is stale (``stale`` without naming them: per step)."""
+        last = self._last
+        for name, timeout in self._timeouts.items():
+            if _expired(last[name], timeout, now):
+                return True
+        return False
+
+
+def _expired(last, timeout, now):
+    """Return True if an input last seen at ``last`` (None: never) is stale at ``now``."""
+    return last is None or (timeout > 0.0 and now - last >= timeout)

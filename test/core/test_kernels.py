@@ -16,7 +16,12 @@ from polyc2bf_ros.core.geometry import PolygonBatch, signed_distance_batch
 from polyc2bf_ros.core.models import make_model, ReferenceKinematics
 from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.safety_filter import _assemble_rows, FilterConfig, SafetyFilter
+from polyc2bf_ros.core.safety_filter import (
+    _active_parts,
+    _assemble_rows,
+    FilterConfig,
+    SafetyFilter,
+)
 from polyc2bf_ros.core.views import choose_planes, prepare_views
 from strategies import convex_polygons, random_state
 
@@ -135,6 +140,34 @@ def test_barrier_kernel_matches_numpy(dim, inputs, polygons, seed):
     np.testing.assert_allclose(terms.lg_h, lg_h, rtol=1e-10, atol=1e-10)
 
 
+@pytest.mark.parametrize('cone_model', [PaperCone(0.3), InflatedCone(0.3), CircleCone(0.3)])
+@pytest.mark.parametrize('dim, inputs', [(2, 2), (3, 4)])
+@SETTINGS
+@given(polygons=polygon_lists, seed=st.integers(0, 2 ** 32 - 1))
+def test_fused_plane_matches_viewpoints_cones_and_barrier(cone_model, dim, inputs, polygons,
+                                                          seed):
+    """``ConeModel.plane`` (one pass) equals viewpoints, then ``cones``, then ``barrier_terms``."""
+    rng = np.random.default_rng(seed)
+    count = len(polygons)
+    obstacles = ObstacleSet.from_obstacles([
+        Obstacle(polygon=p, velocity=rng.uniform(-1, 1, 3), z_min=0.0, z_max=2.0)
+        for p in polygons])
+    velocities = np.ascontiguousarray(obstacles.velocities[:, :dim])
+    offsets = rng.uniform(-1, 1, (count, dim))
+    ref = ReferenceKinematics(*(rng.normal(size=dim) for _ in range(3)),
+                              input_matrix=rng.normal(size=(dim, inputs)))
+    age = rng.uniform(0.0, 0.5)
+    for view in prepare_views(obstacles, cone_model, dim, 0.3):
+        block, valid = cone_model.plane(view.prepared, view, velocities, offsets, age, ref, 0.05)
+        viewpoints = view.viewpoints(ref.position, velocities, offsets, age)
+        cones = cone_model.cones(view.prepared, viewpoints)
+        terms = barrier_terms(cones, view.projections, velocities, ref, 0.05)
+        np.testing.assert_array_equal(valid, cones.valid)
+        want = np.vstack((viewpoints, cones.p, cones.k, cones.s, cones.ds_dp, terms.h,
+                          terms.lf_h, terms.lg_h))
+        np.testing.assert_allclose(block, want, **CLOSE)
+
+
 def reference_rows(h, lf_h, lg_h, usable, margin, gamma, lower, upper, prune):
     """Return (A, b, index, h with NaN) by the numpy formulation of the filter's rows."""
     b = margin - lf_h - gamma * h
@@ -162,8 +195,8 @@ def test_row_assembly_matches_numpy(seed, count, inputs, prune):
     lower = -rng.uniform(0.1, 2.0, inputs)
     rows_a, rows_b = np.empty((count, inputs)), np.empty(count)
     index, h_out = np.empty(count, dtype=np.intp), np.empty(count)
-    kept, inside = _assemble_rows(h, lf_h, lg_h, usable, 0.01, 1.5, lower, upper, prune,
-                                  rows_a, rows_b, index, h_out)
+    kept, inside = _assemble_rows(np.vstack((h, lf_h, lg_h)), usable, 0.01, 1.5, lower, upper,
+                                  prune, rows_a, rows_b, index, h_out)
     A, b, want_index, want_h = reference_rows(h, lf_h, lg_h, usable, 0.01, 1.5, lower, upper,
                                               prune)
     assert kept == want_index.size and inside == (~usable).sum()
@@ -179,8 +212,9 @@ def test_pruning_keeps_rows_with_unbounded_inputs():
     rows_a, rows_b, index, h = np.empty((2, 2)), np.empty(2), np.empty(2, dtype=np.intp), \
         np.empty(2)
     lower, upper = np.array([-np.inf, -1.0]), np.array([np.inf, 1.0])
-    kept, _ = _assemble_rows(np.full(2, 5.0), np.zeros(2), lg_h, np.ones(2, dtype=bool), 0.0,
-                             1.0, lower, upper, True, rows_a, rows_b, index, h)
+    terms = np.vstack((np.full(2, 5.0), np.zeros(2), lg_h))
+    kept, _ = _assemble_rows(terms, np.ones(2, dtype=bool), 0.0, 1.0, lower, upper, True,
+                             rows_a, rows_b, index, h)
     # Row 0: worst = -1 >= b = -5: pruned.  Row 1: worst = -inf < -5: kept.
     assert kept == 1 and index[0] == 1
 
@@ -198,6 +232,19 @@ def test_row_residuals_match_numpy(seed, m, n):
     if m:
         b[rng.integers(m)] = np.nan
         assert np.isnan(qp.row_residuals(A, x, b, out))
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), m=st.integers(0, 12), n=st.integers(1, 5))
+def test_active_parts_match_numpy(seed, m, n):
+    """The obstacle indices of the rows with A x - b <= tolerance, in row order."""
+    rng = np.random.default_rng(seed)
+    A, x = rng.normal(size=(m, n)), rng.normal(size=n)
+    b = A @ x - rng.choice([0.0, 1e-9, 1.0], size=m)  # some rows exactly or nearly active
+    index = rng.permutation(3 * m)[:m].astype(np.intp)
+    out = np.empty(m, dtype=np.intp)
+    count = _active_parts(A, x, b, index, 1e-7, out)
+    np.testing.assert_array_equal(out[:count], index[(A @ x - b) <= 1e-7])
 
 
 def reference_body_point(model, x):

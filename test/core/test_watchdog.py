@@ -2,6 +2,7 @@
 import math
 
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from polyc2bf_ros.core.watchdog import Watchdog
 
@@ -58,3 +59,16 @@ def test_bad_timeouts_are_refused(bad):
     """Negative, NaN and infinite timeouts raise with the input name."""
     with pytest.raises(ValueError, match='cmd'):
         Watchdog({'cmd': bad})
+
+
+@settings(max_examples=200, deadline=None)
+@given(timeouts=st.lists(st.sampled_from([0.0, 0.1, 0.5]), min_size=1, max_size=4),
+       fed=st.lists(st.one_of(st.none(), st.floats(0.0, 2.0)), min_size=4, max_size=4),
+       now=st.floats(0.0, 3.0))
+def test_any_stale_says_whether_stale_names_any(timeouts, fed, now):
+    """``any_stale`` is ``bool(stale(now))`` for any timeouts and arrival times."""
+    dog = Watchdog({f'input{i}': timeout for i, timeout in enumerate(timeouts)})
+    for name, last in zip(dog.names, fed):
+        if last is not None:
+            dog.feed(name, last)
+    assert dog.any_stale(now) == bool(dog.stale(now))
