@@ -15,6 +15,7 @@ import importlib
 import os
 import pkgutil
 import sys
+import tempfile
 import time
 import warnings
 
@@ -28,7 +29,17 @@ def _forwarder(kernel, arity):
 
 
 def build(verbose=True):
-    """Compile every exported kernel; return the path of the extension module."""
+    """Compile every exported kernel with a fresh numba cache; return the extension's path.
+
+    Not the on-disk cache: it keeps a kernel compiled with an older version of a helper
+    from another file (numba checks only the kernel's own file).
+    """
+    with tempfile.TemporaryDirectory(prefix='polyc2bf_kernels_') as cache:
+        os.environ['NUMBA_CACHE_DIR'] = cache
+        return _compile(verbose)
+
+
+def _compile(verbose):
     os.environ['POLYC2BF_KERNELS'] = 'jit'
     import polyc2bf_ros.core as core
     from polyc2bf_ros.core import jit

@@ -34,7 +34,11 @@ Conventions for kernels:
 * ``@kernel(signature('void', F2, 'f8', ...))`` marks a kernel called from
   Python, with its numba signature (C-contiguous arrays ``F1``-``F3``;
   ``'f8[:, :]'`` where callers pass strided views); a bare ``@kernel`` marks a
-  helper called only from other kernels.
+  helper called only from other kernels, which numba inlines into them
+  (``inline='always'``: a helper call otherwise costs reference counting of every
+  array it is passed).  Numba's on-disk cache does not notice when a helper in
+  another file changes; the ahead-of-time build never uses it, and in
+  just-in-time mode deleting ``__pycache__/*.nbi`` clears it.
 """
 import hashlib
 import os
