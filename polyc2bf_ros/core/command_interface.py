@@ -52,22 +52,29 @@ class VelocityCommandInterface:
         self.velocity_dim = self._slice.stop - self._slice.start
         self.tau = float(tau)
         self.period = float(period)
-        self._buf = np.zeros(self.velocity_dim)
 
-    def _to_world(self, cmd, yaw, out):
-        out[:] = cmd
+    def _rotated(self, vector, yaw):
+        """Return ``vector`` as a list of floats, turned by Rz(yaw) where the model says so.
+
+        Plain floats: this runs twice per filter step, where numpy's per-call cost on
+        two or three numbers would exceed the arithmetic.
+        """
+        values = [float(v) for v in vector]
         if self._rotate:
             c, s = math.cos(yaw), math.sin(yaw)
-            out[0] = c * cmd[0] - s * cmd[1]
-            out[1] = s * cmd[0] + c * cmd[1]
-        return out
+            x, y = values[0], values[1]
+            values[0], values[1] = c * x - s * y, s * x + c * y
+        return values
 
     def nominal_input(self, state, cmd, yaw=0.0):
         """``u_nom = (Rz(yaw) v_cmd - v) / tau`` (no rotation for the unicycle)."""
-        v_cmd = self._to_world(cmd, yaw, self._buf)
-        return (v_cmd - state[self._slice]) / self.tau
+        tau = self.tau
+        return np.array([(c - v) / tau for c, v in zip(
+            self._rotated(cmd, yaw), np.asarray(state)[self._slice].tolist())])
 
     def safe_command(self, state, u_safe, yaw=0.0):
         """``v_safe = Rz(yaw)^T (v + u_safe T)`` in command coordinates."""
-        v_world = state[self._slice] + np.asarray(u_safe) * self.period
-        return self._to_world(v_world, -yaw, np.empty(self.velocity_dim))
+        period = self.period
+        v_world = [v + u * period for v, u in zip(np.asarray(state)[self._slice].tolist(),
+                                                  np.asarray(u_safe).tolist())]
+        return np.array(self._rotated(v_world, -yaw))

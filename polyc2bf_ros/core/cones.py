@@ -148,24 +148,27 @@ class ConeModel(abc.ABC):
     def fill(self, prepared, viewpoints, block, valid):
         """Write the cones seen from ``viewpoints`` (2, 1 or N) into ``block`` and ``valid``."""
 
-    def plane(self, prepared, view, velocities, offsets, age, reference, velocity_epsilon):
+    def plane(self, prepared, view, velocities, offsets, age, reference, velocity_epsilon,
+              checked=True):
         """Return (block, valid) of one plane: per obstacle, viewpoint, cone, barrier terms.
 
         The filter's hot path in one compiled pass: ``block`` (``PLANE_ROWS`` + 2 + m, N)
         holds rows 0-1 the viewpoints P_n (r - age c_dot_n - o_n) of ``view``
         (``polyc2bf_ros.core.views``), then the cone (``CONE_ROWS``, as ``fill``), then h,
         Lf h, Lg h (``polyc2bf_ros.core.barrier``) at the ``reference`` kinematics.
+        ``checked=False`` skips the kernel's argument check (``jit``): only for arrays
+        known to be C-contiguous float64, as the filter's own.
         """
         count = view.projections.shape[0]
         block = np.empty((PLANE_ROWS + 2 + reference.input_matrix.shape[1], count))
         valid = np.empty(count, dtype=np.bool_)
         self.fill_plane(prepared, view.projections, velocities, offsets, float(age), reference,
-                        velocity_epsilon, block, valid)
+                        velocity_epsilon, block, valid, checked)
         return block, valid
 
     @abc.abstractmethod
     def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
-                   velocity_epsilon, block, valid):
+                   velocity_epsilon, block, valid, checked):
         """Write ``plane``'s block and validity."""
 
     def exits(self, prepared, viewpoints):
@@ -328,12 +331,13 @@ class _PolygonCone(ConeModel):
                        valid)
 
     def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
-                   velocity_epsilon, block, valid):
+                   velocity_epsilon, block, valid, checked):
         """Run the fused silhouette kernel."""
-        _polygon_plane(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
-                       prepared.inv_sq, prepared.counts, self.extension, projections,
-                       reference.position, velocities, offsets, age, reference.velocity,
-                       reference.drift, reference.input_matrix, velocity_epsilon, block, valid)
+        kernel = _polygon_plane if checked else _polygon_plane.unchecked
+        kernel(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+               prepared.inv_sq, prepared.counts, self.extension, projections,
+               reference.position, velocities, offsets, age, reference.velocity,
+               reference.drift, reference.input_matrix, velocity_epsilon, block, valid)
 
     def fill_exits(self, prepared, viewpoints, out):
         """Run the exit kernel."""
@@ -468,11 +472,12 @@ class CircleCone(ConeModel):
         _circle_cones(prepared.centres, prepared.radii, viewpoints, block, valid)
 
     def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
-                   velocity_epsilon, block, valid):
+                   velocity_epsilon, block, valid, checked):
         """Run the fused circle kernel."""
-        _circle_plane(prepared.centres, prepared.radii, projections, reference.position,
-                      velocities, offsets, age, reference.velocity, reference.drift,
-                      reference.input_matrix, velocity_epsilon, block, valid)
+        kernel = _circle_plane if checked else _circle_plane.unchecked
+        kernel(prepared.centres, prepared.radii, projections, reference.position, velocities,
+               offsets, age, reference.velocity, reference.drift, reference.input_matrix,
+               velocity_epsilon, block, valid)
 
     def fill_exits(self, prepared, viewpoints, out):
         """Run the circle exit kernel."""

@@ -371,9 +371,9 @@ class SafetyFilter:
         ref = self.model.reference(state)
         evaluation = self._evaluate(prepared, ref, obstacle_age)
         h = np.empty(prepared.count)
-        count, inside = _assemble_rows(evaluation.block[PLANE_ROWS:], evaluation.usable,
-                                       *self._row_settings, prepared.rows_a, prepared.rows_b,
-                                       prepared.index, h)
+        count, inside = _assemble_rows.unchecked(
+            evaluation.block[PLANE_ROWS:], evaluation.usable, *self._row_settings,
+            prepared.rows_a, prepared.rows_b, prepared.index, h)
         u_ref, status, message = u_nom, FilterStatus.OK, ''
         if inside:
             u_ref = self._escape_input(ref, self._escape_direction(prepared, evaluation))
@@ -447,8 +447,9 @@ class SafetyFilter:
 
     def _evaluate(self, prepared, ref, age):
         """Evaluate cones and barrier terms in every plane; 3-D: pick the plane per part."""
+        # Unchecked kernels: every array here is the filter's own (``_prepare``, the model).
         planes = [self.cone_model.plane(view.prepared, view, prepared.velocities,
-                                        prepared.offsets, age, ref, self._epsilon)
+                                        prepared.offsets, age, ref, self._epsilon, False)
                   for view in prepared.views]
         block, valid = planes[0]
         viewpoints = tuple(plane_block[:2] for plane_block, _ in planes)
@@ -486,8 +487,8 @@ class SafetyFilter:
             if obstacles.base is not self._base_key:
                 self._base_key, self._base = obstacles.base, self._fresh(obstacles.base, True)
             prepared = self._base.translated(
-                np.ascontiguousarray(obstacles.offsets[:, :dim]),
-                np.ascontiguousarray(obstacles.velocities[:, :dim]))
+                np.ascontiguousarray(obstacles.offsets[:, :dim], dtype=np.float64),
+                np.ascontiguousarray(obstacles.velocities[:, :dim], dtype=np.float64))
         else:
             prepared = self._fresh(obstacles if finite else ObstacleSet.empty(), finite)
         self._cache_key, self._cache = (obstacles if finite else None), prepared
@@ -499,7 +500,7 @@ class SafetyFilter:
         return _Prepared(
             count=count,
             views=prepare_views(obstacles, self.cone_model, dim, self.config.robot_radius),
-            velocities=np.ascontiguousarray(obstacles.velocities[:, :dim]),
+            velocities=np.ascontiguousarray(obstacles.velocities[:, :dim], dtype=np.float64),
             offsets=np.zeros((count, dim)), finite=finite,
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
             index=np.empty(count, dtype=np.intp))

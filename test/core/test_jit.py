@@ -27,7 +27,7 @@ def test_the_built_kernels_are_in_use():
     assert os.environ.get(jit.MODE_VARIABLE, 'auto') != 'jit'
     assert jit.AHEAD_OF_TIME is not None, \
         'run: python -m polyc2bf_ros.core.build_kernels (make does)'
-    assert _viewpoints.__name__ == 'core_views__viewpoints' and hasattr(_viewpoints, 'compiled')
+    assert _viewpoints.__name__ == 'core_views__viewpoints' and hasattr(_viewpoints, 'unchecked')
 
 
 @needs_build

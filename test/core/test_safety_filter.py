@@ -240,3 +240,28 @@ def test_wrong_shapes_are_refused_with_the_expected_shapes(model_name):
         filt.step(state, obstacles, np.zeros(model.input_dim + 1))
     with pytest.raises(ValueError, match='state must have shape'):
         model.reference(np.zeros(model.state_dim + 2))
+
+
+@pytest.mark.parametrize('model_name', MODEL_NAMES)
+@pytest.mark.parametrize('barrier', ['polyc2bf_inflated', 'c3bf'])
+@SETTINGS
+@given(seed=st.integers(0, 2 ** 32 - 1), polygons=obstacle_lists.filter(len))
+def test_odd_array_layouts_give_the_same_step(model_name, barrier, seed, polygons):
+    """Strided state and input, float32 offsets, Fortran-ordered velocities: same answer.
+
+    The filter's per-step kernels skip their argument check (``jit``, ``unchecked``), so
+    the filter itself must turn whatever it is given into C-contiguous float64.
+    """
+    model, state, obstacles, u_nom = _case(model_name, seed, polygons)
+    rng = np.random.default_rng(seed)
+    offsets = rng.uniform(-0.5, 0.5, (len(obstacles), 3)).astype(np.float32)
+    velocities = np.asfortranarray(rng.uniform(-0.5, 0.5, (len(obstacles), 3)))
+    plain = obstacles.translated(offsets.astype(np.float64), np.ascontiguousarray(velocities))
+    want_u, want = SafetyFilter(model, FilterConfig(barrier=barrier)).step(
+        state, plain, u_nom, 0.1)
+    got_u, got = SafetyFilter(model, FilterConfig(barrier=barrier)).step(
+        np.repeat(state, 2)[::2], obstacles.translated(offsets, velocities),
+        np.repeat(u_nom, 2)[::2], 0.1)
+    assert got.status == want.status
+    np.testing.assert_array_equal(got_u, want_u)
+    np.testing.assert_array_equal(got.h, want.h)

@@ -75,8 +75,9 @@ class Unicycle(RobotModel):
     def reference(self, x):
         """Return the kinematics of the point l ahead of the axle."""
         ref = ReferenceKinematics.empty(2, 2)
-        _offset_point(self.as_state(x), self.offset_l, ref.position, ref.velocity, ref.drift,
-                      ref.input_matrix)
+        # Unchecked: as_state and ReferenceKinematics.empty give C-contiguous float64.
+        _offset_point.unchecked(self.as_state(x), self.offset_l, ref.position, ref.velocity,
+                                ref.drift, ref.input_matrix)
         return ref
 
     def braking_input(self, x):
