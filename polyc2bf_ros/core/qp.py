@@ -23,7 +23,6 @@ import abc
 import enum
 import itertools
 import math
-import operator
 from dataclasses import dataclass
 
 import daqp
@@ -239,6 +238,50 @@ def _violated_pairs(x_ref, weights, A, b, lower, upper, x):
     return False
 
 
+_ANSWERED, _EMPTY_BOX, _ZERO_ROW, _GENERAL = range(4)
+"""What ``_front_end`` found: x is the optimum; an empty box; an all-zero row; neither."""
+
+
+@kernel(signature('i8', F1, F1, F2, F1, F1, F1, 'b1', F1))
+def _front_end(x_ref, weights, A, b, lower, upper, shortcut, x):
+    """Run the checks every solve starts with, in one pass; ``_ANSWERED``: x is the optimum.
+
+    In order: x_ref itself when it lies in the box and meets every row to
+    ``FAST_PATH_TOL`` (``row_residuals``' sums); else ``_EMPTY_BOX`` when some
+    lower > upper; ``_ZERO_ROW`` when a row of A is all zero (``solve_checked`` drops or
+    refuses it, then tries the shortcut); else ``_single_active`` if ``shortcut``.
+    NaN fails every comparison, so it ends in ``_GENERAL`` or ``_ZERO_ROW``.
+    """
+    n, m = x_ref.shape[0], b.shape[0]
+    inside = True
+    for j in range(n):
+        inside = inside and lower[j] <= x_ref[j] <= upper[j]
+    if inside:
+        holds = True
+        for i in range(m):
+            value = 0.0
+            for j in range(n):
+                value += A[i, j] * x_ref[j]
+            holds = holds and value - b[i] >= -FAST_PATH_TOL
+        if holds:
+            for j in range(n):
+                x[j] = x_ref[j]
+            return _ANSWERED
+    else:
+        for j in range(n):
+            if lower[j] > upper[j]:
+                return _EMPTY_BOX
+    for i in range(m):
+        zero = True
+        for j in range(n):
+            zero = zero and A[i, j] == 0.0
+        if zero:
+            return _ZERO_ROW
+    if shortcut and _single_active(x_ref, weights, A, b, lower, upper, x):
+        return _ANSWERED
+    return _GENERAL
+
+
 def _feasible(x, A, b, lower, upper):
     """Check that x is finite and meets rows and box to ``FEASIBILITY_TOL``; clip x to the box."""
     clip = False
@@ -291,28 +334,21 @@ class QPSolver(abc.ABC):
         That is: C-contiguous float64 arrays of consistent shapes, weights positive and
         finite.  The safety filter calls this on every step.
         """
-        n, m = x_ref.shape[0], b.shape[0]
-        values, lows, highs = x_ref.tolist(), lower.tolist(), upper.tolist()
-        if all(map(operator.le, lows, values)) and all(map(operator.le, values, highs)):
-            if m == 0:
-                return QPResult(x_ref.copy(), QPStatus.OPTIMAL, 0)
-            if row_residuals(A, x_ref, b, np.empty(m)) >= -FAST_PATH_TOL:
-                return QPResult(x_ref.copy(), QPStatus.OPTIMAL, 0)
-        elif any(map(operator.gt, lows, highs)):
+        x = np.empty(x_ref.shape[0])
+        found = _front_end(x_ref, weights, A, b, lower, upper, self.shortcut, x)
+        if found == _ANSWERED:
+            return QPResult(x, QPStatus.OPTIMAL, 0)
+        if found == _EMPTY_BOX:
             return QPResult(_fallback(x_ref, lower, upper), QPStatus.INFEASIBLE, 0)
-
-        if m and np.count_nonzero(A) < A.size:
+        if found == _ZERO_ROW:
             nonzero = A.any(axis=1)
             if not (b[~nonzero] <= FAST_PATH_TOL).all():
                 status = QPStatus.FAILED if np.isnan(b).any() else QPStatus.INFEASIBLE
                 return QPResult(_fallback(x_ref, lower, upper), status, 0)
             A, b = A[nonzero], b[nonzero]
-            m = b.shape[0]
-
-        x = np.empty(n)
-        if self.shortcut and _single_active(x_ref, weights, A, b, lower, upper, x):
-            return QPResult(x, QPStatus.OPTIMAL, 0)
-        if m == 0:
+            if self.shortcut and _single_active(x_ref, weights, A, b, lower, upper, x):
+                return QPResult(x, QPStatus.OPTIMAL, 0)
+        if b.shape[0] == 0:
             x, status, iterations = np.minimum(np.maximum(x_ref, lower), upper), \
                 QPStatus.OPTIMAL, 0
         else:
