@@ -200,6 +200,8 @@ def values_from_command(command, model_name, nominal=None):
     if nominal is not None:
         for i in KEPT_FIELDS.get(model_name, ()):
             values[i] = nominal[i]
+    if isinstance(command, np.ndarray):
+        command = command.tolist()  # floats at once, not one numpy scalar each
     for i, value in zip(COMMAND_FIELDS[model_name], command):
         values[i] = float(value)
     return values

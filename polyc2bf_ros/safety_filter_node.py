@@ -526,7 +526,7 @@ class SafetyFilterNode(Node):
         apex = cones = None
         if info is not None and self._model.position_dim == 2:
             apex = self._model.reference(self._state).position
-            cones = getattr(info, 'cones', None)
+            cones = info.cones
         self._markers_pub.publish(conversions.filter_markers(
             self._odom_frame, self.get_clock().now().to_msg(), self._obstacle_set.footprints,
             active, apex, cones))

@@ -161,7 +161,12 @@ class FilterInfo:
     num_constraints: int = 0
     slack: float = 0.0
     message: str = ''
-    cones: object = None
+    evaluation: object = field(default=None, repr=False)
+
+    @property
+    def cones(self):
+        """Return the step's cones (views into its ``Evaluation``), or None without one."""
+        return None if self.evaluation is None else self.evaluation.cones
 
     @property
     def min_h(self):
@@ -390,7 +395,7 @@ class SafetyFilter:
                 self.config.slack_weight, plain=result)
             if slack_result.status != QPStatus.OPTIMAL:
                 return self._brake(state, FilterStatus.BRAKE, start, 'QP and slack QP failed',
-                                   h, evaluation.cones)
+                                   h, evaluation)
             if status == FilterStatus.OK:
                 status = FilterStatus.SLACK
         active = np.empty(count, dtype=np.intp)
@@ -399,15 +404,15 @@ class SafetyFilter:
         return u, FilterInfo(
             status=status, h=h, active=active, solve_time_s=time.perf_counter() - start,
             num_obstacles=prepared.count, num_constraints=count, slack=float(slack),
-            message=message, cones=evaluation.cones)
+            message=message, evaluation=evaluation)
 
-    def _brake(self, state, status, start, message, h=None, cones=None):
+    def _brake(self, state, status, start, message, h=None, evaluation=None):
         """Return the braking input with a flagged status."""
         u = np.nan_to_num(self.model.braking_input(state), nan=0.0, posinf=0.0, neginf=0.0)
         h = np.zeros(0) if h is None else h
         return self.model.clip_input(u), FilterInfo(
             status=status, h=h, solve_time_s=time.perf_counter() - start,
-            num_obstacles=len(h), message=message, cones=cones)
+            num_obstacles=len(h), message=message, evaluation=evaluation)
 
     def _escape_input(self, ref, direction):
         """Return the input accelerating the reference point out along ``direction``.
