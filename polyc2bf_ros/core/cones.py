@@ -128,7 +128,12 @@ class PlanarPolygons:
 
 
 class ConeModel(abc.ABC):
-    """Turns planar convex polygons into cones seen from per-obstacle viewpoints."""
+    """Turns planar convex polygons into cones seen from per-obstacle viewpoints.
+
+    Two entry points: ``fill`` (``cones``) gives the cones seen from given viewpoints;
+    ``fill_plane`` (``plane``), the filter's per-step path, computes the viewpoints, the
+    cones and their barrier terms in one compiled pass.
+    """
 
     name: str
 
