@@ -55,6 +55,10 @@ CONE_ROWS = 7
 """Rows of a cone block: p (2), k (2), s (1), ds_dp (2), one column per obstacle."""
 PLANE_ROWS = 2 + CONE_ROWS
 """Rows of a plane block before the barrier terms: viewpoint (2), then the cone."""
+PLANE_CONES = slice(2, PLANE_ROWS)
+"""The cone rows of a plane block (a cone block: ``Cones.from_block``)."""
+PLANE_K = slice(4, 6)
+"""The boundary rays k in a plane block (after the viewpoint and p)."""
 
 
 def dot2(a, b):
@@ -280,7 +284,7 @@ def fill_plane_terms(block, projections, velocities, position_rate, drift, input
 
     A loop of its own after the cones: one loop doing both ran ~40 % slower (numba 0.68).
     """
-    for n in range(block.shape[1]):
+    for n in range(block.shape[1]):  # p in rows 2-3, s in row 6, ds/dp in rows 7-8
         barrier_column(block[2, n], block[3, n], block[6, n], block[7, n], block[8, n],
                        projections, velocities, position_rate, drift, input_matrix, eps_sq,
                        block, PLANE_ROWS, n)

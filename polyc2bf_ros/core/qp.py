@@ -78,15 +78,21 @@ def _fallback(x_ref, lower, upper):
     return x
 
 
+@kernel
+def row_residual(A, x, b, i):
+    """Return a_i x - b_i, the products summed first (so all its callers round alike)."""
+    value = 0.0
+    for j in range(x.shape[0]):
+        value += A[i, j] * x[j]
+    return value - b[i]
+
+
 @kernel(signature('f8', F2, F1, F1, F1))
 def row_residuals(A, x, b, out):
     """Write ``A x - b`` into ``out``; return its smallest entry (inf without rows, NaN if any)."""
     smallest = math.inf
     for i in range(b.shape[0]):
-        value = 0.0
-        for j in range(x.shape[0]):
-            value += A[i, j] * x[j]
-        out[i] = value - b[i]
+        out[i] = row_residual(A, x, b, i)
         if out[i] < smallest or out[i] != out[i]:
             smallest = out[i]
     return smallest
@@ -247,7 +253,7 @@ def _front_end(x_ref, weights, A, b, lower, upper, shortcut, x):
     """Run the checks every solve starts with, in one pass; ``_ANSWERED``: x is the optimum.
 
     In order: x_ref itself when it lies in the box and meets every row to
-    ``FAST_PATH_TOL`` (``row_residuals``' sums); else ``_EMPTY_BOX`` when some
+    ``FAST_PATH_TOL`` (``row_residual``); else ``_EMPTY_BOX`` when some
     lower > upper; ``_ZERO_ROW`` when a row of A is all zero (``solve_checked`` drops or
     refuses it, then tries the shortcut); else ``_single_active`` if ``shortcut``.
     NaN fails every comparison, so it ends in ``_GENERAL`` or ``_ZERO_ROW``.
@@ -259,10 +265,7 @@ def _front_end(x_ref, weights, A, b, lower, upper, shortcut, x):
     if inside:
         holds = True
         for i in range(m):
-            value = 0.0
-            for j in range(n):
-                value += A[i, j] * x_ref[j]
-            holds = holds and value - b[i] >= -FAST_PATH_TOL
+            holds = holds and row_residual(A, x_ref, b, i) >= -FAST_PATH_TOL
         if holds:
             for j in range(n):
                 x[j] = x_ref[j]

@@ -74,13 +74,21 @@ from typing import Optional
 import numpy as np
 
 from polyc2bf_ros.core.barrier import BarrierTerms
-from polyc2bf_ros.core.cones import CONE_MODELS, Cones, make_cone_model, PLANE_ROWS
+from polyc2bf_ros.core.cones import (
+    CONE_MODELS,
+    Cones,
+    make_cone_model,
+    PLANE_CONES,
+    PLANE_K,
+    PLANE_ROWS,
+)
 from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp import (
     make_solver,
     QPStatus,
+    row_residual,
     solve_with_shared_slack,
     SOLVERS,
 )
@@ -88,7 +96,6 @@ from polyc2bf_ros.core.views import choose_planes, prepare_views
 
 ACTIVE_TOLERANCE = 1e-7
 _MIN_ROW_NORM = 1e-12
-_K_ROWS = slice(4, 6)  # the boundary rays k in a plane block (after viewpoint and p)
 
 
 class FilterStatus(str, enum.Enum):
@@ -194,7 +201,7 @@ class Evaluation:
     @property
     def cones(self):
         """Return the cones (views into ``block``)."""
-        return Cones.from_block(self.block[2:PLANE_ROWS], self.valid)
+        return Cones.from_block(self.block[PLANE_CONES], self.valid)
 
     @property
     def terms(self):
@@ -246,10 +253,7 @@ def _active_parts(rows_a, x, rows_b, index, tolerance, out):
     """Write the obstacle ``index`` of every row with a_i x - b_i <= ``tolerance``; count them."""
     active = 0
     for i in range(rows_b.shape[0]):
-        value = 0.0
-        for j in range(x.shape[0]):
-            value += rows_a[i, j] * x[j]
-        if value - rows_b[i] <= tolerance:
+        if row_residual(rows_a, x, rows_b, i) <= tolerance:
             out[active] = index[i]
             active += 1
     return active
@@ -461,8 +465,8 @@ class SafetyFilter:
         if len(planes) == 1:
             return Evaluation(block, valid, valid, None, viewpoints)
         block_vertical, valid_vertical = planes[1]
-        vertical, usable = choose_planes(valid, block[_K_ROWS], valid_vertical,
-                                         block_vertical[_K_ROWS], prepared.views[1],
+        vertical, usable = choose_planes(valid, block[PLANE_K], valid_vertical,
+                                         block_vertical[PLANE_K], prepared.views[1],
                                          ref.position, prepared.velocities, prepared.offsets,
                                          age)
         return Evaluation(np.where(vertical, block_vertical, block),
