@@ -431,8 +431,7 @@ class SafetyFilterNode(Node):
         # A refused step returns the stop: nothing of the nominal command is kept then.
         kept = cmd.values if info.status != FilterStatus.INVALID_INPUT else None
         self._publish(cmd.replaced(conversions.values_from_command(safe, model_name, kept)))
-        if info.h.size:
-            self._min_h = min(self._min_h, float(np.fmin.reduce(info.h)))
+        self._min_h = min(self._min_h, info.min_h)
         self._latency.add(time.perf_counter() - start)
 
     def _publish(self, data):

@@ -158,10 +158,14 @@ class FilterConfig:
 
 @dataclass
 class FilterInfo:
-    """Diagnostics of one step; ``h`` has one entry per obstacle part (NaN if inside)."""
+    """Diagnostics of one step; ``h`` has one entry per obstacle part (NaN if inside).
+
+    ``min_h`` is the smallest of them that is not NaN (+inf without obstacles).
+    """
 
     status: FilterStatus
     h: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    min_h: float = math.inf
     active: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     solve_time_s: float = 0.0
     num_obstacles: int = 0
@@ -175,11 +179,6 @@ class FilterInfo:
         """Return the step's cones (views into its ``Evaluation``), or None without one."""
         return None if self.evaluation is None else self.evaluation.cones
 
-    @property
-    def min_h(self):
-        """Return the smallest finite h, or +inf without obstacles."""
-        finite = self.h[np.isfinite(self.h)]
-        return float(finite.min()) if finite.size else float('inf')
 
 
 @dataclass(slots=True)
@@ -259,10 +258,12 @@ def _active_parts(rows_a, x, rows_b, index, tolerance, out):
     return active
 
 
-@kernel(signature('UniTuple(i8, 2)', F2, B1, 'f8', 'f8', F1, F1, 'b1', F2, F1, I1, F1))
+@kernel(signature('Tuple((i8, i8, f8))', F2, B1, 'f8', 'f8', F1, F1, 'b1', F2, F1, I1, F1))
 def _assemble_rows(terms, usable, margin, gamma, lower, upper, prune, rows_a, rows_b, index,
                    h_out):
-    """Write the unit-norm QP rows of the needed obstacle parts; return (rows, unusable parts).
+    """Write the unit-norm QP rows of the needed obstacle parts.
+
+    Return (rows, unusable parts, smallest h of the usable parts or +inf).
 
     ``terms`` (2 + m, N) holds rows h, Lf h, Lg h.  Row of part n: Lg h_n u >= b_n =
     m - Lf h_n - gamma h_n, divided by |Lg h_n| (the same feasible set, but a
@@ -273,12 +274,14 @@ def _assemble_rows(terms, usable, margin, gamma, lower, upper, prune, rows_a, ro
     """
     h, lf_h, lg_h = terms[0], terms[1], terms[2:]
     count = inside = 0
+    min_h = math.inf
     for n in range(h.shape[0]):
         if not usable[n]:
             h_out[n] = math.nan
             inside += 1
             continue
         h_out[n] = h[n]
+        min_h = min(min_h, h[n])
         b = margin - lf_h[n] - gamma * h[n]
         if prune:
             worst = 0.0
@@ -296,7 +299,7 @@ def _assemble_rows(terms, usable, margin, gamma, lower, upper, prune, rows_a, ro
         rows_b[count] = b * scale
         index[count] = n
         count += 1
-    return count, inside
+    return count, inside, min_h
 
 
 def compile_kernels():
@@ -380,7 +383,7 @@ class SafetyFilter:
         ref = self.model.reference(state)
         evaluation = self._evaluate(prepared, ref, obstacle_age)
         h = np.empty(prepared.count)
-        count, inside = _assemble_rows.unchecked(
+        count, inside, min_h = _assemble_rows.unchecked(
             evaluation.block[PLANE_ROWS:], evaluation.usable, *self._row_settings,
             prepared.rows_a, prepared.rows_b, prepared.index, h)
         u_ref, status, message = u_nom, FilterStatus.OK, ''
@@ -399,23 +402,24 @@ class SafetyFilter:
                 self.config.slack_weight, plain=result)
             if slack_result.status != QPStatus.OPTIMAL:
                 return self._brake(state, FilterStatus.BRAKE, start, 'QP and slack QP failed',
-                                   h, evaluation)
+                                   h, min_h, evaluation)
             if status == FilterStatus.OK:
                 status = FilterStatus.SLACK
         active = np.empty(count, dtype=np.intp)
         active = active[:_active_parts(rows_a, u, rows_b, prepared.index,
                                        ACTIVE_TOLERANCE + slack, active)]
         return u, FilterInfo(
-            status=status, h=h, active=active, solve_time_s=time.perf_counter() - start,
-            num_obstacles=prepared.count, num_constraints=count, slack=float(slack),
+            status=status, h=h, min_h=min_h, active=active,
+            solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
+            num_constraints=count, slack=float(slack),
             message=message, evaluation=evaluation)
 
-    def _brake(self, state, status, start, message, h=None, evaluation=None):
+    def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""
         u = np.nan_to_num(self.model.braking_input(state), nan=0.0, posinf=0.0, neginf=0.0)
         h = np.zeros(0) if h is None else h
         return self.model.clip_input(u), FilterInfo(
-            status=status, h=h, solve_time_s=time.perf_counter() - start,
+            status=status, h=h, min_h=min_h, solve_time_s=time.perf_counter() - start,
             num_obstacles=len(h), message=message, evaluation=evaluation)
 
     def _escape_input(self, ref, direction):

@@ -5,6 +5,8 @@ The references below are the vectorised numpy versions the kernels replaced
 of the module docstrings; inputs are random (hypothesis), including shared and
 per-obstacle viewpoints, moving obstacles and both planes of 3-D models.
 """
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given, HealthCheck, settings, strategies as st
@@ -195,8 +197,8 @@ def test_row_assembly_matches_numpy(seed, count, inputs, prune):
     lower = -rng.uniform(0.1, 2.0, inputs)
     rows_a, rows_b = np.empty((count, inputs)), np.empty(count)
     index, h_out = np.empty(count, dtype=np.intp), np.empty(count)
-    kept, inside = _assemble_rows(np.vstack((h, lf_h, lg_h)), usable, 0.01, 1.5, lower, upper,
-                                  prune, rows_a, rows_b, index, h_out)
+    kept, inside, min_h = _assemble_rows(np.vstack((h, lf_h, lg_h)), usable, 0.01, 1.5, lower,
+                                         upper, prune, rows_a, rows_b, index, h_out)
     A, b, want_index, want_h = reference_rows(h, lf_h, lg_h, usable, 0.01, 1.5, lower, upper,
                                               prune)
     assert kept == want_index.size and inside == (~usable).sum()
@@ -204,6 +206,7 @@ def test_row_assembly_matches_numpy(seed, count, inputs, prune):
     np.testing.assert_allclose(rows_a[:kept], A, **CLOSE)
     np.testing.assert_allclose(rows_b[:kept], b, rtol=1e-12)
     np.testing.assert_array_equal(h_out, want_h)
+    assert min_h == (np.nanmin(want_h) if usable.any() else math.inf)
 
 
 def test_pruning_keeps_rows_with_unbounded_inputs():
@@ -213,7 +216,7 @@ def test_pruning_keeps_rows_with_unbounded_inputs():
         np.empty(2)
     lower, upper = np.array([-np.inf, -1.0]), np.array([np.inf, 1.0])
     terms = np.vstack((np.full(2, 5.0), np.zeros(2), lg_h))
-    kept, _ = _assemble_rows(terms, np.ones(2, dtype=bool), 0.0, 1.0, lower, upper, True,
+    kept, _, _ = _assemble_rows(terms, np.ones(2, dtype=bool), 0.0, 1.0, lower, upper, True,
                              rows_a, rows_b, index, h)
     # Row 0: worst = -1 >= b = -5: pruned.  Row 1: worst = -inf < -5: kept.
     assert kept == 1 and index[0] == 1

@@ -47,6 +47,8 @@ def test_ok_solution_satisfies_every_row_and_bound(model_name, polygons, seed):
     u, info = filt.step(state, obstacles, u_nom)
     assert np.isfinite(u).all()
     assert np.all(u >= model.input_lower - 1e-9) and np.all(u <= model.input_upper + 1e-9)
+    usable_h = info.h[~np.isnan(info.h)]
+    assert info.min_h == (usable_h.min() if usable_h.size else np.inf)
     A, b, usable = _constraint_rows(filt, state, obstacles)
     if info.status == FilterStatus.OK:
         assert np.all(A[usable] @ u >= b[usable] - 1e-7)
@@ -161,6 +163,7 @@ def test_inside_obstacle_escapes_outward(barrier):
     u, info = filt.step(np.array([0.9, 0.5, 0.0, 0.0]), obstacles, np.zeros(2))
     assert info.status == FilterStatus.ESCAPE
     assert 'inside' in info.message
+    assert np.isnan(info.h).all() and info.min_h == np.inf  # the one part has no cone
     assert u[0] < 0.0  # away from the wall's centroid at x = 1.1
 
 
