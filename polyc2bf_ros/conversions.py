@@ -242,14 +242,15 @@ class _Layout:
                                   + nothing * 2 + empty * 3 + nothing)
 
 
-_LAYOUTS = {b'\x00\x01': _Layout('<'), b'\x00\x00': _Layout('>')}
+# By the second byte of the encapsulation header 00 01 (little endian) or 00 00 (big).
+_LAYOUTS = (_Layout('>'), _Layout('<'))
 
 
 def _layout(data):
-    layout = _LAYOUTS.get(data[:2])
-    if layout is None:
+    """Return the layout of a plain-CDR message (reads two bytes: no slice, no hash)."""
+    if len(data) < 2 or data[0] != 0 or data[1] > 1:
         raise ValueError(f'unsupported CDR encapsulation {data[:2].hex()} (expected plain CDR)')
-    return layout
+    return _LAYOUTS[data[1]]
 
 
 def _aligned(offset, size):

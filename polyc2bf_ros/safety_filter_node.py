@@ -35,7 +35,6 @@ import math
 import sys
 import time
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import Twist, TwistStamped, WrenchStamped
 from nav_msgs.msg import Odometry
@@ -161,7 +160,7 @@ class SafetyFilterNode(Node):
         self._t_ref = math.nan
 
         # State (the last finite odometry) and the latest nominal command.
-        self._state = np.zeros(self._model.state_dim)
+        self._state = (0.0,) * self._model.state_dim
         self._yaw = 0.0
         self._odom_stamp = -math.inf  # no odometry yet: a matched command waits for it
         self._odom_frame = None
@@ -308,7 +307,7 @@ class SafetyFilterNode(Node):
         if result is None:
             self._bad_message('odometry (NaN/Inf)')
             return
-        self._state[:], self._yaw = result
+        self._state, self._yaw = result  # a tuple of floats: the core converts it once
         self._odom_stamp = stamp = odom.stamp
         frame = odom.frame
         if frame != self._odom_frame_raw:

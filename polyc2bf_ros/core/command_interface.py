@@ -66,15 +66,21 @@ class VelocityCommandInterface:
             values[0], values[1] = c * x - s * y, s * x + c * y
         return values
 
+    def _velocity(self, state):
+        """Return the commandable velocity entries of ``state`` (array or float sequence)."""
+        if isinstance(state, np.ndarray):
+            state = state.tolist()
+        return state[self._slice]
+
     def nominal_input(self, state, cmd, yaw=0.0):
         """``u_nom = (Rz(yaw) v_cmd - v) / tau`` (no rotation for the unicycle)."""
         tau = self.tau
-        return np.array([(c - v) / tau for c, v in zip(
-            self._rotated(cmd, yaw), np.asarray(state)[self._slice].tolist())])
+        return np.array([(c - v) / tau for c, v in zip(self._rotated(cmd, yaw),
+                                                       self._velocity(state))])
 
     def safe_command(self, state, u_safe, yaw=0.0):
         """``v_safe = Rz(yaw)^T (v + u_safe T)`` in command coordinates."""
         period = self.period
-        v_world = [v + u * period for v, u in zip(np.asarray(state)[self._slice].tolist(),
+        v_world = [v + u * period for v, u in zip(self._velocity(state),
                                                   np.asarray(u_safe).tolist())]
         return np.array(self._rotated(v_world, -yaw))

@@ -156,7 +156,7 @@ class FilterConfig:
         return self
 
 
-@dataclass
+@dataclass(slots=True)
 class FilterInfo:
     """Diagnostics of one step; ``h`` has one entry per obstacle part (NaN if inside).
 

@@ -61,6 +61,9 @@ def test_wall_ahead_holds_the_unicycle_back():
     safe, info = _filter('unicycle').filter(np.zeros(5), 0.0, [1.5, 0.0], WALL)
     assert info.status == FilterStatus.OK
     assert safe[0] <= 0.0
+    # The node hands over its state as a tuple of floats: the same decision.
+    from_tuple, _ = _filter('unicycle').filter((0.0,) * 5, 0.0, (1.5, 0.0), WALL)
+    np.testing.assert_array_equal(from_tuple, safe)
 
 
 def test_quadrotor_wrench_round_trip_without_obstacles():

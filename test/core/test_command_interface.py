@@ -55,6 +55,11 @@ def test_unconstrained_step_returns_the_command_when_tau_is_the_period(model, cm
     cmd = np.array(cmd[:iface.velocity_dim])
     u = iface.nominal_input(state, cmd, yaw)
     np.testing.assert_allclose(iface.safe_command(state, u, yaw), cmd, atol=1e-9)
+    # A state given as a tuple of floats (as the node keeps it) reads the same.
+    as_tuple = tuple(state.tolist())
+    np.testing.assert_array_equal(iface.nominal_input(as_tuple, cmd, yaw), u)
+    np.testing.assert_array_equal(iface.safe_command(as_tuple, u, yaw),
+                                  iface.safe_command(state, u, yaw))
 
 
 def test_longer_tau_is_a_first_order_lag():
