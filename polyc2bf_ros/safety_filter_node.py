@@ -425,11 +425,12 @@ class SafetyFilterNode(Node):
         safe, info = self._filter.filter(
             self._state, self._yaw, conversions.command_from_values(cmd.values, model_name),
             self._obstacle_set, age)
-        self._counts[self._status_names[info.status]] += 1
-        self._last_info = info
         # A refused step returns the stop: nothing of the nominal command is kept then.
         kept = cmd.values if info.status != FilterStatus.INVALID_INPUT else None
         self._publish(cmd.replaced(conversions.values_from_command(safe, model_name, kept)))
+        # Bookkeeping after the answer is out.
+        self._counts[self._status_names[info.status]] += 1
+        self._last_info = info
         self._min_h = min(self._min_h, info.min_h)
         self._latency.add(time.perf_counter() - start)
 
