@@ -83,7 +83,7 @@ from polyc2bf_ros.core.cones import (
     PLANE_ROWS,
 )
 from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
-from polyc2bf_ros.core.models import make_model, MODEL_NAMES
+from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp import (
     make_solver,
@@ -339,6 +339,8 @@ class SafetyFilter:
         self._row_settings = (float(self.config.margin), float(self.config.gamma),
                               self._lower, self._upper, bool(self.config.prune))
         self._epsilon = float(self.config.velocity_epsilon)
+        # The step's reference kinematics, refilled each step (it never leaves the step).
+        self._reference = ReferenceKinematics.empty(model.position_dim, model.input_dim)
         self._cache_key = self._cache = None
         self._base_key = self._base = None
         self.warm_up()
@@ -380,7 +382,7 @@ class SafetyFilter:
             # No obstacle, no row: the QP's solution is u_nom clipped to the box.
             return self.model.clip_input(u_nom), FilterInfo(
                 status=FilterStatus.OK, solve_time_s=time.perf_counter() - start)
-        ref = self.model.reference(state)
+        ref = self.model.reference(state, self._reference)
         evaluation = self._evaluate(prepared, ref, obstacle_age)
         h = np.empty(prepared.count)
         count, inside, min_h = _assemble_rows.unchecked(

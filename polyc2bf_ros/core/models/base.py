@@ -67,8 +67,12 @@ class RobotModel(abc.ABC):
         """Return the input matrix (state_dim x input_dim) of the dynamics (paper eq. 1)."""
 
     @abc.abstractmethod
-    def reference(self, x) -> ReferenceKinematics:
-        """Return the reference point's kinematics at state x."""
+    def reference(self, x, out=None) -> ReferenceKinematics:
+        """Return the reference point's kinematics at state x.
+
+        ``out`` (``ReferenceKinematics.empty(position_dim, input_dim)``), if given, may be
+        filled and returned instead of new arrays: the filter reuses one per step.
+        """
 
     @abc.abstractmethod
     def braking_input(self, x):

@@ -35,8 +35,8 @@ class PointMass(RobotModel):
         """Return [0; I]."""
         return self._g
 
-    def reference(self, x):
-        """Return the point's own position and velocity, r_ddot = u."""
+    def reference(self, x, out=None):
+        """Return the point's own position and velocity, r_ddot = u (views: ``out`` unused)."""
         d = self.position_dim
         x = self.as_state(x)
         return ReferenceKinematics(position=x[:d], velocity=x[d:], drift=self._drift,

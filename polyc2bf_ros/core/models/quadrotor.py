@@ -126,9 +126,9 @@ class Quadrotor(RobotModel):
         g[9:12] = self._torque_map
         return g
 
-    def reference(self, x):
-        """Return the kinematics of the body point b = [0, 0, l]."""
-        ref = ReferenceKinematics.empty(3, 4)
+    def reference(self, x, out=None):
+        """Return the kinematics of the body point b = [0, 0, l] (in ``out`` if given)."""
+        ref = ReferenceKinematics.empty(3, 4) if out is None else out
         _body_point(self.as_state(x), self._b, self.inertia, self.inertia_inv,
                     self._torque_map, self.mass, cf.GRAVITY, ref.position, ref.velocity,
                     ref.drift, ref.input_matrix)

@@ -72,9 +72,9 @@ class Unicycle(RobotModel):
         g[3, 0] = g[4, 1] = 1.0
         return g
 
-    def reference(self, x):
-        """Return the kinematics of the point l ahead of the axle."""
-        ref = ReferenceKinematics.empty(2, 2)
+    def reference(self, x, out=None):
+        """Return the kinematics of the point l ahead of the axle (in ``out`` if given)."""
+        ref = ReferenceKinematics.empty(2, 2) if out is None else out
         # Unchecked: as_state and ReferenceKinematics.empty give C-contiguous float64.
         _offset_point.unchecked(self.as_state(x), self.offset_l, ref.position, ref.velocity,
                                 ref.drift, ref.input_matrix)
