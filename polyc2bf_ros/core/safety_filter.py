@@ -462,22 +462,25 @@ class SafetyFilter:
 
     def _evaluate(self, prepared, ref, age):
         """Evaluate cones and barrier terms in every plane; 3-D: pick the plane per part."""
-        # Unchecked kernels: every array here is the filter's own (``_prepare``, the model).
-        planes = [self.cone_model.plane(view.prepared, view, prepared.velocities,
-                                        prepared.offsets, age, ref, self._epsilon, False)
-                  for view in prepared.views]
-        block, valid = planes[0]
-        viewpoints = tuple(plane_block[:2] for plane_block, _ in planes)
-        if len(planes) == 1:
-            return Evaluation(block, valid, valid, None, viewpoints)
-        block_vertical, valid_vertical = planes[1]
+        views = prepared.views
+        block, valid = self._plane(views[0], prepared, ref, age)
+        if len(views) == 1:
+            return Evaluation(block, valid, valid, None, (block[:2],))
+        block_vertical, valid_vertical = self._plane(views[1], prepared, ref, age)
         vertical, usable = choose_planes(valid, block[PLANE_K], valid_vertical,
-                                         block_vertical[PLANE_K], prepared.views[1],
-                                         ref.position, prepared.velocities, prepared.offsets,
-                                         age)
+                                         block_vertical[PLANE_K], views[1], ref.position,
+                                         prepared.velocities, prepared.offsets, age)
         return Evaluation(np.where(vertical, block_vertical, block),
                           np.where(vertical, valid_vertical, valid), usable, vertical,
-                          viewpoints)
+                          (block[:2], block_vertical[:2]))
+
+    def _plane(self, view, prepared, ref, age):
+        """Return (block, valid) of one view (``ConeModel.plane``).
+
+        Unchecked kernel: every array here is the filter's own (``_prepare``, the model).
+        """
+        return self.cone_model.plane(view.prepared, view, prepared.velocities,
+                                     prepared.offsets, age, ref, self._epsilon, False)
 
     def prepare(self, obstacles):
         """Precompute the geometry of an obstacle set now (``step`` does it on first use).
