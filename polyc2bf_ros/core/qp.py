@@ -605,8 +605,9 @@ class ReferenceSolver(QPSolver):
     """Exact active-set enumeration, for tests (cost grows like C(m + 2n, n)).
 
     Every subset of at most n independent constraints (rows and finite bounds) gives a
-    candidate (``_projections``); the optimum is the feasible candidate of least cost, and no
-    feasible candidate means the problem is infeasible.
+    candidate (``_projections``); the optimum is the feasible candidate with multipliers
+    >= 0 (of least cost, should rounding leave several), and no feasible candidate means
+    the problem is infeasible.
     """
 
     name = 'reference'
@@ -616,13 +617,23 @@ class ReferenceSolver(QPSolver):
         """Enumerate; ``iterations`` is the number of candidates."""
         G, h = _constraints(A, b, lower, upper)
         pool = range(h.shape[0])
-        X = np.concatenate([_projections(x_ref, weights, G, h, pool, k)[0]
-                            for k in range(min(x_ref.shape[0], h.shape[0]) + 1)])
-        feasible = X[_satisfies(X, G, h)]
-        if feasible.shape[0] == 0:
+        candidates = [_projections(x_ref, weights, G, h, pool, k)
+                      for k in range(min(x_ref.shape[0], h.shape[0]) + 1)]
+        X = np.concatenate([points for points, _ in candidates])
+        # Exact multipliers up to rounding: far tighter than a solver's certificate
+        # (``_MULTIPLIER_TOL``), which lets a bound 1e-8 from x_ref pass at w ~ 0.1.
+        tolerance = -1e-12 * (1.0 + np.abs(weights * x_ref).max())
+        certified = np.concatenate([(lam >= tolerance).all(axis=1) for _, lam in candidates])
+        feasible = _satisfies(X, G, h)
+        if not feasible.any():
             return x_ref, QPStatus.INFEASIBLE, X.shape[0]
-        cost = ((feasible - x_ref) ** 2 * weights).sum(axis=1)
-        return feasible[cost.argmin()].copy(), QPStatus.OPTIMAL, X.shape[0]
+        # The optimum is the feasible candidate whose multipliers are >= 0 (KKT; some
+        # independent active set certifies it even at a degenerate vertex).  Least cost
+        # alone cannot tell points ~1e-8 apart: near the optimum the cost is flat to
+        # below its rounding, and a candidate outside the box by rounding can undercut it.
+        pick = feasible & certified if (feasible & certified).any() else feasible
+        cost = ((X[pick] - x_ref) ** 2 * weights).sum(axis=1)
+        return X[pick][cost.argmin()].copy(), QPStatus.OPTIMAL, X.shape[0]
 
 
 SOLVERS: dict[str, type[QPSolver]] = {

@@ -3,7 +3,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, HealthCheck, settings, strategies as st
+from hypothesis import example, given, HealthCheck, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 from proxsuite import proxqp
 
@@ -120,6 +120,37 @@ def test_backends_agree_with_reference(problem):
                                    err_msg=name)
 
 
+TINY = 3.4642038e-08
+
+
+@pytest.mark.parametrize('problem, optimum', [
+    # x_0 is held 4 from x_ref: total cost 16 + 6e-16 against 16 + 1.2e-15, both 16.0.
+    ((np.array([4.0, TINY, 0.0, 0.0]), np.ones(4),
+      np.array([[0.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, -1.0, 0.0, 1.0]]),
+      np.zeros(3), np.zeros(4), np.array([0.0, 1.0, 0.0, 1.0])),
+     [0.0, TINY / 2, 0.0, TINY / 2]),
+    # x_ref in the box but for x_0 and x_2 by 3.5e-8: only x_1 keeps its value.
+    ((np.full(3, TINY), np.array([2.0, 0.125, 0.125]), np.array([[0.0, 1.0, 1.0]]),
+      np.zeros(1), np.array([-1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])),
+     [0.0, TINY, 0.0]),
+    # x_0 fixed at 1, x_ref inside for x_1: [1 + 2e-16, 1] (outside the box by rounding,
+    # on the row) costs 1.3e-15 less than the optimum [1, 1 + TINY].
+    ((np.array([4.0, 1.0 + TINY]), np.ones(2), np.array([[1.5, 1.0]]), np.array([2.5]),
+      np.array([1.0, 1.0]), np.array([1.0, 2.0])),
+     [1.0, 1.0 + TINY]),
+])
+def test_reference_tells_optima_apart_below_the_cost_rounding(problem, optimum):
+    """Candidates whose costs differ below the rounding of the total (found by hypothesis).
+
+    Near the optimum the cost is flat: points 3.5e-8 apart differ in cost by ~1e-15.
+    """
+    expected = REFERENCE.solve(*problem).x
+    np.testing.assert_allclose(expected, optimum, rtol=1e-7, atol=1e-20)
+    for name, solver in BACKENDS.items():
+        np.testing.assert_allclose(solver.solve(*problem).x, expected, rtol=0.0,
+                                   atol=AGREEMENT_TOL, err_msg=name)
+
+
 @PROPERTY
 @given(st.one_of(feasible_problems(), infeasible_problems()))
 def test_optimal_answers_are_feasible_and_no_answer_is_nan(problem):
@@ -156,6 +187,12 @@ def test_shared_slack_is_zero_when_feasible(problem, slack_weight):
 
 @settings(max_examples=60, deadline=None)
 @given(infeasible_problems(max_n=3, max_m=3), st.floats(1.0, 1e4))
+# Boxes 1e-8 wide around x_ref: the reference once took the corner, 1e-8 off (its
+# multipliers, -1.1e-9, passed a solver's certificate tolerance).
+@example(problem=(np.array([1.0, 0.0, 0.53582162]), np.array([0.109375, 0.109375, 0.25390625]),
+                  np.array([[0.0, 0.0, 2.0]]), np.array([7.88981452]),
+                  np.array([1.0 - 1e-8, -1e-8, 0.535821609]),
+                  np.array([1.0, 0.0, 3.44490726])), slack_weight=3.0)
 def test_shared_slack_relaxes_infeasible_rows(problem, slack_weight):
     """An infeasible problem gets the relaxed optimum: s > 0, A x + s >= b, bounds hard."""
     x_ref, weights, A, b, lower, upper = problem
