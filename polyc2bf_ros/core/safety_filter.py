@@ -180,7 +180,6 @@ class FilterInfo:
         return None if self.evaluation is None else self.evaluation.cones
 
 
-
 @dataclass(slots=True)
 class Evaluation:
     """Per obstacle part: viewpoint, cone and barrier terms in the plane used (``block``).
