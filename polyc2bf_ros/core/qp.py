@@ -50,6 +50,9 @@ _POLISH_GAP = 1e-4  # constraints this close to active at proxsuite's answer may
 _POLISH_POOL = 12  # at most this many candidates (the closest to active) are tried
 _MULTIPLIER_TOL = 1e-9  # a certifying multiplier is >= -_MULTIPLIER_TOL (1 + max|w x_ref|)
 _INFEASIBILITY_TOL = 1e-8  # phase-1 minimax row violation above which a problem is infeasible
+# The reference solver's multipliers are exact up to rounding: far tighter than a solver's
+# certificate (``_MULTIPLIER_TOL`` lets a bound 1e-8 from x_ref pass at w ~ 0.1).
+_REFERENCE_MULTIPLIER_TOL = 1e-12
 _RANK_TOL = 1e-10  # smallest / largest eigenvalue of an admissible Gram matrix
 _CANDIDATE_TOL = 1e-12  # enumerated points are feasible if G x >= h - _CANDIDATE_TOL (1 + |h|)
 
@@ -620,9 +623,7 @@ class ReferenceSolver(QPSolver):
         candidates = [_projections(x_ref, weights, G, h, pool, k)
                       for k in range(min(x_ref.shape[0], h.shape[0]) + 1)]
         X = np.concatenate([points for points, _ in candidates])
-        # Exact multipliers up to rounding: far tighter than a solver's certificate
-        # (``_MULTIPLIER_TOL``), which lets a bound 1e-8 from x_ref pass at w ~ 0.1.
-        tolerance = -1e-12 * (1.0 + np.abs(weights * x_ref).max())
+        tolerance = -_REFERENCE_MULTIPLIER_TOL * (1.0 + np.abs(weights * x_ref).max())
         certified = np.concatenate([(lam >= tolerance).all(axis=1) for _, lam in candidates])
         feasible = _satisfies(X, G, h)
         if not feasible.any():
@@ -631,7 +632,8 @@ class ReferenceSolver(QPSolver):
         # independent active set certifies it even at a degenerate vertex).  Least cost
         # alone cannot tell points ~1e-8 apart: near the optimum the cost is flat to
         # below its rounding, and a candidate outside the box by rounding can undercut it.
-        pick = feasible & certified if (feasible & certified).any() else feasible
+        optimal = feasible & certified
+        pick = optimal if optimal.any() else feasible
         cost = ((X[pick] - x_ref) ** 2 * weights).sum(axis=1)
         return X[pick][cost.argmin()].copy(), QPStatus.OPTIMAL, X.shape[0]
 
