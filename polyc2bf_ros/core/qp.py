@@ -288,6 +288,16 @@ def _front_end(x_ref, weights, A, b, lower, upper, shortcut, x):
     return _GENERAL
 
 
+@kernel
+def front_end_answers(x_ref, weights, A, b, lower, upper, shortcut, x):
+    """Return True when the front end (``_front_end``) leaves the optimum in ``x``.
+
+    For a kernel that runs the front end in its own pass (the safety filter's
+    rows); when this returns False, ``QPSolver.solve_checked`` does the rest.
+    """
+    return _front_end(x_ref, weights, A, b, lower, upper, shortcut, x) == _ANSWERED
+
+
 def _feasible(x, A, b, lower, upper):
     """Check that x is finite and meets rows and box to ``FEASIBILITY_TOL``; clip x to the box."""
     clip = False

@@ -86,6 +86,7 @@ from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp import (
+    front_end_answers,
     make_solver,
     QPStatus,
     row_residual,
@@ -301,6 +302,29 @@ def _assemble_rows(terms, usable, margin, gamma, lower, upper, prune, rows_a, ro
     return count, inside, min_h
 
 
+@kernel(signature('Tuple((i8, i8, f8, i8))', F2, B1, 'f8', 'f8', F1, F1, 'b1', F2, F1, I1, F1,
+                  F1, F1, 'b1', F1, I1))
+def _rows_and_answer(terms, usable, margin, gamma, lower, upper, prune, rows_a, rows_b, index,
+                     h_out, u_nom, weights, shortcut, x, active):
+    """``_assemble_rows``, then the QP's front end on u_nom and the active parts of its answer.
+
+    One compiled pass for the common step.  Return (rows, unusable parts, smallest h,
+    active parts), the last -1 when there is no answer yet: a part is unusable (u_ref is
+    then the escape input) or the QP needs the solver (``qp.front_end_answers``).
+    Otherwise ``x`` holds u_safe, exactly ``QPSolver.solve_checked``'s answer, and
+    ``active`` the parts whose rows hold with equality to ``ACTIVE_TOLERANCE``.
+    """
+    count, inside, min_h = _assemble_rows(terms, usable, margin, gamma, lower, upper, prune,
+                                          rows_a, rows_b, index, h_out)
+    if inside:
+        return count, inside, min_h, -1
+    rows_a, rows_b = rows_a[:count], rows_b[:count]
+    if not front_end_answers(u_nom, weights, rows_a, rows_b, lower, upper, shortcut, x):
+        return count, inside, min_h, -1
+    return count, inside, min_h, _active_parts(rows_a, x, rows_b, index, ACTIVE_TOLERANCE,
+                                               active)
+
+
 def compile_kernels():
     """Build one filter per model and barrier, so every kernel has run once.
 
@@ -383,10 +407,17 @@ class SafetyFilter:
                 status=FilterStatus.OK, solve_time_s=time.perf_counter() - start)
         ref = self.model.reference(state, self._reference)
         evaluation = self._evaluate(prepared, ref, obstacle_age)
-        h = np.empty(prepared.count)
-        count, inside, min_h = _assemble_rows.unchecked(
+        h, x = np.empty(prepared.count), np.empty(self.model.input_dim)
+        active = np.empty(prepared.count, dtype=np.intp)
+        count, inside, min_h, answered = _rows_and_answer.unchecked(
             evaluation.block[PLANE_ROWS:], evaluation.usable, *self._row_settings,
-            prepared.rows_a, prepared.rows_b, prepared.index, h)
+            prepared.rows_a, prepared.rows_b, prepared.index, h, u_nom, self._weights,
+            self.solver.shortcut, x, active)
+        if answered >= 0:
+            return x, FilterInfo(
+                status=FilterStatus.OK, h=h, min_h=min_h, active=active[:answered],
+                solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
+                num_constraints=count, evaluation=evaluation)
         u_ref, status, message = u_nom, FilterStatus.OK, ''
         if inside:
             u_ref = self._escape_input(ref, self._escape_direction(prepared, evaluation))
@@ -406,7 +437,6 @@ class SafetyFilter:
                                    h, min_h, evaluation)
             if status == FilterStatus.OK:
                 status = FilterStatus.SLACK
-        active = np.empty(count, dtype=np.intp)
         active = active[:_active_parts(rows_a, u, rows_b, prepared.index,
                                        ACTIVE_TOLERANCE + slack, active)]
         return u, FilterInfo(

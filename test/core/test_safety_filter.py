@@ -1,12 +1,19 @@
 """SafetyFilter behaviour: constraints hold, pruning is exact, fallbacks are flagged, no NaN."""
 import numpy as np
 import pytest
-from hypothesis import given, HealthCheck, settings, strategies as st
+from hypothesis import assume, given, HealthCheck, settings, strategies as st
 
+from polyc2bf_ros.core.cones import PLANE_ROWS
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.qp import QPSolver, QPStatus
-from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
+from polyc2bf_ros.core.qp import QPSolver, QPStatus, row_residuals
+from polyc2bf_ros.core.safety_filter import (
+    _assemble_rows,
+    ACTIVE_TOLERANCE,
+    FilterConfig,
+    FilterStatus,
+    SafetyFilter,
+)
 from strategies import convex_polygons, random_state
 
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -81,6 +88,37 @@ def test_backends_agree(model_name, polygons, seed):
         return
     assert info_daqp.status == info_prox.status
     np.testing.assert_allclose(u_daqp, u_prox, atol=1e-5)
+
+
+@pytest.mark.parametrize('model_name', MODEL_NAMES)
+@SETTINGS
+@given(polygons=obstacle_lists.filter(len), seed=st.integers(0, 2 ** 32 - 1))
+def test_one_pass_answer_is_the_solvers(model_name, polygons, seed):
+    """The step's fused pass (rows, QP front end, active parts) answers as the solver would.
+
+    Reference: the same rows (``_assemble_rows``) through ``QPSolver.solve_checked``,
+    and the parts whose rows hold with equality at its answer.
+    """
+    model, state, obstacles, u_nom = _case(model_name, seed, polygons)
+    filt = SafetyFilter(model, FilterConfig())
+    u, info = filt.step(state, obstacles, u_nom)
+    evaluation = filt.evaluate(state, obstacles)
+    assume(not evaluation.inside.any())
+    count, dim = len(obstacles), model.input_dim
+    lower, upper = (np.ascontiguousarray(bound, dtype=float)
+                    for bound in (model.input_lower, model.input_upper))
+    rows_a, rows_b, index = np.empty((count, dim)), np.empty(count), np.empty(count, dtype=int)
+    rows, _, _ = _assemble_rows(evaluation.block[PLANE_ROWS:], evaluation.usable,
+                                filt.config.margin, filt.config.gamma, lower, upper, True,
+                                rows_a, rows_b, index, np.empty(count))
+    rows_a, rows_b = rows_a[:rows], rows_b[:rows]
+    result = filt.solver.solve_checked(u_nom, np.ones(dim), rows_a, rows_b, lower, upper)
+    assume(result.status == QPStatus.OPTIMAL)
+    assert info.status == FilterStatus.OK
+    np.testing.assert_array_equal(u, result.x)
+    residuals = np.empty(rows)
+    row_residuals(rows_a, result.x, rows_b, residuals)
+    assert sorted(info.active) == sorted(index[:rows][residuals <= ACTIVE_TOLERANCE])
 
 
 BAD = st.sampled_from([np.nan, np.inf, -np.inf])
