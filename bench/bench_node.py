@@ -11,13 +11,18 @@ Three processes per measurement, so the driver cannot be the bottleneck:
 - the **sender** (this file, ``--role sender``): publishes odometry and a
   stamped command, both serialized in advance, every ``1/rate`` s on a fixed
   schedule; the command's ``header.frame_id`` is its sequence number and both
-  stamps are the send time on CLOCK_MONOTONIC;
+  stamps are the send time on CLOCK_MONOTONIC.  A cycle the sender wakes up for
+  more than half a period late is skipped, as a fixed-rate loop skips a missed
+  slot: sent anyway it would land within half a period of the next command,
+  and with the commands' depth-1 QoS the node keeps only the newer one, so the
+  driver's miss would count as the node's;
 - the **receiver** (this process): takes the answers serialized and records,
   per sequence number, ``latency = receipt time - stamp`` (same clock).
 
 Per run::
 
     answered  = commands answered at least once / commands sent (measured window)
+    skipped   = cycles the sender skipped (woke > 1/(2 rate) late) / cycles scheduled
     achieved  = answers per second (trigger:=timer: one per tick, whatever it answers)
     latency   = p50 / p99 / max over the first answer to each command
     rss       = VmRSS (VmHWM = peak) of the subject at the end
@@ -160,7 +165,7 @@ def run_echo(lean):
 # -- sender ------------------------------------------------------------------------------------
 
 def run_sender(rate, count):
-    """Publish ``count`` odometry + command pairs at ``rate`` Hz; print the lateness as JSON.
+    """Publish ``count`` odometry + command pairs at ``rate`` Hz; print lateness and skips as JSON.
 
     Prints ``ready`` once both subscriptions are matched and waits for a line on
     stdin before sending, so the receiver controls the start.
@@ -184,6 +189,7 @@ def run_sender(rate, count):
     print('ready', flush=True)
     sys.stdin.readline()
     lateness = np.zeros(count)
+    skipped = []
     start = time.monotonic()
     for seq in range(count):
         due = start + seq / rate
@@ -191,14 +197,18 @@ def run_sender(rate, count):
         if delay > 0.0:
             time.sleep(delay)
         sent = time.monotonic_ns()
+        lateness[seq] = sent * 1e-9 - due
+        if lateness[seq] > 0.5 / rate:
+            skipped.append(seq)
+            continue
         stamp = STAMP.pack(sent // 1_000_000_000, sent % 1_000_000_000)
         odom_pub.publish(odom_bytes[:4] + stamp + odom_bytes[12:])
         cmd_pub.publish(cmd_bytes[:4] + stamp + cmd_bytes[12:seq_at]
                         + f'{seq:0{SEQ_DIGITS}d}'.encode() + cmd_bytes[seq_at + SEQ_DIGITS:])
-        lateness[seq] = sent * 1e-9 - due
     print(json.dumps({'lateness_p50_ms': 1e3 * float(np.median(lateness)),
                       'lateness_p99_ms': 1e3 * float(np.percentile(lateness, 99)),
-                      'elapsed_s': time.monotonic() - start}), flush=True)
+                      'elapsed_s': time.monotonic() - start, 'skipped': skipped}),
+          flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
@@ -301,7 +311,10 @@ def run(subject, rate, obstacles, duration, warmup):
             if p is not None:
                 stop_processes([p], timeout=5.0)
         log.close()
-    latency_ms = receiver.latency_ns[first:count] * 1e-6
+    sent = np.ones(count, dtype=bool)
+    sent[summary['skipped']] = False
+    sent = sent[first:count]
+    latency_ms = receiver.latency_ns[first:count][sent] * 1e-6
     answered = latency_ms[latency_ms >= 0.0]
     p50, p99 = percentiles(answered, (50, 99))
     windows = receiver.node_values()[1:]  # the first window includes start-up
@@ -314,7 +327,8 @@ def run(subject, rate, obstacles, duration, warmup):
         'duration_s': duration,
         'p50_ms': round(float(p50), 4), 'p99_ms': round(float(p99), 4),
         'max_ms': round(float(answered.max()), 4) if answered.size else None,
-        'answered_frac': round(answered.size / (count - first), 5),
+        'answered_frac': round(answered.size / max(sent.sum(), 1), 5),
+        'sender_skipped_frac': round(1.0 - sent.mean(), 5),
         'achieved_hz': round((answers_after - answers_before) / elapsed, 1),
         'rss_mb': round(rss, 1), 'rss_peak_mb': round(rss_peak, 1),
         'cpu_ms_per_cycle': round(1e3 * (cpu_after - cpu_before) / (elapsed * rate), 4),
@@ -462,6 +476,7 @@ def print_table(records):
                ('rss_mb', 'rss_mb', 6), ('rss_peak_mb', 'hwm_mb', 6),
                ('cpu_ms_per_cycle', 'cpu/cyc', 7), ('node_step_p50_ms', 'step50', 6),
                ('node_step_p99_ms', 'step99', 6), ('sender_late_p99_ms', 'late99', 6),
+               ('sender_skipped_frac', 'skip', 6),
                ('load_avg_1min', 'load', 5), ('cpu_steal_frac', 'steal', 5))
     print(' '.join(f'{title:>{width}}' for _, title, width in columns))
     for r in records:
