@@ -33,7 +33,9 @@ and meets every row, or its projection onto one row (``qp._single_active``).
 
 Hot path: per step, a few compiled kernels (``polyc2bf_ros.core.jit``: built
 ahead of time, or by numba): per plane one pass computes viewpoints, cones and
-barrier terms of all obstacles (``ConeModel.plane``), one more the QP rows;
+barrier terms of all obstacles (``ConeModel.plane``), one more the QP rows, the
+QP's front end and the active parts (``_rows_and_answer``; the solver runs only
+when the front end cannot answer);
 ``SafetyFilter`` runs them all on construction (``warm_up``) so that the first
 real step is as fast as the others.
 
