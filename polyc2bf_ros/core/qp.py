@@ -293,7 +293,9 @@ def front_end_answers(x_ref, weights, A, b, lower, upper, shortcut, x):
     """Return True when the front end (``_front_end``) leaves the optimum in ``x``.
 
     For a kernel that runs the front end in its own pass (the safety filter's
-    rows); when this returns False, ``QPSolver.solve_checked`` does the rest.
+    rows); when this returns False, ``QPSolver.solve_checked`` does the rest,
+    running the front end again (a pass over the rows, small beside the backend
+    solve that follows).
     """
     return _front_end(x_ref, weights, A, b, lower, upper, shortcut, x) == _ANSWERED
 
