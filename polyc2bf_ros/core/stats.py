@@ -1,17 +1,17 @@
 """Step statistics for diagnostics: latency percentiles and achieved rate.
 
-Both are cheap to feed on the hot path (one array store, one integer add)
+Both are cheap to feed on the hot path (one list store, one integer add)
 and summarised only when diagnostics are published.
 """
 import numpy as np
 
 
 class LatencyRing:
-    """The last ``capacity`` latencies [s] in a preallocated ring buffer."""
+    """The last ``capacity`` latencies [s] in a preallocated ring (a list: one store per step)."""
 
     def __init__(self, capacity=4096):
         """Allocate room for ``capacity`` samples."""
-        self._buf = np.zeros(int(capacity))
+        self._buf = [0.0] * int(capacity)
         self._next = 0
         self._count = 0
 
@@ -21,9 +21,11 @@ class LatencyRing:
 
     def add(self, seconds):
         """Record one latency."""
-        self._buf[self._next] = seconds
-        self._next = (self._next + 1) % len(self._buf)
-        self._count = min(self._count + 1, len(self._buf))
+        index = self._next
+        self._buf[index] = seconds
+        self._next = index + 1 if index + 1 < len(self._buf) else 0
+        if self._count <= index:
+            self._count = index + 1
 
     def clear(self):
         """Forget every sample (start a new reporting window)."""
