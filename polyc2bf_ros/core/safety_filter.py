@@ -416,10 +416,27 @@ class SafetyFilter:
             prepared.rows_a, prepared.rows_b, prepared.index, h, u_nom, self._weights,
             self.solver.shortcut, x, active)
         if answered >= 0:
-            return x, FilterInfo(
-                status=FilterStatus.OK, h=h, min_h=min_h, active=active[:answered],
-                solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
-                num_constraints=count, evaluation=evaluation)
+            u, slack, status, message = x, 0.0, FilterStatus.OK, ''
+            active = active[:answered]
+        else:
+            solved = self._solve_rows(prepared, count, inside, ref, evaluation, u_nom, active)
+            if solved is None:
+                return self._brake(state, FilterStatus.BRAKE, start, 'QP and slack QP failed',
+                                   h, min_h, evaluation)
+            u, slack, status, message, active = solved
+        return u, FilterInfo(
+            status=status, h=h, min_h=min_h, active=active,
+            solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
+            num_constraints=count, slack=float(slack),
+            message=message, evaluation=evaluation)
+
+    def _solve_rows(self, prepared, count, inside, ref, evaluation, u_nom, active):
+        """Solve the QP on the step's ``count`` rows where the one-pass kernel could not.
+
+        u_ref is the escape input when ``inside`` parts are unusable, else u_nom; an
+        infeasible QP is solved again with the shared slack.  Return (u, slack, status,
+        message, active parts), or None when the slack QP failed too.
+        """
         u_ref, status, message = u_nom, FilterStatus.OK, ''
         if inside:
             u_ref = self._escape_input(ref, self._escape_direction(prepared, evaluation))
@@ -435,17 +452,12 @@ class SafetyFilter:
                 self.solver, u_ref, self._weights, rows_a, rows_b, self._lower, self._upper,
                 self.config.slack_weight, plain=result)
             if slack_result.status != QPStatus.OPTIMAL:
-                return self._brake(state, FilterStatus.BRAKE, start, 'QP and slack QP failed',
-                                   h, min_h, evaluation)
+                return None
             if status == FilterStatus.OK:
                 status = FilterStatus.SLACK
         active = active[:_active_parts(rows_a, u, rows_b, prepared.index,
                                        ACTIVE_TOLERANCE + slack, active)]
-        return u, FilterInfo(
-            status=status, h=h, min_h=min_h, active=active,
-            solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
-            num_constraints=count, slack=float(slack),
-            message=message, evaluation=evaluation)
+        return u, slack, status, message, active
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""
