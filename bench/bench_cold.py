@@ -14,7 +14,13 @@ taking turns so that all see the same phase of the VM:
   in ``bench_node.py``, ``trigger: command``): ``_on_odom`` then ``_on_command``
   with serialized messages, the answer captured instead of published;
 - ``node_shell``: the same with ``CommandFilter.filter`` replaced by its last
-  answer (everything but the filter).
+  answer (everything but the filter);
+- ``filter_step``: ``SafetyFilter.step`` alone at the node's state, obstacles
+  and nominal input;
+- ``filter_kernels``: only the compiled kernels that step runs (reference
+  kinematics, cones and barrier terms of the plane, rows + QP front end + active
+  parts), called back to back on the step's own buffers: what a step would
+  cost cold with no Python at all between the kernels.
 
 If the probes differ only after the gap for memory, not for compute, the
 slowdown is the caches, not the clock.  Results: a table on stdout and
@@ -89,12 +95,50 @@ def node_subjects():
 
     path(real_filter)()
     last = real_filter(node._state, 0.0, (1.0, 0.0), node._obstacle_set, 0.0)
-    subjects = {'node_path': path(real_filter), 'node_shell': path(lambda *_: last)}
+    subjects = {'node_path': path(real_filter), 'node_shell': path(lambda *_: last),
+                **filter_subjects(command_filter, node._state, node._obstacle_set)}
 
     def close():
         node.destroy_node()
         rclpy.try_shutdown()
     return subjects, node, close
+
+
+def filter_subjects(command_filter, state, obstacles):
+    """``{name: callable}``: the node's filter step, and its compiled kernels alone.
+
+    The kernel calls mirror ``SafetyFilter.step``'s common path for a single-view
+    (2-D) model (private names of ``core.safety_filter``: a bench may reach in).
+    """
+    from polyc2bf_ros.core.safety_filter import _rows_and_answer, PLANE_ROWS
+    safety_filter, model = command_filter.safety_filter, command_filter.model
+    state = np.asarray(state, dtype=np.float64)
+    u_nom = np.ascontiguousarray(
+        command_filter.interface.nominal_input(state, (1.0, 0.0)), dtype=np.float64)
+    prepared = safety_filter._prepare(obstacles)
+    (view,) = prepared.views
+    reference = model.reference(state, safety_filter._reference)
+    block, usable = safety_filter._plane(view, prepared, reference, 0.0)
+    h, x = np.empty(prepared.count), np.empty(model.input_dim)
+    active = np.empty(prepared.count, dtype=np.intp)
+
+    def kernels():
+        model.reference(state, safety_filter._reference)
+        safety_filter.cone_model.fill_plane(
+            view.prepared, view.projections, prepared.velocities, prepared.offsets, 0.0,
+            reference, safety_filter._epsilon, block, usable, False)
+        _rows_and_answer.unchecked(
+            block[PLANE_ROWS:], usable, *safety_filter._row_settings, prepared.rows_a,
+            prepared.rows_b, prepared.index, h, u_nom, safety_filter._weights,
+            safety_filter.solver.shortcut, x, active)
+
+    step_u, _ = safety_filter.step(state, obstacles, u_nom)
+    kernels()
+    if not np.array_equal(step_u, x):
+        raise RuntimeError(f'the kernels alone answer {x}, the step {step_u}: '
+                           'filter_kernels no longer mirrors SafetyFilter.step')
+    return {'filter_step': lambda: safety_filter.step(state, obstacles, u_nom),
+            'filter_kernels': kernels}
 
 
 def measure(subjects, gap, samples):
