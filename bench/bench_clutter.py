@@ -9,7 +9,7 @@ import argparse
 import time
 
 import numpy as np
-from bench_io import write_records
+from bench_io import require_installed_checkout, write_records
 
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.nominal import PointMassGoalController, UnicycleGoalController
@@ -53,6 +53,7 @@ def main(argv=None):
     parser.add_argument('--seeds', type=int, default=50)
     parser.add_argument('--out', default='bench/results/clutter.json')
     args = parser.parse_args(argv)
+    require_installed_checkout()
     seeds = range(args.seeds)
     records = []
     print(f'{"model":<14} {"barrier":<18} {"collisions":>10} {"goals":>6} {"min clr m":>9} '

@@ -37,7 +37,7 @@ from pathlib import Path
 import numba
 import numpy as np
 import rclpy
-from bench_io import write_records
+from bench_io import require_installed_checkout, write_records
 from bench_node import obstacle_markers
 from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import Odometry
@@ -168,6 +168,7 @@ def main(argv=None):
     parser.add_argument('--samples', type=int, default=2000, help='per subject and state')
     parser.add_argument('--out', type=Path, default=RESULTS)
     args = parser.parse_args(argv)
+    require_installed_checkout()
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     os.environ.setdefault('ROS_DOMAIN_ID', str(95 + os.getpid() % 7))
     values = np.ones(512 * LINE_DOUBLES * 64)

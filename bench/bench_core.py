@@ -33,7 +33,7 @@ import tempfile
 import time
 
 import numpy as np
-from bench_io import write_records
+from bench_io import require_installed_checkout, write_records
 
 from polyc2bf_ros.core.geometry import convex_hull
 from polyc2bf_ros.core.models import make_model
@@ -221,6 +221,7 @@ def main(argv=None):
     parser.add_argument('--moving', type=int, default=10,
                         help='obstacles that move between rebuilds')
     args = parser.parse_args(argv)
+    require_installed_checkout()
     print(f'load average at start: {" ".join(f"{v:.2f}" for v in os.getloadavg())}')
     records = [] if args.no_startup else startup_records()
     if args.rebuilds:

@@ -61,7 +61,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
-from bench_io import write_records
+from bench_io import require_installed_checkout, write_records
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import Point, TwistStamped
 from nav_msgs.msg import Odometry
@@ -512,6 +512,7 @@ def main(argv=None):
         return run_sender(args.rate[0], args.count)
     if args.role.startswith('echo'):
         return run_echo(lean=args.role == 'echo')
+    require_installed_checkout()
     if args.obstacle_updates:
         records = run_obstacle_updates(args.obstacles, args.robots, args.moving, args.messages)
         print_obstacle_table(records)

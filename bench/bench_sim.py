@@ -29,7 +29,7 @@ import resource
 import time
 
 import numpy as np
-from bench_io import write_records
+from bench_io import require_installed_checkout, write_records
 
 from polyc2bf_ros.core import crazyflie as cf
 from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
@@ -186,6 +186,7 @@ def main(argv=None):
                         metavar='1..10', help='runs per case; the median is reported')
     parser.add_argument('--out', default='bench/results/sim.json')
     args = parser.parse_args(argv)
+    require_installed_checkout()
     cases = args.case or list(CASES)
     records = _table('world alone', f'{"RTF cpu":>8} {"physics":>8} {"RSS MB":>7} {"build s":>8}',
                      cases, lambda name: run_case(name, args.seconds), args.repeats,

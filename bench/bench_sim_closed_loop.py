@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from bench_io import require_installed_checkout
 
 from sim_bridge.launcher import stop_processes
 from sim_bridge.scenario import load_scenario
@@ -288,6 +289,7 @@ def main(argv=None):
     if args.relay:
         relay(*args.relay)
         return 0
+    require_installed_checkout()
     os.environ.setdefault('ROS_DOMAIN_ID', str(random.randint(1, 101)))
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     records = []
