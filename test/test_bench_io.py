@@ -19,6 +19,7 @@ def _tree(root, files):
 
 
 def test_differing_sources_lists_changed_and_missing_files(tmp_path):
+    """Changed and missing sources are listed; extra or non-Python files are not."""
     files = {'a.py': 'x = 1\n', 'sub/b.py': 'y = 2\n', 'sub/c.py': 'z = 3\n'}
     source = _tree(tmp_path / 'source', files)
     installed = _tree(tmp_path / 'installed', {**files, 'sub/b.py': 'y = 20\n', 'extra.py': ''})
@@ -30,6 +31,7 @@ def test_differing_sources_lists_changed_and_missing_files(tmp_path):
 
 
 def test_require_installed_checkout_names_the_fix(tmp_path):
+    """A differing checkout exits naming the file and `make venv`; the same tree passes."""
     import polyc2bf_ros
     imported = Path(polyc2bf_ros.__file__).parent
     checkout = _tree(tmp_path / 'repo', {'polyc2bf_ros/__init__.py': '# edited\n'})
