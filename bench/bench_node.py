@@ -33,8 +33,10 @@ plus the sender's lateness against its schedule, the load average and the CPU
 share stolen by the hypervisor.  With ``trigger:=timer`` at the command rate
 a command can be overtaken by the next before a tick answers it, so its
 ``answered`` is below 1 by design; its latency includes the wait for the tick.
-Results: a table on stdout and ``bench/results/node.json`` (DESIGN.md
-section 8).  DDS stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
+Results: a table on stdout, ``bench/results/node.json`` (DESIGN.md section 8;
+each record keeps its latency distribution, ``latency_cdf_ms`` at the
+percentiles 0, 0.5, ..., 100) and beside it ``node.png``, those distributions
+against the targets.  DDS stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
 
     .venv/bin/python bench/bench_node.py [--rate 1000] [--obstacles 50] [--duration 10]
         [--subjects echo echo_rclpy command timer]
@@ -84,6 +86,8 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 SEQ_DIGITS = 10  # fixed-width sequence numbers keep the serialized layout fixed
 STAMP = struct.Struct('<iI')
 SUBJECTS = ('echo', 'echo_rclpy', 'command', 'timer')
+CDF_PERCENTILES = np.linspace(0.0, 100.0, 201)  # the latency distribution kept per record
+TARGET_P50_MS, TARGET_P99_MS = 0.5, 1.5
 
 
 def obstacle_markers(count, seed=0):
@@ -327,6 +331,8 @@ def run(subject, rate, obstacles, duration, warmup):
         'duration_s': duration,
         'p50_ms': round(float(p50), 4), 'p99_ms': round(float(p99), 4),
         'max_ms': round(float(answered.max()), 4) if answered.size else None,
+        'latency_cdf_ms': ([round(float(v), 4) for v in np.percentile(answered, CDF_PERCENTILES)]
+                           if answered.size else []),
         'answered_frac': round(answered.size / max(sent.sum(), 1), 5),
         'sender_skipped_frac': round(1.0 - sent.mean(), 5),
         'achieved_hz': round((answers_after - answers_before) / elapsed, 1),
@@ -483,6 +489,33 @@ def print_table(records):
         print(' '.join(_cell(r[key], width) for key, _, width in columns))
 
 
+def plot_latency(records, path):
+    """Write the latency distributions of ``records`` (``latency_cdf_ms``) with the targets."""
+    from matplotlib.figure import Figure
+    figure = Figure(figsize=(7.5, 4.2), layout='constrained')
+    axes = figure.subplots()
+    for record in records:
+        if record['latency_cdf_ms']:
+            axes.plot(record['latency_cdf_ms'], CDF_PERCENTILES,
+                      label=f'{record["subject"]}: p50 {record["p50_ms"]:.3f} ms, '
+                            f'p99 {record["p99_ms"]:.2f} ms')
+    for latency, percentile in ((TARGET_P50_MS, 50.0), (TARGET_P99_MS, 99.0)):
+        axes.plot([latency, latency], [0.0, percentile], 'k:', linewidth=1)
+    axes.plot([TARGET_P50_MS, TARGET_P99_MS], [50.0, 99.0], 'kx', linestyle='none',
+              label=f'targets: p50 <= {TARGET_P50_MS} ms, p99 <= {TARGET_P99_MS} ms')
+    axes.set_xscale('log')
+    axes.set_xlabel('latency, command stamp to answer received [ms]')
+    axes.set_ylabel('percentile of the answered commands')
+    axes.set_ylim(0.0, 100.0)
+    axes.grid(True, which='both', alpha=0.3)
+    axes.legend(loc='lower right', fontsize=8)
+    rate, steal = records[0]['rate_hz'], max(r['cpu_steal_frac'] for r in records)
+    axes.set_title(f'bench_node.py at {rate} Hz over DDS on {os.cpu_count()} CPUs '
+                   f'(hypervisor steal <= {100 * steal:.1f} %)', fontsize=9)
+    figure.savefig(path, dpi=100)
+    print(f'wrote {path}')
+
+
 def main(argv=None):
     """Run the node benchmark for each subject and rate; print the table and write the JSON."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
@@ -521,7 +554,9 @@ def main(argv=None):
     records = [run(subject, rate, args.obstacles, args.duration, args.warmup)
                for rate in args.rate for subject in args.subjects]
     print_table(records)
-    write_records(records, args.out or RESULTS)
+    out = args.out or RESULTS
+    write_records(records, out)
+    plot_latency(records, Path(out).with_suffix('.png'))
     return 0
 
 
