@@ -497,7 +497,8 @@ def plot_latency(records, path):
     for record in records:
         if record['latency_cdf_ms']:
             axes.plot(record['latency_cdf_ms'], CDF_PERCENTILES,
-                      label=f'{record["subject"]}: p50 {record["p50_ms"]:.3f} ms, '
+                      label=f'{record["subject"]} at {record["rate_hz"]} Hz: '
+                            f'p50 {record["p50_ms"]:.3f} ms, '
                             f'p99 {record["p99_ms"]:.2f} ms')
     for latency, percentile in ((TARGET_P50_MS, 50.0), (TARGET_P99_MS, 99.0)):
         axes.plot([latency, latency], [0.0, percentile], 'k:', linewidth=1)
@@ -509,8 +510,8 @@ def plot_latency(records, path):
     axes.set_ylim(0.0, 100.0)
     axes.grid(True, which='both', alpha=0.3)
     axes.legend(loc='lower right', fontsize=8)
-    rate, steal = records[0]['rate_hz'], max(r['cpu_steal_frac'] for r in records)
-    axes.set_title(f'bench_node.py at {rate} Hz over DDS on {os.cpu_count()} CPUs '
+    steal = max(r['cpu_steal_frac'] for r in records)
+    axes.set_title(f'bench_node.py over DDS on {os.cpu_count()} CPUs '
                    f'(hypervisor steal <= {100 * steal:.1f} %)', fontsize=9)
     figure.savefig(path, dpi=100)
     print(f'wrote {path}')
