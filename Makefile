@@ -48,6 +48,15 @@ $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
 test: $(PKG_STAMP)
 	$(PY) -m pytest -n $(PYTEST_WORKERS) $(PYTEST_ARGS) test
 
+# `make test` (and anything run with CI set) uses hypothesis's fixed, derandomized profile:
+# the same examples on every clone and run.  `make test-explore` (or HYPOTHESIS_PROFILE=explore
+# on any pytest command) runs the property tests with 10x the examples on a fresh random seed;
+# pin every counterexample it finds with @example next to its fix (test/conftest.py).
+.PHONY: test-explore
+test-explore: $(PKG_STAMP)
+	HYPOTHESIS_PROFILE=explore $(PY) -m pytest -n $(PYTEST_WORKERS) $(PYTEST_ARGS) \
+	  test/core test/node/test_node_conversions.py test/sim/test_recorder.py
+
 lint: $(PKG_STAMP)
 	$(PY) -m ruff check .
 

@@ -1,8 +1,19 @@
 """Hypothesis strategies shared by the core tests (not collected: no test_ prefix)."""
 import numpy as np
-from hypothesis import strategies as st
+from hypothesis import settings, strategies as st
 
 from polyc2bf_ros.core.geometry import convex_hull
+
+
+def examples(count):
+    """Return ``count`` scaled by the loaded hypothesis profile (test/conftest.py).
+
+    ``count`` under ``fixed``, ``EXPLORE_FACTOR * count`` under ``explore``: an explicit
+    ``max_examples`` overrides the profile, so a test's own budget must scale with it.
+    """
+    scale = settings.default.max_examples / settings.get_profile('fixed').max_examples
+    return max(1, round(count * scale))
+
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 

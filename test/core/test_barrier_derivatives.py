@@ -14,7 +14,7 @@ from hypothesis import assume, given, HealthCheck, settings, strategies as st
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from strategies import convex_polygons, random_state
+from strategies import convex_polygons, examples, random_state
 
 BARRIERS = ('polyc2bf_paper', 'polyc2bf_inflated', 'c3bf')
 STEP = 1e-6
@@ -28,7 +28,7 @@ def _structure(evaluation):
 
 @pytest.mark.parametrize('barrier', BARRIERS)
 @pytest.mark.parametrize('model_name', MODEL_NAMES)
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=examples(60), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(polygon=convex_polygons(centre_range=5.0), seed=st.integers(0, 2 ** 32 - 1),
        moving=st.booleans(), bounded=st.booleans())
 def test_lie_derivatives_match_finite_differences(model_name, barrier, polygon, seed,

@@ -25,9 +25,10 @@ from polyc2bf_ros.core.geometry import (
 )
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.views import prepare_views
-from strategies import convex_polygons
+from strategies import convex_polygons, examples
 
-SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=examples(150), deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow])
 polygon_lists = st.lists(convex_polygons(centre_range=5.0), min_size=1, max_size=6)
 
 
@@ -110,7 +111,7 @@ def _shapes(seed):
     return [hull, hull[::-1], star, dent, repeat, straight, spike]
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1))
 def test_convexity_kernel_matches_numpy(seed):
     """Convex CCW and simple, exactly where the numpy turns-and-winding test says so."""
@@ -121,7 +122,7 @@ def test_convexity_kernel_matches_numpy(seed):
     assert expected[0] and not expected[1] and not expected[2]
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1))
 def test_obstacle_set_equals_the_per_obstacle_path(seed):
     """Fast path for convex footprints, decomposition for the others: parts as before."""

@@ -8,6 +8,7 @@ from polyc2bf_ros.core.command_filter import CommandFilter
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus
+from strategies import examples
 
 PERIOD = 0.01
 WALL = ObstacleSet.from_obstacles([Obstacle(
@@ -19,7 +20,7 @@ def _filter(model_name, **config):
                          FilterConfig(control_period=PERIOD, **config))
 
 
-@settings(max_examples=50, deadline=None)
+@settings(max_examples=examples(50), deadline=None)
 @given(v=st.floats(-0.5, 0.5), omega=st.floats(-0.5, 0.5),
        dv=st.floats(-0.015, 0.015), domega=st.floats(-0.03, 0.03))
 def test_unicycle_is_transparent_without_obstacles(v, omega, dv, domega):

@@ -10,7 +10,7 @@ from polyc2bf_ros.core.geometry import (
     PolygonBatch,
     signed_distance,
 )
-from strategies import convex_polygons
+from strategies import convex_polygons, examples
 
 viewpoints = st.tuples(st.floats(-8, 8), st.floats(-8, 8)).map(np.array)
 
@@ -24,7 +24,7 @@ def _inside_cone(points, cones, tol=1e-9):
     return bool(np.all(cos_points >= cos_phi - tol))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(polygon=convex_polygons(), viewpoint=viewpoints, radius=st.floats(0.0, 0.5))
 def test_polygon_and_extension_inside_paper_cone(polygon, viewpoint, radius):
     """Vertices and the segment extended by w/2 lie in the paper's cone."""
@@ -39,7 +39,7 @@ def test_polygon_and_extension_inside_paper_cone(polygon, viewpoint, radius):
     assert np.isclose(cones.s[0], k @ cones.p[:, 0] / np.linalg.norm(k))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(polygon=convex_polygons(), viewpoint=viewpoints, radius=st.floats(0.01, 0.5))
 def test_inflated_obstacle_inside_inflated_cone(polygon, viewpoint, radius):
     """Every point within ``radius`` of the polygon lies in the inflated-silhouette cone."""
@@ -55,7 +55,7 @@ def test_inflated_obstacle_inside_inflated_cone(polygon, viewpoint, radius):
     assert _inside_cone(offset_points - viewpoint, cones)
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(polygon=convex_polygons(), viewpoint=viewpoints, radius=st.floats(0.0, 0.5))
 def test_c3bf_cone_is_tangent_to_circle(polygon, viewpoint, radius):
     """C3BF: cos(phi) = sqrt(|p|^2 - r^2)/|p| and the polygon lies inside the cone."""

@@ -25,8 +25,9 @@ from polyc2bf_ros.core.geometry import (
     thin_axis,
     vertical_shadow,
 )
+from strategies import examples
 
-SETTINGS = settings(max_examples=100, deadline=None)
+SETTINGS = settings(max_examples=examples(100), deadline=None)
 SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 
 small_ints = st.integers(-20, 20)

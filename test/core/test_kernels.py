@@ -25,9 +25,10 @@ from polyc2bf_ros.core.safety_filter import (
     SafetyFilter,
 )
 from polyc2bf_ros.core.views import choose_planes, prepare_views
-from strategies import convex_polygons, random_state
+from strategies import convex_polygons, examples, random_state
 
-SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=examples(150), deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow])
 CLOSE = {'rtol': 1e-12, 'atol': 1e-12}
 polygon_lists = st.lists(convex_polygons(centre_range=5.0), min_size=1, max_size=6)
 
@@ -222,7 +223,7 @@ def test_pruning_keeps_rows_with_unbounded_inputs():
     assert kept == 1 and index[0] == 1
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), m=st.integers(0, 12), n=st.integers(1, 5))
 def test_row_residuals_match_numpy(seed, m, n):
     """A x - b and its minimum; NaN anywhere makes the minimum NaN."""
@@ -237,7 +238,7 @@ def test_row_residuals_match_numpy(seed, m, n):
         assert np.isnan(qp.row_residuals(A, x, b, out))
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), m=st.integers(0, 12), n=st.integers(1, 5))
 def test_active_parts_match_numpy(seed, m, n):
     """The obstacle indices of the rows with A x - b <= tolerance, in row order."""
@@ -268,7 +269,7 @@ def reference_body_point(model, x):
     return x[0:3] + rot @ b, x[3:6] + rot @ np.cross(w, b), drift, B
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1))
 def test_quadrotor_body_point_kernel_matches_numpy(seed):
     """Body-point kinematics of the compiled kernel equal the numpy formulas."""
@@ -296,7 +297,7 @@ def test_reference_into_a_reused_buffer_matches_a_fresh_one(model_name):
             np.testing.assert_array_equal(getattr(reused, name), getattr(fresh, name))
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(100), deadline=None)
 @given(polygons=polygon_lists, seed=st.integers(0, 2 ** 32 - 1))
 def test_plane_choice_follows_the_rule(polygons, seed):
     """3-D views: viewpoints P_n (r - age c_dot - o_n) and the plane chosen per obstacle.
@@ -382,7 +383,7 @@ def test_hovering_among_many_low_prisms_is_feasible():
     assert info.num_obstacles == 200
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300), deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(2, 4), m=st.integers(1, 6),
        outside=st.booleans())
 def test_single_active_shortcut_is_the_optimum_when_it_answers(seed, n, m, outside):

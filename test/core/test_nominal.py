@@ -7,6 +7,7 @@ from hypothesis import given, settings, strategies as st
 from polyc2bf_ros.core import crazyflie as cf
 from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 from polyc2bf_ros.core.nominal import QuadrotorGoalController
+from strategies import examples
 
 
 def numpy_wrench(controller, state, goal):
@@ -26,7 +27,7 @@ def numpy_wrench(controller, state, goal):
     return np.concatenate([[thrust], torque])
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), far=st.booleans())
 def test_quadrotor_wrench_matches_the_numpy_law(seed, far):
     """Near (unclipped) and far (clipped position term) goals, any attitude and rates."""

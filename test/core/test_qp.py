@@ -17,13 +17,14 @@ from polyc2bf_ros.core.qp import (
     solve_with_shared_slack,
     SOLVERS,
 )
+from strategies import examples
 
 # One instance per backend for the whole module, so that DAQP's per-size models are reused
 # across examples of the same size (stale buffers would show up as wrong answers).
 BACKENDS = {'daqp': DaqpSolver(), 'proxsuite': ProxsuiteSolver()}
 REFERENCE = ReferenceSolver()
 AGREEMENT_TOL = 1e-8
-PROPERTY = settings(max_examples=120, deadline=None,
+PROPERTY = settings(max_examples=examples(120), deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
 
 coefficient = st.floats(-2.0, 2.0).map(lambda v: round(v, 3))  # exact zeros and duplicates
@@ -173,7 +174,7 @@ def test_infeasible_problems_are_reported(problem):
         np.testing.assert_array_equal(result.x, np.clip(x_ref, lower, upper))
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=examples(60), deadline=None)
 @given(feasible_problems(max_n=3, max_m=4), st.floats(1.0, 1e4))
 def test_shared_slack_is_zero_when_feasible(problem, slack_weight):
     """A feasible problem needs no slack: s = 0 and x is the plain optimum."""
@@ -185,7 +186,7 @@ def test_shared_slack_is_zero_when_feasible(problem, slack_weight):
         np.testing.assert_array_equal(x, plain.x)
 
 
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=examples(60), deadline=None)
 @given(infeasible_problems(max_n=3, max_m=3), st.floats(1.0, 1e4))
 # Boxes 1e-8 wide around x_ref: the reference once took the corner, 1e-8 off (its
 # multipliers, -1.1e-9, passed a solver's certificate tolerance).

@@ -14,9 +14,10 @@ from polyc2bf_ros.core.safety_filter import (
     FilterStatus,
     SafetyFilter,
 )
-from strategies import convex_polygons, random_state
+from strategies import convex_polygons, examples, random_state
 
-SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=examples(40), deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow])
 obstacle_lists = st.lists(convex_polygons(centre_range=6.0), min_size=0, max_size=8)
 
 

@@ -15,9 +15,10 @@ from polyc2bf_ros.core.geometry import PolygonBatch
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from strategies import convex_polygons, random_state
+from strategies import convex_polygons, examples, random_state
 
-SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=examples(25), deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow])
 polygon_lists = st.lists(convex_polygons(centre_range=4.0), min_size=1, max_size=6)
 # Rounding only: coordinates are O(10) m, so one ulp is ~2e-15.
 TOLERANCE = {'rtol': 1e-9, 'atol': 1e-11}

@@ -5,6 +5,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from polyc2bf_ros.core.watchdog import Watchdog
+from strategies import examples
 
 
 def test_never_received_is_stale_with_infinite_age():
@@ -61,7 +62,7 @@ def test_bad_timeouts_are_refused(bad):
         Watchdog({'cmd': bad})
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200), deadline=None)
 @given(timeouts=st.lists(st.sampled_from([0.0, 0.1, 0.5]), min_size=1, max_size=4),
        fed=st.lists(st.one_of(st.none(), st.floats(0.0, 2.0)), min_size=4, max_size=4),
        now=st.floats(0.0, 3.0))
