@@ -475,6 +475,11 @@ def inflate_polygon(polygon, radius, segments=16) -> np.ndarray:
     segments)``; ``batch_geometry.minkowski_regular``). It contains the exact offset set and
     exceeds it by at most ``R - radius = radius * (1 / cos(pi / segments) - 1)`` (about
     1.9 % of radius for 16 segments).
+
+    Every vertex turns left: where an edge of the hull is parallel to one of the
+    ``segments``-gon, the merge can leave a vertex on the straight line through its
+    neighbours (or a repeated one); those are dropped (``|cross(e_in, e_out)| <= 1e-12
+    |e_in| |e_out|``), which moves the boundary by at most 1e-12 of an edge length.
     """
     pts = _as_points(polygon, 'polygon')
     if not (np.isfinite(radius) and radius >= 0):
@@ -488,7 +493,7 @@ def inflate_polygon(polygon, radius, segments=16) -> np.ndarray:
     x, y, count = np.empty((1, width)), np.empty((1, width)), np.empty(1, dtype=np.intp)
     batch_geometry.minkowski_regular(hull[None], np.array([len(hull)]), float(radius),
                                      int(segments), x, y, count)
-    return np.column_stack((x[0, :count[0]], y[0, :count[0]]))
+    return _drop_collinear(np.column_stack((x[0, :count[0]], y[0, :count[0]])))
 
 
 def minimum_enclosing_circle(points) -> tuple[np.ndarray, float]:
