@@ -74,6 +74,10 @@ from polyc2bf_ros.core.obstacle_tracker import (
     POINT_TOLERANCE,
     Shape,
 )
+from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
+
+# (max_vertices, max_parts) of marker outlines (``marker_shape``).
+OUTLINE_LIMITS = (MAX_VERTICES, MAX_PARTS)
 
 MARKER_TYPE_NAMES = {getattr(Marker, n): n for n in (
     'ARROW', 'CUBE', 'SPHERE', 'CYLINDER', 'LINE_STRIP', 'LINE_LIST', 'CUBE_LIST',
@@ -528,20 +532,24 @@ def marker_placement(marker):
     return Placement(p.x, p.y, p.z), np.array(r).reshape(3, 3)
 
 
-def _source(marker, tilt, wall_thickness, cylinder_sides):
+def _source(marker, tilt, wall_thickness, cylinder_sides, limits):
     """Everything a marker's ``Shape`` depends on besides the placement, as a comparable tuple."""
     scale, q = marker.scale, marker.pose.orientation
-    source = (marker.type, scale.x, scale.y, scale.z, wall_thickness, cylinder_sides,
+    source = (marker.type, scale.x, scale.y, scale.z, wall_thickness, cylinder_sides, limits,
               None if tilt is None else (q.x, q.y, q.z, q.w))
     if marker.type in _SOLIDS:
         return source
     return source + (_points(marker.points).tobytes(),)
 
 
-def marker_shape(marker, wall_thickness, cylinder_sides, tilt=None, source=None):
+def marker_shape(marker, wall_thickness, cylinder_sides, tilt=None, source=None,
+                 limits=OUTLINE_LIMITS):
     """``Shape`` of one marker in its own frame (``tilt`` applied); ``ValueError`` with a reason.
 
     The pose is not read here (see ``marker_placement``); ``source`` is stored in the shape.
+    ``limits``: an outline of more than ``max_vertices`` points, or a LINE_LIST /
+    TRIANGLE_LIST of more than ``max_parts`` pieces, becomes the enclosing polygon of all
+    its points (``core.polygon_limits``; the shape is marked ``simplified``).
     """
     scale, kind = marker.scale, marker.type
     sx, sy, sz = scale.x, scale.y, scale.z
@@ -575,13 +583,18 @@ def marker_shape(marker, wall_thickness, cylinder_sides, tilt=None, source=None)
         raise ValueError(f'unsupported marker type {MARKER_TYPE_NAMES.get(kind, kind)}')
     if len(local) == 0:
         raise ValueError('no points')
-    polygons = tuple(outline_polygon(g[:, :2], thickness) for g in groups)
+    max_vertices, max_parts = limits
+    regrouped = len(groups) > max_parts
+    if regrouped:
+        groups = [local]
+    simplified = regrouped or any(len(g) > max_vertices for g in groups)
+    polygons = tuple(outline_polygon(g[:, :2], thickness, max_vertices) for g in groups)
     z_min, z_max = local[:, 2].min(), local[:, 2].max()
     if z_max - z_min < POINT_TOLERANCE:
         # A flat outline is a prism of height scale.z above it, or an infinite extrusion.
         z_max = z_min + sz if kind != Marker.TRIANGLE_LIST and sz > 0.0 else math.inf
         z_min = z_min if math.isfinite(z_max) else -math.inf
-    return Shape(polygons, z_min, z_max, local.mean(axis=0), source)
+    return Shape(polygons, z_min, z_max, local.mean(axis=0), source, simplified)
 
 
 def _reference(marker, shape, placement):
@@ -600,13 +613,38 @@ def marker_geometry(marker, wall_thickness, cylinder_sides):
             np.array(_reference(marker, shape, placement), dtype=float))
 
 
-def apply_markers(tracker, msg, now_stamp, wall_thickness, cylinder_sides):
+def conflate_markers(markers):
+    """Return markers with the same effect as ``markers`` applied in order, newest per key.
+
+    Everything before the last DELETEALL is dropped (the DELETEALL is kept first); after
+    it, each ``ns/id`` keeps only its last ADD/MODIFY or DELETE, in the order of those
+    last occurrences.  The obstacles this leaves are those of applying every marker; a
+    key updated several times gets its velocity from the first and last positions only.
+    """
+    markers = list(markers)
+    start = 0
+    for index, marker in enumerate(markers):
+        if marker.action == Marker.DELETEALL:
+            start = index
+    newest = {}
+    for marker in markers[start:]:
+        if marker.action != Marker.DELETEALL:
+            key = (marker.ns, marker.id)
+            newest.pop(key, None)  # re-inserted last: order of last occurrence
+            newest[key] = marker
+    head = markers[start:start + 1] if markers and markers[start].action == Marker.DELETEALL \
+        else []
+    return head + list(newest.values())
+
+
+def apply_markers(tracker, msg, now_stamp, wall_thickness, cylinder_sides,
+                  limits=OUTLINE_LIMITS):
     """Apply a ``visualization_msgs/MarkerArray`` to an ``ObstacleTracker``, marker by marker.
 
     Markers stamped zero use ``now_stamp`` [s].  A marker that cannot be used is
     rejected with its reason (non-finite numbers mark the tracker invalid);
     markers without a frame are rejected too.  A marker whose shape (type,
-    scale, points, tilt, the two settings) equals the one last given for its
+    scale, points, tilt, the settings and ``limits``) equals the one last given for its
     key reuses that ``Shape``: only its pose is read (``Placement``).
     """
     for marker in msg.markers:
@@ -625,10 +663,11 @@ def apply_markers(tracker, msg, now_stamp, wall_thickness, cylinder_sides):
             if not frame:
                 raise ValueError('empty header.frame_id')
             placement, tilt = marker_placement(marker)
-            source = _source(marker, tilt, wall_thickness, cylinder_sides)
+            source = _source(marker, tilt, wall_thickness, cylinder_sides, limits)
             shape = tracker.shape(key)
             if shape is None or shape.source != source:
-                shape = marker_shape(marker, wall_thickness, cylinder_sides, tilt, source)
+                shape = marker_shape(marker, wall_thickness, cylinder_sides, tilt, source,
+                                     limits)
         except ValueError as exc:
             tracker.reject(key, str(exc), invalid=isinstance(exc, NonFiniteError))
             continue

@@ -3,6 +3,7 @@ import gc
 import signal
 
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 
 from polyc2bf_ros.lean_executor import LeanExecutor
@@ -11,9 +12,10 @@ from polyc2bf_ros.lean_executor import LeanExecutor
 def run_node(node_class, name, args=None):
     """Spin ``node_class()`` on a ``LeanExecutor`` until shutdown; return 1 on a bad configuration.
 
-    Call it from the main thread of the process.  A ``ValueError`` from the
-    constructor is a configuration error: it is logged as fatal under ``name``
-    and the process exits with status 1.  Ctrl-C and an external shutdown end
+    Call it from the main thread of the process.  A ``ValueError``, ``TypeError``
+    or rclpy ``ParameterException`` (out of range, wrong type, read-only) from the
+    constructor is a configuration error: it is logged as one fatal line under
+    ``name``, without a traceback, and the process exits with status 1.  Ctrl-C and an external shutdown end
     the node cleanly (status 0):
 
     - while starting up, Ctrl-C raises ``KeyboardInterrupt`` as usual;
@@ -39,8 +41,9 @@ def run_node(node_class, name, args=None):
     rclpy.init(args=args)
     try:
         node = node_class()
-    except ValueError as exc:
-        rclpy.logging.get_logger(name).fatal(f'invalid configuration: {exc}')
+    except (ValueError, TypeError, ParameterException) as exc:
+        reason = ' '.join(str(exc).split()) or type(exc).__name__
+        rclpy.logging.get_logger(name).fatal(f'invalid configuration: {reason}')
         rclpy.try_shutdown()
         return 1
     except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C while starting up

@@ -23,10 +23,22 @@ the wrench into rotor thrusts and back.  A stop is a zero twist, or the
 model's braking (hover) wrench.  Nothing is published before the first
 nominal command; after it, every step publishes.
 
-Hot path: odometry, commands and obstacle MarkerArrays are taken serialized
-and only the fields used are read (``conversions``, CDR section; an unreadable
-obstacle message brakes until a readable one arrives); the answer is a copy of
-the command's bytes with its six numbers replaced, so its header is the input's.
+Obstacles: MarkerArrays are queued serialized and processed on a worker thread
+(``obstacle_intake``: conflated, capped by ``max_vertices`` / ``max_parts`` /
+``max_obstacles``, prepared for the filter, handed over as one snapshot), so no
+obstacle message delays a control step.  An unreadable message brakes until a
+readable one arrives.  With ``block_if_invalid`` (default, as Nav2's collision
+monitor) rejected obstacles (wrong frame, unusable) are not fresh data: the
+obstacles go stale after ``obstacles_timeout`` and the node stops (at once with
+timeout 0).
+
+Stall guard: if no control step or tick has run for ``stall_timeout`` (steady
+clock), a separate thread publishes the stop and an ERROR on ``/diagnostics``
+(``stall_guard``).
+
+Hot path: odometry and commands are taken serialized and only the fields used
+are read (``conversions``, CDR section); the answer is a copy of the command's
+bytes with its six numbers replaced, so its header is the input's.
 Diagnostics and markers are built on their own slow timers.
 """
 import dataclasses
@@ -54,12 +66,13 @@ from polyc2bf_ros import conversions
 from polyc2bf_ros.core.command_filter import CommandFilter
 from polyc2bf_ros.core.command_interface import VELOCITY_MODELS
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
-from polyc2bf_ros.core.obstacle_tracker import extrapolation_age, ObstacleTracker
-from polyc2bf_ros.core.obstacles import ObstacleSet
+from polyc2bf_ros.core.obstacle_tracker import extrapolation_age
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus
 from polyc2bf_ros.core.stats import LatencyRing, RateMeter
 from polyc2bf_ros.core.watchdog import Watchdog
 from polyc2bf_ros.node_main import run_node
+from polyc2bf_ros.obstacle_intake import IntakeSettings, ObstacleIntake
+from polyc2bf_ros.stall_guard import StallGuard
 
 # name: (default, (min, max) or None, description, read-only)
 NODE_PARAMETERS = {
@@ -85,6 +98,17 @@ NODE_PARAMETERS = {
                        'outlines whose marker has no line width (scale.x)', False),
     'cylinder_sides': (12, (3, 64), 'sides of the polygon circumscribing CYLINDER / SPHERE '
                        'markers', False),
+    'block_if_invalid': (True, None, 'rejected obstacles (wrong frame, unusable) are not fresh '
+                         'data: stop once they have lasted obstacles_timeout (at once if 0)',
+                         False),
+    'max_vertices': (256, (3, 100000), 'outline points per polygon; more become an enclosing '
+                     'convex polygon of this many vertices', False),
+    'max_parts': (64, (1, 10000), 'convex parts per non-convex obstacle; more: its convex hull',
+                  False),
+    'max_obstacles': (1000, (1, 100000), 'convex obstacle parts in use; more: the obstacle '
+                      'input is unusable (stop)', False),
+    'stall_timeout': (0.25, (0.01, 10.0), 'no control step for this long [s] (steady clock): '
+                      'a separate thread publishes the stop', False),
 }
 
 # FilterConfig field: ((min, max) or None, description); control_period comes from rate.
@@ -107,6 +131,7 @@ _STEADY = ClockType.STEADY_TIME
 _DIAGNOSTICS_PERIOD = 1.0
 _MARKERS_PERIOD = 0.1
 _COMMAND_WATCHDOG_PERIOD = 0.02
+_STALL_CHECKS_PER_TIMEOUT = 4
 _FALLBACKS = ('slack', 'brake', 'escape')
 _INFEASIBLE = ('slack', 'brake')
 
@@ -118,6 +143,8 @@ class _Settings:
     command_filter: CommandFilter
     timeouts: dict
     period: float
+    intake: IntakeSettings
+    stall_timeout: float
 
 
 class SafetyFilterNode(Node):
@@ -151,13 +178,14 @@ class SafetyFilterNode(Node):
 
         settings = self._settings(self._parameter_values())
         self._watchdog = Watchdog(settings.timeouts)
+        self._intake = ObstacleIntake(self._model.position_dim,
+                                      settings.command_filter.safety_filter.prepare,
+                                      lambda: self.get_clock().now().nanoseconds * 1e-9,
+                                      settings.intake)
         self._apply(settings)
-        self._tracker = ObstacleTracker()
-        self._obstacle_set = ObstacleSet.empty()
-        self._obstacle_error = ''
-        self._unreadable_obstacles = ''
-        self._wrong_frame = {}
-        self._t_ref = math.nan
+        self._obstacles = self._intake.snapshot
+        self._stall_guard = StallGuard(settings.stall_timeout, self._on_stall,
+                                       settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT)
 
         # State (the last finite odometry) and the latest nominal command.
         self._state = (0.0,) * self._model.state_dim
@@ -170,10 +198,12 @@ class SafetyFilterNode(Node):
         self._cmd_valid = False
         self._enabled = True
         self._last_info = None
-        self._counts = dict.fromkeys([s.value for s in FilterStatus] + ['stale_stop'], 0)
+        self._counts = dict.fromkeys([s.value for s in FilterStatus] + ['stale_stop',
+                                                                        'blocked_stop'], 0)
         self._status_names = {s: s.value for s in FilterStatus}
         self._reported = dict(self._counts)
         self._invalid_messages = 0
+        self._reported_stalls = 0
         self._last_invalid = 'none'
         self._min_h = math.inf
         self._latency = LatencyRing()
@@ -209,6 +239,10 @@ class SafetyFilterNode(Node):
         self.create_timer(_MARKERS_PERIOD, self._publish_markers, clock=steady)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._parameters_changed)
+        # The obstacle worker hands the interpreter back within a quarter control period.
+        sys.setswitchinterval(min(sys.getswitchinterval(), settings.period / 4.0))
+        self._intake.start()
+        self._stall_guard.start()
         self.get_logger().info(
             f'model {self._model_name}, barrier {self._barrier}, trigger {trigger} '
             f'at {1.0 / settings.period:g} Hz, listening on {command_in}')
@@ -257,8 +291,13 @@ class SafetyFilterNode(Node):
             if 0.0 < timeout <= period:
                 raise ValueError(f'{name}_timeout ({timeout:g} s) must exceed the control '
                                  f'period 1/rate ({period:g} s)')
+        tick = max(period, _COMMAND_WATCHDOG_PERIOD) if self._per_command else period
+        if not values['stall_timeout'] > 2.0 * tick:
+            raise ValueError(f"stall_timeout ({values['stall_timeout']:g} s) must exceed two "
+                             f'control ticks ({2.0 * tick:g} s)')
         command_filter = CommandFilter(self._model, config, values['velocity_tau'])
-        return _Settings(command_filter, timeouts, period)
+        intake = IntakeSettings(*(values[name] for name in IntakeSettings._fields))
+        return _Settings(command_filter, timeouts, period, intake, values['stall_timeout'])
 
     def _apply(self, settings):
         """Swap in a validated configuration."""
@@ -268,8 +307,8 @@ class SafetyFilterNode(Node):
         for name, timeout in settings.timeouts.items():
             self._watchdog.set_timeout(name, timeout)
         self._max_extrapolation = self.get_parameter('max_extrapolation').value
-        self._wall_thickness = self.get_parameter('wall_thickness').value
-        self._cylinder_sides = self.get_parameter('cylinder_sides').value
+        self._block_if_invalid = self.get_parameter('block_if_invalid').value
+        self._intake.configure(settings.intake, self._filter.safety_filter.prepare)
 
     def _validate_parameters(self, params):
         """Refuse a change that makes the configuration invalid, with the reason."""
@@ -284,6 +323,9 @@ class SafetyFilterNode(Node):
         settings = self._settings(self._parameter_values())
         self._apply(settings)
         self._timer.timer_period_ns = int(1e9 * self._timer_period(settings))
+        self._stall_guard.timeout = settings.stall_timeout
+        self._stall_guard.period = settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT
+        sys.setswitchinterval(min(sys.getswitchinterval(), settings.period / 4.0))
 
     def _timer_period(self, settings):
         """Step period, or with ``trigger:=command`` the stop watchdog's (at most 50 Hz)."""
@@ -313,7 +355,7 @@ class SafetyFilterNode(Node):
         if frame != self._odom_frame_raw:
             self._odom_frame_raw = frame
             self._odom_frame = frame.decode(errors='replace').lstrip('/')
-            self._rebuild_obstacles()
+            self._intake.set_frame(self._odom_frame)
         if self._waiting_for_odom and stamp >= self._cmd_stamp:
             self._waiting_for_odom = False
             self._step(time.monotonic())
@@ -341,38 +383,33 @@ class SafetyFilterNode(Node):
             self._step(now)
 
     def _on_obstacles(self, data):
-        """Apply serialized marker updates to the tracker and rebuild the obstacle set.
+        """Queue a serialized MarkerArray for the obstacle worker (``obstacle_intake``)."""
+        self._intake.submit(data, time.monotonic())
 
-        An unreadable message brakes until the next readable one (which obstacles it
-        held is unknown) and does not count as fresh obstacles for the watchdog.
+    def _take_obstacles(self):
+        """Adopt the worker's newest snapshot; feed the watchdog if it is fresh data.
+
+        Under ``block_if_invalid`` only a snapshot with nothing rejected is fresh.
         """
-        try:
-            markers = conversions.read_marker_array(data)
-        except ValueError as exc:
-            self._unreadable_obstacles = f'malformed obstacle message: {exc}'
-            self._bad_message(f'obstacles ({exc})')
-            return
-        self._unreadable_obstacles = ''
-        self._watchdog.feed('obstacles', time.monotonic())
-        conversions.apply_markers(self._tracker, markers,
-                                  self.get_clock().now().nanoseconds * 1e-9,
-                                  self._wall_thickness, self._cylinder_sides)
-        if self._tracker.has_invalid:
-            self._bad_message('obstacles')
-        self._rebuild_obstacles()
+        snapshot = self._intake.snapshot
+        if snapshot is self._obstacles:
+            return snapshot
+        previous, self._obstacles = self._obstacles, snapshot
+        if snapshot.received is not None and (snapshot.clean or not self._block_if_invalid):
+            self._watchdog.feed('obstacles', snapshot.received)
+        if snapshot.received != previous.received or snapshot.unreadable != previous.unreadable:
+            if snapshot.unreadable:
+                self._bad_message(f'obstacles ({snapshot.unreadable})')
+            elif snapshot.invalid:
+                self._bad_message('obstacles (NaN/Inf)')
+            if snapshot.error:
+                self.get_logger().error(snapshot.error, throttle_duration_sec=1.0)
+        return snapshot
 
-    def _rebuild_obstacles(self):
-        """Take the tracker's obstacles in the odometry frame as a new ``ObstacleSet``."""
-        if self._odom_frame is None:
-            return
-        try:
-            self._obstacle_set, self._t_ref, self._wrong_frame = self._tracker.obstacle_set(
-                self._odom_frame, self._model.position_dim)
-            self._obstacle_error = ''
-        except ValueError as exc:
-            self._obstacle_set = ObstacleSet.empty()
-            self._obstacle_error = f'obstacle set could not be built: {exc}'
-            self.get_logger().error(self._obstacle_error, throttle_duration_sec=1.0)
+    def _blocked(self, snapshot):
+        """Return True when rejected obstacles stop the robot at once (timeout 0)."""
+        return (self._block_if_invalid and not snapshot.clean
+                and self._watchdog.timeout('obstacles') == 0.0)
 
     def _bad_message(self, what):
         self._invalid_messages += 1
@@ -394,13 +431,30 @@ class SafetyFilterNode(Node):
     # -- steps -------------------------------------------------------------------------------
 
     def _on_timer(self):
-        self._step(time.monotonic())
+        now = time.monotonic()
+        self._stall_guard.beat(now)
+        self._step(now)
 
     def _on_watchdog(self):
         """With ``trigger:=command``, keep publishing stops while the command is stale."""
         now = time.monotonic()
+        self._stall_guard.beat(now)
+        self._take_obstacles()
         if self._watchdog.is_stale('cmd', now):
             self._step(now)
+
+    def _on_stall(self, silence):
+        """Stall guard (its own thread): the control loop is silent; publish the stop."""
+        cmd = self._cmd
+        message = (f'control loop stalled for {silence:.3f} s (stall_timeout '
+                   f'{self._stall_guard.timeout:g} s): stop published by the stall guard')
+        self.get_logger().error(message, throttle_duration_sec=1.0)
+        if cmd is not None:
+            self._publish_stop(cmd)
+        self._diagnostics_pub.publish(conversions.diagnostic_array(
+            self.get_clock().now().to_msg(), self._diagnostics_name(), self._model_name,
+            DiagnosticStatus.ERROR, message,
+            {'stalls': self._stall_guard.stalls, 'stall_s': f'{silence:.3f}'}))
 
     def _step(self, now):
         """Publish one safe command (or a stop); see the module docstring."""
@@ -408,6 +462,8 @@ class SafetyFilterNode(Node):
         if cmd is None:
             return
         start = time.perf_counter()
+        self._stall_guard.beat(now)
+        obstacles = self._take_obstacles()
         if not self._enabled:
             self._pass_through(cmd, now)
             return
@@ -415,16 +471,19 @@ class SafetyFilterNode(Node):
             self._counts['stale_stop'] += 1
             self._publish_stop(cmd)
             return
-        if not (self._odom_valid and self._cmd_valid and not self._tracker.has_invalid
-                and not self._obstacle_error and not self._unreadable_obstacles):
+        if not (self._odom_valid and self._cmd_valid and obstacles.usable):
             self._counts['invalid_input'] += 1
             self._publish_stop(cmd)
             return
-        age = extrapolation_age(self._odom_stamp, self._t_ref, self._max_extrapolation)
+        if self._blocked(obstacles):
+            self._counts['blocked_stop'] += 1
+            self._publish_stop(cmd)
+            return
+        age = extrapolation_age(self._odom_stamp, obstacles.t_ref, self._max_extrapolation)
         model_name = self._model_name
         safe, info = self._filter.filter(
             self._state, self._yaw, conversions.command_from_values(cmd.values, model_name),
-            self._obstacle_set, age)
+            obstacles.obstacles, age)
         # A refused step returns the stop: nothing of the nominal command is kept then.
         kept = cmd.values if info.status != FilterStatus.INVALID_INPUT else None
         self._publish(cmd.replaced(conversions.values_from_command(safe, model_name, kept)))
@@ -464,12 +523,13 @@ class SafetyFilterNode(Node):
     def _publish_diagnostics(self):
         """Publish one status: rate, latency, staleness, step counts, min h, rejections."""
         now = time.monotonic()
+        obstacles = self._take_obstacles()
         p50, p99 = self._latency.percentiles()
         self._latency.clear()
         stale = self._watchdog.stale(now)
         window = {k: v - self._reported[k] for k, v in self._counts.items()}
         self._reported = dict(self._counts)
-        rejected = {**self._tracker.rejected, **self._wrong_frame}
+        rejected = {**obstacles.rejected, **obstacles.wrong_frame}
         values = {
             'enabled': str(self._enabled).lower(),
             'model': self._model_name,
@@ -487,18 +547,31 @@ class SafetyFilterNode(Node):
             'invalid_messages': self._invalid_messages,
             'last_invalid_message': self._last_invalid,
             'min_h': f'{self._min_h:.4g}',
-            'obstacles_in_use': len(self._obstacle_set),
-            'obstacles_tracked': len(self._tracker),
+            'obstacles_in_use': len(obstacles.obstacles),
+            'obstacles_tracked': obstacles.tracked,
             'obstacles_rejected': len(rejected),
+            'obstacles_simplified': obstacles.simplified,
+            'obstacles_hulled': len(obstacles.hulled),
+            'block_if_invalid': str(self._block_if_invalid).lower(),
+            'stalls': self._stall_guard.stalls,
             **{f'rejected {key}': reason for key, reason in sorted(rejected.items())},
         }
         self._min_h = math.inf
         errors, warnings = [], []
         if rejected:
-            errors.append(f'{len(rejected)} obstacles rejected')
-        errors += [e for e in (self._obstacle_error, self._unreadable_obstacles) if e]
+            blocking = ' (block_if_invalid: stopping once stale)' if self._block_if_invalid else ''
+            errors.append(f'{len(rejected)} obstacles rejected{blocking}')
+        errors += [e for e in (obstacles.error, obstacles.unreadable) if e]
         if window['invalid_input']:
-            errors.append('NaN/Inf input: braking')
+            errors.append('invalid input: braking')
+        if self._stall_guard.stalls > self._reported_stalls:
+            errors.append(f'control loop stalled ({self._stall_guard.stalls} times): stop '
+                          'published by the stall guard')
+        self._reported_stalls = self._stall_guard.stalls
+        if obstacles.simplified or obstacles.hulled:
+            warnings.append(f'{obstacles.simplified} obstacle outlines simplified '
+                            f'(max_vertices / max_parts), {len(obstacles.hulled)} replaced by '
+                            'their hull (max_parts)')
         if not self._enabled:
             warnings.append('DISABLED: pass-through, not filtering')
             self.get_logger().warning('safety filter is DISABLED: nominal commands pass '
@@ -513,8 +586,18 @@ class SafetyFilterNode(Node):
         message = '; '.join(errors + warnings) or (
             'ok' if self._cmd is not None else 'waiting for the first nominal command')
         self._diagnostics_pub.publish(conversions.diagnostic_array(
-            self.get_clock().now().to_msg(), f'{self.get_fully_qualified_name()}: safety filter',
-            self._model_name, level, message, values))
+            self.get_clock().now().to_msg(), self._diagnostics_name(), self._model_name, level,
+            message, values))
+
+    def _diagnostics_name(self):
+        """Return the diagnostics status name: the node's full name and what it is."""
+        return f'{self.get_fully_qualified_name()}: safety filter'
+
+    def destroy_node(self):
+        """Stop the obstacle worker and the stall guard, then destroy the node."""
+        self._stall_guard.stop()
+        self._intake.stop()
+        return super().destroy_node()
 
     def _publish_markers(self):
         """Publish obstacle parts and cones, only while ``~/markers`` has subscribers."""
@@ -527,7 +610,8 @@ class SafetyFilterNode(Node):
             apex = self._model.reference(self._state).position
             cones = info.cones
         self._markers_pub.publish(conversions.filter_markers(
-            self._odom_frame, self.get_clock().now().to_msg(), self._obstacle_set.footprints,
+            self._odom_frame, self.get_clock().now().to_msg(),
+            self._obstacles.obstacles.footprints,
             active, apex, cones))
 
 

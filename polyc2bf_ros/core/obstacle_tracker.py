@@ -33,7 +33,9 @@ geometry it prepared for that set instead of preparing it again.
 ``outline_polygon`` turns degenerate outlines into polygons: one distinct point
 becomes a square of side ``thickness``; collinear points become a rectangle of
 width ``thickness`` around the segment they span, extended by ``thickness / 2``
-at both ends (a 2-point wall); anything else goes through ``clean_polygon``.
+at both ends (a 2-point wall); anything else goes through ``clean_polygon``, or, with more
+than ``max_vertices`` points, becomes the enclosing polygon of ``polygon_limits`` (convex,
+at most ``max_vertices`` vertices, containing every point).
 """
 import math
 from dataclasses import dataclass
@@ -43,14 +45,18 @@ import numpy as np
 
 from polyc2bf_ros.core.geometry import clean_polygon
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.polygon_limits import enclosing_polygon, MAX_PARTS
 
 # Points closer than this [m] are the same point; points within this distance
 # of the line through the two extreme points make the outline collinear.
 POINT_TOLERANCE = 1e-6
 
 
-def outline_polygon(points, thickness):
+def outline_polygon(points, thickness, max_vertices=None):
     """Polygon ``(k, 2)`` for the outline ``points (n, 2)``; raises ``ValueError`` with a reason.
+
+    ``max_vertices``: above this many points the outline is replaced by its enclosing
+    polygon (module docstring); None: no cap.
 
     Non-finite coordinates, an empty outline or a non-positive ``thickness``
     (when it is needed) are refused; ``clean_polygon`` raises
@@ -69,6 +75,8 @@ def outline_polygon(points, thickness):
     d = axis / length if length > POINT_TOLERANCE else np.array([1.0, 0.0])
     n = np.array([-d[1], d[0]])
     if length > POINT_TOLERANCE and np.abs((points - a) @ n).max() > POINT_TOLERANCE:
+        if max_vertices is not None and len(points) > max_vertices:
+            return enclosing_polygon(points, max_vertices)
         return clean_polygon(points)
     if not thickness > 0.0:
         raise ValueError(f'degenerate outline (a point or a segment) and thickness {thickness}')
@@ -84,7 +92,8 @@ class Shape:
     ``polygons``: tuple of ``(k, 2)`` arrays; ``z_min`` / ``z_max``: z range;
     ``centroid``: the vertices' centroid (3,) for outlines, ``None`` for solids;
     ``source``: what the caller made it from, so that it can reuse the shape
-    when the same thing arrives again (``ObstacleTracker.shape``).
+    when the same thing arrives again (``ObstacleTracker.shape``); ``simplified``: the
+    outline was replaced by an enclosing polygon (too many points or pieces).
     """
 
     polygons: tuple
@@ -92,6 +101,7 @@ class Shape:
     z_max: float = math.inf
     centroid: np.ndarray = None
     source: object = None
+    simplified: bool = False
 
 
 class Placement(NamedTuple):
@@ -164,6 +174,11 @@ class ObstacleTracker:
     def rejected(self):
         """``{key: reason}`` of the markers whose last update was refused."""
         return dict(self._rejected)
+
+    @property
+    def simplified(self):
+        """Return the number of obstacles held whose outline was simplified (``Shape``)."""
+        return sum(t.shape.simplified for t in self._tracks.values())
 
     @property
     def has_invalid(self):
@@ -257,22 +272,28 @@ class ObstacleTracker:
                     z_min=t.shape.z_min + z, z_max=t.shape.z_max + z, key=name))
         return obstacles, t_ref, wrong_frame
 
-    def obstacle_set(self, frame, position_dim):
+    def obstacle_set(self, frame, position_dim, max_parts=MAX_PARTS, max_obstacles=None):
         """``snapshot`` as the filter's ``ObstacleSet``: ``(obstacles, t_ref, wrong_frame)``.
 
         The set of the rotated shapes at the origin is rebuilt only when the
         keys, shapes or rotations in ``frame`` changed since the last call;
         otherwise each part is translated by its obstacle's ``moved`` offset
         (velocities beyond ``position_dim`` are 0, as in ``snapshot``).
-        ``ObstacleSet.from_obstacles`` raises ``ValueError`` for unusable polygons.
+        ``ObstacleSet.from_obstacles`` (``max_parts`` per footprint) raises
+        ``ValueError`` for unusable polygons, and so does a set of more than
+        ``max_obstacles`` convex parts (None: no cap).
         """
         tracks, t_ref, wrong_frame = self._in_frame(frame)
         layout = [(key, t.shape, t.placement.cos, t.placement.sin) for key, t in tracks]
         if layout != self._layout:
-            self._base = ObstacleSet.from_obstacles([
+            if max_obstacles is not None:
+                _check_count(sum(len(t.shape.polygons) for _, t in tracks), max_obstacles)
+            base = ObstacleSet.from_obstacles([
                 Obstacle(polygon=polygon, z_min=t.shape.z_min, z_max=t.shape.z_max, key=name)
-                for key, t in tracks for name, polygon in t.parts(key)])
-            self._layout = layout
+                for key, t in tracks for name, polygon in t.parts(key)], max_parts)
+            if max_obstacles is not None:
+                _check_count(len(base), max_obstacles)
+            self._base, self._layout = base, layout
         base = self._base
         rows = []
         for _, t in tracks:
@@ -281,6 +302,12 @@ class ObstacleTracker:
             rows += [(*t.moved(t_ref), *velocity)] * len(t.shape.polygons)
         moves = np.array(rows, dtype=float).reshape(-1, 6)[base.owner]
         return base.translated(moves[:, :3], moves[:, 3:]), t_ref, wrong_frame
+
+
+def _check_count(parts, max_obstacles):
+    """Raise ``ValueError`` when ``parts`` convex obstacle parts exceed ``max_obstacles``."""
+    if parts > max_obstacles:
+        raise ValueError(f'{parts} obstacle parts exceed max_obstacles ({max_obstacles})')
 
 
 def extrapolation_age(state_stamp, t_ref, max_extrapolation):

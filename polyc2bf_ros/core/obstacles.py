@@ -11,6 +11,11 @@ parts of a built set, and the set it returns remembers the set it was built
 from (``base``) and by how much each part moved (``offsets``), so that the
 filter translates the geometry it prepared for ``base`` instead of preparing
 it again.
+
+Non-convex footprints above ``max_parts`` convex parts are replaced by their convex hull
+(``polygon_limits``; conservative) and their keys listed in ``capped``.  ``geometry`` is the
+filter's per-set cache of prepared views (``SafetyFilter.prepare``), so a set prepared off
+the control path arrives ready.
 """
 import math
 from dataclasses import dataclass, field
@@ -18,8 +23,9 @@ from typing import Optional
 
 import numpy as np
 
-from polyc2bf_ros.core.geometry import decompose_convex, is_convex, PolygonBatch
+from polyc2bf_ros.core.geometry import is_convex, PolygonBatch
 from polyc2bf_ros.core.jit import F2, F3, kernel, signature
+from polyc2bf_ros.core.polygon_limits import bounded_convex_parts, MAX_PARTS
 
 
 @dataclass(frozen=True)
@@ -40,7 +46,9 @@ class ObstacleSet:
     ``owner[n]`` is the index into ``keys`` of the obstacle part ``n`` came from.  A set
     made by ``translated`` has ``base``, the set it was translated from (itself never a
     translation), and ``offsets`` (N, 3): part n is base part n moved by ``offsets[n]``
-    in x, y and z; otherwise both are None.
+    in x, y and z; otherwise both are None.  ``capped``: keys of the footprints replaced by
+    their convex hull (more than ``max_parts`` parts); ``geometry``: prepared views by
+    filter geometry (``SafetyFilter.prepare``).
     """
 
     footprints: PolygonBatch
@@ -50,6 +58,8 @@ class ObstacleSet:
     keys: tuple = ()
     base: Optional['ObstacleSet'] = field(default=None, repr=False, compare=False)
     offsets: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
+    capped: tuple = ()
+    geometry: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def empty(cls):
@@ -57,11 +67,11 @@ class ObstacleSet:
         return cls.from_obstacles([])
 
     @classmethod
-    def from_obstacles(cls, obstacles):
-        """Build the set, splitting non-convex footprints into convex parts.
+    def from_obstacles(cls, obstacles, max_parts=MAX_PARTS):
+        """Build the set, splitting non-convex footprints into at most ``max_parts`` parts.
 
         Convex CCW footprints (``PolygonBatch.convex_ccw``, one kernel call for all) are
-        used as they are; only the others go through ``is_convex`` / ``decompose_convex``.
+        used as they are; only the others go through ``bounded_convex_parts``.
         """
         obstacles = list(obstacles)
         footprints = PolygonBatch.pack([obstacle.polygon for obstacle in obstacles])
@@ -71,13 +81,16 @@ class ObstacleSet:
         z_ranges[:, 0] = [obstacle.z_min for obstacle in obstacles]
         z_ranges[:, 1] = [obstacle.z_max for obstacle in obstacles]
         owner = np.arange(len(obstacles))
+        capped = ()
         if not convex.all():
-            pieces = [_convex_parts(o.polygon, ok) for o, ok in zip(obstacles, convex)]
+            pieces, hulled = zip(*[_convex_parts(o.polygon, ok, max_parts)
+                                   for o, ok in zip(obstacles, convex)])
+            capped = tuple(o.key for o, hull in zip(obstacles, hulled) if hull)
             owner = np.repeat(owner, [len(parts) for parts in pieces])
             footprints = PolygonBatch.from_polygons([part for parts in pieces for part in parts])
             velocities, z_ranges = velocities[owner], z_ranges[owner]
         return cls(footprints=footprints, velocities=velocities, z_ranges=z_ranges, owner=owner,
-                   keys=tuple(obstacle.key for obstacle in obstacles))
+                   keys=tuple(obstacle.key for obstacle in obstacles), capped=capped)
 
     def translated(self, offsets, velocities=None):
         """Return the set with part n moved by ``offsets[n]`` ((N, 2) x, y or (N, 3) x, y, z).
@@ -103,7 +116,8 @@ class ObstacleSet:
             base, moves = self.base, moves + self.offsets
         return ObstacleSet(footprints=base.footprints.translated(moves[:, :2]),
                            velocities=velocities, z_ranges=base.z_ranges + moves[:, 2:],
-                           owner=base.owner, keys=base.keys, base=base, offsets=moves)
+                           owner=base.owner, keys=base.keys, base=base, offsets=moves,
+                           capped=base.capped)
 
     def __len__(self):
         """Return the number of convex parts."""
@@ -129,10 +143,12 @@ def _finite(vertices, velocities, z_ranges):
     return True
 
 
-def _convex_parts(polygon, convex_ccw):
-    """Return the convex parts of a footprint: itself if convex, else its decomposition."""
+def _convex_parts(polygon, convex_ccw, max_parts):
+    """Return ``(convex parts, hulled)`` of a footprint: itself if convex, else bounded parts."""
     polygon = np.asarray(polygon, dtype=float)
-    return [polygon] if convex_ccw or is_convex(polygon) else decompose_convex(polygon)
+    if convex_ccw or is_convex(polygon):
+        return [polygon], False
+    return bounded_convex_parts(polygon, max_parts)
 
 
 def _velocities(obstacles):

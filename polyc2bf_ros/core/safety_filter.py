@@ -366,6 +366,10 @@ class SafetyFilter:
         self._epsilon = float(self.config.velocity_epsilon)
         # The step's reference kinematics, refilled each step (it never leaves the step).
         self._reference = ReferenceKinematics.empty(model.position_dim, model.input_dim)
+        # What prepared views depend on: the cone model's settings, dimension and radius.
+        self._geometry_key = (type(self.cone_model).__name__,
+                              tuple(sorted(vars(self.cone_model).items())),
+                              model.position_dim, self.config.robot_radius)
         self._cache_key = self._cache = None
         self._base_key = self._base = None
         self.warm_up()
@@ -526,11 +530,17 @@ class SafetyFilter:
                                      prepared.offsets, age, ref, self._epsilon, False)
 
     def prepare(self, obstacles):
-        """Precompute the geometry of an obstacle set now (``step`` does it on first use).
+        """Precompute the views of an obstacle set now (``step`` does it on first use).
 
-        A node can call this when an obstacle message arrives, off the control path.
+        They are stored in the set (``ObstacleSet.geometry``, under this filter's geometry
+        settings), not in the filter, so another thread may call this for a set the filter
+        has not seen yet: the node prepares sets where obstacle messages are processed, off
+        the control path.  A translated set prepares its base.
         """
-        self._prepare(obstacles)
+        if obstacles.base is not None:
+            obstacles = obstacles.base
+        if obstacles.is_finite():
+            self._views(obstacles)
 
     def _prepare(self, obstacles):
         """Build (and cache per obstacle set) the planar views of the obstacles.
@@ -559,9 +569,18 @@ class SafetyFilter:
         """Prepare the views of ``obstacles`` and row buffers for as many parts."""
         dim, count = self.model.position_dim, len(obstacles)
         return _Prepared(
-            count=count,
-            views=prepare_views(obstacles, self.cone_model, dim, self.config.robot_radius),
+            count=count, views=self._views(obstacles),
             velocities=np.ascontiguousarray(obstacles.velocities[:, :dim], dtype=np.float64),
             offsets=np.zeros((count, dim)), finite=finite,
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
             index=np.empty(count, dtype=np.intp))
+
+    def _views(self, obstacles):
+        """Return the views of ``obstacles``, prepared once per set and geometry settings."""
+        key = self._geometry_key
+        views = obstacles.geometry.get(key)
+        if views is None:
+            views = prepare_views(obstacles, self.cone_model, self.model.position_dim,
+                                  self.config.robot_radius)
+            obstacles.geometry[key] = views
+        return views

@@ -82,9 +82,11 @@ def test_non_finite_inputs_brake_and_never_reach_the_output():
 def test_degenerate_polygons_are_handled_or_rejected_with_a_reason():
     """A point, repeated points, collinear points become thin walls; a bowtie is rejected.
 
-    The node keeps answering throughout, and diagnostics name the rejected marker.
+    The node keeps answering throughout, and diagnostics name the rejected marker; with
+    ``block_if_invalid`` off the robot keeps driving past the rejected one.
     """
-    with running_filter(params={'model': 'unicycle', 'rate': RATE}) as proc, Harness() as h:
+    with running_filter(params={'model': 'unicycle', 'rate': RATE,
+                                'block_if_invalid': False}) as proc, Harness() as h:
         io = h.filter_io(proc)
         out, diagnostics = io.out, io.diagnostics
         degenerate = markers(
