@@ -452,8 +452,8 @@ class SafetyFilterNode(Node):
         if cmd is not None:
             self._publish_stop(cmd)
         self._diagnostics_pub.publish(conversions.diagnostic_array(
-            self.get_clock().now().to_msg(), self._diagnostics_name(), self._model_name,
-            DiagnosticStatus.ERROR, message,
+            self.get_clock().now().to_msg(), f'{self.get_fully_qualified_name()}: stall guard',
+            self._model_name, DiagnosticStatus.ERROR, message,
             {'stalls': self._stall_guard.stalls, 'stall_s': f'{silence:.3f}'}))
 
     def _step(self, now):
@@ -586,12 +586,8 @@ class SafetyFilterNode(Node):
         message = '; '.join(errors + warnings) or (
             'ok' if self._cmd is not None else 'waiting for the first nominal command')
         self._diagnostics_pub.publish(conversions.diagnostic_array(
-            self.get_clock().now().to_msg(), self._diagnostics_name(), self._model_name, level,
-            message, values))
-
-    def _diagnostics_name(self):
-        """Return the diagnostics status name: the node's full name and what it is."""
-        return f'{self.get_fully_qualified_name()}: safety filter'
+            self.get_clock().now().to_msg(), f'{self.get_fully_qualified_name()}: safety filter',
+            self._model_name, level, message, values))
 
     def destroy_node(self):
         """Stop the obstacle worker and the stall guard, then destroy the node."""
