@@ -93,10 +93,13 @@ def node_subjects():
             answers.clear()
         return run
 
+    node._on_odom(odom_bytes)  # the odometry frame: the worker builds the set in it
+    node._intake.process()
     path(real_filter)()
-    last = real_filter(node._state, 0.0, (1.0, 0.0), node._obstacle_set, 0.0)
+    obstacles = node._take_obstacles().obstacles
+    last = real_filter(node._state, 0.0, (1.0, 0.0), obstacles, 0.0)
     subjects = {'node_path': path(real_filter), 'node_shell': path(lambda *_: last),
-                **filter_subjects(command_filter, node._state, node._obstacle_set)}
+                **filter_subjects(command_filter, node._state, obstacles)}
 
     def close():
         node.destroy_node()

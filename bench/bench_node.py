@@ -406,11 +406,14 @@ def sim_markers(static, robots, moving, seed=0):
 
 
 def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_every=24):
-    """Time ``SafetyFilterNode._on_obstacles`` (and the next filter step) per message.
+    """Time the node's obstacle handling (and the next filter step) per message.
 
-    The node runs in this process without spinning; the messages follow the sim
-    bridge's pattern at ``rate`` Hz: the dynamic markers every period, everything
-    every ``full_every`` periods.  Returns one record per message kind.
+    ``on_obstacles``: the subscription callback (it only queues the bytes); ``worker
+    pass``: until the obstacle worker process has processed the message and its snapshot
+    is back (``ObstacleIntake.process``: IPC included).  The node runs in this process
+    without spinning; the messages follow the sim bridge's pattern at ``rate`` Hz: the
+    dynamic markers every period, everything every ``full_every`` periods.  Returns one
+    record per message kind.
     """
     from polyc2bf_ros.safety_filter_node import SafetyFilterNode
     rclpy.init()
@@ -420,7 +423,7 @@ def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_ever
     odom.pose.pose.orientation.w = 1.0
     node._on_odom(serialize_message(odom))
     static_markers, dynamic, move = sim_markers(static, robots, moving)
-    timings = {'full': ([], [], []), 'moving': ([], [], [])}
+    timings = {'full': ([], [], [], []), 'moving': ([], [], [], [])}
     state, command = node._state.copy(), (0.5, 0.0)
     try:
         for k in range(messages):
@@ -433,25 +436,31 @@ def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_ever
             parsed = time.perf_counter()
             node._on_obstacles(data)
             handled = time.perf_counter()
-            node._filter.filter(state, 0.0, command, node._obstacle_set, 0.0)
+            node._intake.process()
+            processed = time.perf_counter()
+            node._filter.filter(state, 0.0, command, node._take_obstacles().obstacles, 0.0)
             stepped = time.perf_counter()
             if k >= 2 * full_every:  # warm-up: kernels compiled, caches filled
-                for column, seconds in zip(timings[kind], (parsed - start, handled - parsed,
-                                                           stepped - handled)):
+                for column, seconds in zip(timings[kind], (
+                        parsed - start, handled - parsed, processed - handled,
+                        stepped - processed)):
                     column.append(1e6 * seconds)
-        in_use, tracked = len(node._obstacle_set), len(node._tracker)
+        in_use, tracked = len(node._obstacles.obstacles), node._obstacles.tracked
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
     records = []
-    for kind, (parse, handle, step) in timings.items():
+    for kind, (parse, handle, work, step) in timings.items():
         p50, p99 = percentiles(handle, (50, 99))
+        work_p50, work_p99 = percentiles(work, (50, 99))
         records.append({
             'bench': 'node_obstacles', 'message': kind,
             'markers': static + robots + moving if kind == 'full' else robots + moving,
             'obstacles': static + robots + moving, 'samples': len(handle),
             'on_obstacles_p50_us': round(float(p50), 1), 'on_obstacles_p99_us': round(
                 float(p99), 1),
+            'worker_pass_p50_us': round(float(work_p50), 1),
+            'worker_pass_p99_us': round(float(work_p99), 1),
             'rclpy_deserialize_p50_us': round(float(np.median(parse)), 1),
             'next_step_p50_us': round(float(np.median(step)), 1),
             'obstacles_in_use': in_use, 'obstacles_tracked': tracked,
@@ -462,7 +471,8 @@ def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_ever
 def print_obstacle_table(records):
     """One row per message kind."""
     keys = ('message', 'markers', 'samples', 'rclpy_deserialize_p50_us', 'on_obstacles_p50_us',
-            'on_obstacles_p99_us', 'next_step_p50_us', 'obstacles_in_use', 'load_avg_1min')
+            'on_obstacles_p99_us', 'worker_pass_p50_us', 'next_step_p50_us', 'obstacles_in_use',
+            'load_avg_1min')
     print(' '.join(f'{key:>{max(len(key), 8)}}' for key in keys))
     for r in records:
         print(' '.join(f'{r[key]!s:>{max(len(key), 8)}}' for key in keys))

@@ -15,8 +15,8 @@ def run_node(node_class, name, args=None):
     Call it from the main thread of the process.  A ``ValueError``, ``TypeError``
     or rclpy ``ParameterException`` (out of range, wrong type, read-only) from the
     constructor is a configuration error: it is logged as one fatal line under
-    ``name``, without a traceback, and the process exits with status 1.  Ctrl-C and an external shutdown end
-    the node cleanly (status 0):
+    ``name``, without a traceback, and the process exits with status 1.  Ctrl-C and
+    an external shutdown end the node cleanly (status 0):
 
     - while starting up, Ctrl-C raises ``KeyboardInterrupt`` as usual;
     - while spinning it does not: rclpy's SIGINT handler shuts the context

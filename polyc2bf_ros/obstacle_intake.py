@@ -1,39 +1,51 @@
 """Obstacle messages -> a prepared ``ObstacleSet``, off the control path, with bounded work.
 
 The subscription callback only queues the serialized message (``submit``: an append and an
-event, microseconds).  A worker thread (``start``) takes everything queued at once, so a
-flood is conflated rather than replayed:
+event, microseconds).  All obstacle work runs in a **worker process**
+(``python -m polyc2bf_ros.obstacle_intake``, started by ``start``), fed by a thread of the
+node that takes everything queued at once, so a flood is conflated rather than replayed.
+Per pass (``ObstaclePipeline.run``):
 
 1. every queued message is read (``conversions.read_marker_array``); an unreadable one
    marks the input unreadable until a readable one follows it;
 2. their markers are merged, newest per ``ns/id`` (``conversions.conflate_markers``), and
-   applied to the ``ObstacleTracker``: only the newest shape of each key is built;
+   applied to the ``ObstacleTracker``: only the newest shape of each key is built, each
+   outline capped at ``max_vertices`` points (``core.polygon_limits``);
 3. the set in the odometry frame is built (``ObstacleTracker.obstacle_set``, at most
    ``max_parts`` convex parts per footprint and ``max_obstacles`` in all) and its views
-   are prepared for the filter (``SafetyFilter.prepare``);
-4. the result is published as one immutable ``ObstacleSnapshot`` (one attribute store,
-   atomic under the GIL), which the control step reads.
+   are prepared for the filter (``SafetyFilter.prepare``, stored in the set);
+4. the result comes back as one immutable ``ObstacleSnapshot``, published by one
+   attribute store (atomic under the GIL), which the control step reads.  A set that is a
+   translation of the last one sent (obstacles that only moved) travels as offsets and is
+   rebuilt on the node's side from the base it already holds.
 
-Every outline is capped at ``max_vertices`` points (``core.polygon_limits``), so one message
-costs at most (markers x a bounded per-marker cost).  CPython runs one thread at a time: the
-worker's pure-Python loops hand the interpreter over every ``sys.getswitchinterval()`` s, and
-the node lowers that interval to a quarter of its control period
-(``bench/bench_obstacle_flood.py`` measures the control loop under obstacle floods).
+Why a process, not a thread (measured, ``bench/bench_obstacle_flood.py``): CPython runs one
+thread at a time, and a worker thread descheduled by the OS while it holds the interpreter
+lock keeps the control thread waiting for a whole time slice on a loaded machine.  The node
+process now does only queueing, one unpickle per pass and its control steps.
 
-``process`` runs steps 1-4 on given messages in the caller's thread (the worker's loop body;
-offline tools and benchmarks call it directly).
+If the worker process dies, the obstacles it held are lost: the snapshot stays unusable
+(the node brakes, with the reason in its diagnostics) until the node is restarted.
+``process`` waits until everything submitted before the call (messages, frame, settings)
+has been processed (tests, tools); without ``start`` it runs the pipeline in the caller.
 """
 import math
+import pickle
+import subprocess
+import sys
 import threading
 from dataclasses import dataclass, field
-from typing import Callable, NamedTuple
+from typing import NamedTuple
 
 from polyc2bf_ros import conversions
+from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
+from polyc2bf_ros.core.safety_filter import SafetyFilter
 
 MAX_OBSTACLES = 1000
+_PROTOCOL = pickle.HIGHEST_PROTOCOL
 
 
 class IntakeSettings(NamedTuple):
@@ -80,107 +92,243 @@ class ObstacleSnapshot:
         return self.usable and not (self.rejected or self.wrong_frame)
 
 
-class ObstacleIntake:
-    """Queue, conflate and process obstacle messages on a worker thread (module docstring)."""
+class _Job(NamedTuple):
+    """One pass: messages [(data, received)], odometry frame, settings, filter, stamp [s]."""
 
-    def __init__(self, position_dim, prepare: Callable, now: Callable,
-                 settings=IntakeSettings()):
-        """``prepare(ObstacleSet)`` readies a set for the filter; ``now()`` [s] stamps markers."""
-        self._dim = position_dim
-        self._prepare = prepare
-        self._now = now
-        self._settings = settings
+    messages: list
+    frame: object
+    settings: IntakeSettings
+    filter_spec: tuple
+    now: float
+
+
+class ObstaclePipeline:
+    """Steps 1-3 of the module docstring, with the tracker they keep between passes."""
+
+    def __init__(self):
+        """Start with no obstacles and no filter to prepare for."""
         self._tracker = ObstacleTracker()
-        self._frame = None
         self._unreadable = ''
         self._received = None
-        self._pending = []
-        self._lock = threading.Lock()  # the queue, settings and frame
-        self._work = threading.Lock()  # one processing pass at a time
-        self._wake = threading.Event()
-        self._stopping = False
-        self._thread = None
-        self._dirty = False
-        self.snapshot = ObstacleSnapshot()
+        self._filter_spec = self._filter = None
 
-    def configure(self, settings, prepare):
-        """Take new settings and a new filter's ``prepare``; rebuild on the next pass."""
-        with self._lock:
-            self._settings, self._prepare, self._dirty = settings, prepare, True
-        self._wake.set()
-
-    def set_frame(self, frame):
-        """Build obstacles in ``frame`` (the odometry's) from the next pass on."""
-        with self._lock:
-            self._frame, self._dirty = frame, True
-        self._wake.set()
-
-    def submit(self, data, received):
-        """Queue one serialized MarkerArray received at monotonic time ``received``."""
-        with self._lock:
-            self._pending.append((data, received))
-        self._wake.set()
-
-    def start(self):
-        """Run the worker thread (a daemon: it never holds up the process's exit)."""
-        self._thread = threading.Thread(target=self._run, name='obstacle_intake', daemon=True)
-        self._thread.start()
-
-    def stop(self, timeout=1.0):
-        """Ask the worker to end and wait up to ``timeout`` s for it."""
-        self._stopping = True
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
-
-    def _run(self):
-        while not self._stopping:
-            self._wake.wait()
-            self._wake.clear()
-            if not self._stopping:
-                self.process()
-
-    def process(self, messages=None):
-        """Process ``messages`` [(data, received)] (default: all queued); publish a snapshot.
-
-        One pass at a time: a call while the worker is in a pass waits for it, so once it
-        returns every message submitted before the call has been processed.
-        """
-        with self._work:
-            return self._process(messages)
-
-    def _process(self, messages):
-        with self._lock:
-            if messages is None:
-                messages, self._pending = self._pending, []
-            dirty, self._dirty = self._dirty, False
-            settings, prepare, frame = self._settings, self._prepare, self._frame
-        if not messages and not dirty:
-            return self.snapshot
+    def run(self, job):
+        """Process one ``_Job``; return the ``ObstacleSnapshot``."""
         markers = []
-        for data, received in messages:
+        for data, received in job.messages:
             try:
                 markers += conversions.read_marker_array(data).markers
             except ValueError as exc:
                 self._unreadable = f'malformed obstacle message: {exc}'
                 continue
             self._unreadable, self._received = '', received
-        tracker = self._tracker
+        settings, tracker = job.settings, self._tracker
         conversions.apply_markers(
             tracker, conversions.MarkerArrayView(tuple(conversions.conflate_markers(markers))),
-            self._now(), settings.wall_thickness, settings.cylinder_sides,
+            job.now, settings.wall_thickness, settings.cylinder_sides,
             (settings.max_vertices, settings.max_parts))
         obstacles, t_ref, wrong_frame, error = ObstacleSet.empty(), math.nan, {}, ''
-        if frame is not None:
+        if job.frame is not None:
             try:
                 obstacles, t_ref, wrong_frame = tracker.obstacle_set(
-                    frame, self._dim, settings.max_parts, settings.max_obstacles)
-                prepare(obstacles)
+                    job.frame, self._filter_for(job.filter_spec).model.position_dim,
+                    settings.max_parts, settings.max_obstacles)
+                self._filter.prepare(obstacles)
             except ValueError as exc:
                 obstacles, error = ObstacleSet.empty(), f'obstacle set could not be built: {exc}'
-        self.snapshot = ObstacleSnapshot(
+        return ObstacleSnapshot(
             obstacles=obstacles, t_ref=t_ref, received=self._received,
             rejected=tracker.rejected, wrong_frame=wrong_frame, invalid=tracker.has_invalid,
             unreadable=self._unreadable, error=error, tracked=len(tracker),
             simplified=tracker.simplified, hulled=obstacles.capped)
+
+    def _filter_for(self, spec):
+        """Return the filter to prepare sets for: ``spec`` = (model name, config)."""
+        if spec != self._filter_spec:
+            self._filter = SafetyFilter(make_model(spec[0]), spec[1])
+            self._filter_spec = spec
+        return self._filter
+
+
+def _encode(snapshot, last_base):
+    """Pickle a snapshot; a translation of ``last_base`` goes as its offsets and velocities."""
+    obstacles = snapshot.obstacles
+    if last_base is not None and obstacles.base is last_base:
+        moved = (obstacles.offsets, obstacles.velocities)
+        return pickle.dumps((True, moved, _replace(snapshot, ObstacleSet.empty())), _PROTOCOL)
+    return pickle.dumps((False, None, snapshot), _PROTOCOL)
+
+
+def _replace(snapshot, obstacles):
+    """Return ``snapshot`` with another obstacle set."""
+    return ObstacleSnapshot(**{**snapshot.__dict__, 'obstacles': obstacles})
+
+
+def serve(inbox, outbox):
+    """Worker process loop: read pickled ``_Job``s from ``inbox``, write encoded snapshots."""
+    pipeline, last_base = ObstaclePipeline(), None
+    while True:
+        try:
+            job = pickle.load(inbox)
+        except EOFError:
+            return 0
+        snapshot = pipeline.run(job)
+        payload = _encode(snapshot, last_base)
+        obstacles = snapshot.obstacles
+        last_base = obstacles.base if obstacles.base is not None else obstacles
+        outbox.write(len(payload).to_bytes(8, 'little') + payload)
+        outbox.flush()
+
+
+class ObstacleIntake:
+    """Queue obstacle messages and hand them to the worker process (module docstring)."""
+
+    def __init__(self, filter_spec, now, settings=IntakeSettings()):
+        """``filter_spec`` = (model name, ``FilterConfig``); ``now()`` [s] stamps markers."""
+        self._filter_spec = filter_spec
+        self._now = now
+        self._settings = settings
+        self._frame = None
+        self._pending = []
+        self._generation = self._done = 0  # inputs given / processed
+        self._dirty = False
+        self._failed = ''
+
+        self._lock = threading.Lock()  # the queue, settings and frame
+        self._progress = threading.Condition(self._lock)
+        self._wake = threading.Event()
+        self._stopping = False
+        self._feeder = self._worker = None
+        self._pipeline = ObstaclePipeline()  # in-line, before ``start``
+        self._base = None
+        self.snapshot = ObstacleSnapshot()
+
+    def configure(self, settings, filter_spec):
+        """Take new settings and filter; rebuild on the next pass."""
+        with self._lock:
+            self._settings, self._filter_spec, self._dirty = settings, filter_spec, True
+            self._generation += 1
+        self._wake.set()
+
+    def set_frame(self, frame):
+        """Build obstacles in ``frame`` (the odometry's) from the next pass on."""
+        with self._lock:
+            self._frame, self._dirty = frame, True
+            self._generation += 1
+        self._wake.set()
+
+    def submit(self, data, received):
+        """Queue one serialized MarkerArray received at monotonic time ``received``."""
+        with self._lock:
+            self._pending.append((data, received))
+            self._generation += 1
+        self._wake.set()
+
+    def start(self):
+        """Start the feeder thread (a daemon); it starts the worker process on first use."""
+        self._feeder = threading.Thread(target=self._feed, name='obstacle_intake', daemon=True)
+        self._feeder.start()
+
+    def stop(self, timeout=2.0):
+        """End the feeder and the worker process."""
+        self._stopping = True
+        self._wake.set()
+        if self._feeder is not None:
+            self._feeder.join(timeout)
+        self._stop_worker()
+
+    def process(self, timeout=30.0):
+        """Return the snapshot once every message submitted so far is processed.
+
+        Without ``start`` the pipeline runs here, in the caller's thread.
+        """
+        if self._feeder is None:
+            job, _ = self._take()
+            if job is not None:
+                self.snapshot = self._pipeline.run(job)
+            return self.snapshot
+        with self._progress:
+            target = self._generation
+            self._progress.wait_for(lambda: self._done >= target, timeout)
         return self.snapshot
+
+    def _take(self):
+        """Return (the next ``_Job``: everything queued, or None if nothing to do, generation)."""
+        with self._lock:
+            messages, self._pending = self._pending, []
+            dirty, self._dirty = self._dirty, False
+            if not messages and not dirty:
+                return None, self._generation
+            return (_Job(messages, self._frame, self._settings, self._filter_spec, self._now()),
+                    self._generation)
+
+    def _feed(self):
+        while not self._stopping:
+            self._wake.wait()
+            self._wake.clear()
+            job, generation = (None, 0) if self._stopping else self._take()
+            if job is None:
+                continue
+            snapshot = self._run_in_worker(job)
+            with self._progress:
+                self.snapshot = snapshot
+                self._done = generation
+                self._progress.notify_all()
+
+    def _run_in_worker(self, job):
+        """Send one job to the worker process and decode its answer; unusable if it died."""
+        if self._failed:
+            return ObstacleSnapshot(error=self._failed)
+        try:
+            if self._worker is None:
+                self._start_worker()
+            pickle.dump(job, self._worker.stdin, _PROTOCOL)
+            self._worker.stdin.flush()
+            size = int.from_bytes(_read_exactly(self._worker.stdout, 8), 'little')
+            moved, offsets, snapshot = pickle.loads(_read_exactly(self._worker.stdout, size))
+        except Exception as exc:  # noqa: BLE001 - any failure of the worker is the same fault
+            self._stop_worker()
+            self._failed = (f'obstacle worker process failed ({exc}): the obstacles it held are '
+                            'lost; braking until the node is restarted')
+            return ObstacleSnapshot(error=self._failed)
+        if moved:
+            snapshot = _replace(snapshot, self._base.translated(*offsets))
+        else:
+            obstacles = snapshot.obstacles
+            self._base = obstacles.base if obstacles.base is not None else obstacles
+        return snapshot
+
+    def _start_worker(self):
+        self._worker = subprocess.Popen(
+            [sys.executable, '-m', 'polyc2bf_ros.obstacle_intake'],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+
+    def _stop_worker(self):
+        worker, self._worker = self._worker, None
+        if worker is not None:
+            try:
+                worker.stdin.close()
+                worker.wait(2.0)
+            except (OSError, subprocess.TimeoutExpired):
+                worker.kill()
+                worker.wait()
+
+
+def _read_exactly(stream, size):
+    """Read ``size`` bytes from ``stream``; ``EOFError`` if it ends first."""
+    data = stream.read(size)
+    if len(data) != size:
+        raise EOFError('the obstacle worker closed its output')
+    return data
+
+
+def main():
+    """Worker process entry: serve jobs on stdin/stdout until stdin closes."""
+    return serve(sys.stdin.buffer, sys.stdout.buffer)
+
+
+if __name__ == '__main__':
+    # Run the importable module's ``main``, so pickles name ``polyc2bf_ros.obstacle_intake``
+    # classes, not ``__main__`` ones the node could not resolve.
+    from polyc2bf_ros.obstacle_intake import main as module_main
+    sys.exit(module_main())

@@ -23,7 +23,7 @@ the wrench into rotor thrusts and back.  A stop is a zero twist, or the
 model's braking (hover) wrench.  Nothing is published before the first
 nominal command; after it, every step publishes.
 
-Obstacles: MarkerArrays are queued serialized and processed on a worker thread
+Obstacles: MarkerArrays are queued serialized and processed in a worker process
 (``obstacle_intake``: conflated, capped by ``max_vertices`` / ``max_parts`` /
 ``max_obstacles``, prepared for the filter, handed over as one snapshot), so no
 obstacle message delays a control step.  An unreadable message brakes until a
@@ -178,8 +178,7 @@ class SafetyFilterNode(Node):
 
         settings = self._settings(self._parameter_values())
         self._watchdog = Watchdog(settings.timeouts)
-        self._intake = ObstacleIntake(self._model.position_dim,
-                                      settings.command_filter.safety_filter.prepare,
+        self._intake = ObstacleIntake(self._filter_spec(settings),
                                       lambda: self.get_clock().now().nanoseconds * 1e-9,
                                       settings.intake)
         self._apply(settings)
@@ -239,8 +238,6 @@ class SafetyFilterNode(Node):
         self.create_timer(_MARKERS_PERIOD, self._publish_markers, clock=steady)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._parameters_changed)
-        # The obstacle worker hands the interpreter back within a quarter control period.
-        sys.setswitchinterval(min(sys.getswitchinterval(), settings.period / 4.0))
         self._intake.start()
         self._stall_guard.start()
         self.get_logger().info(
@@ -308,7 +305,11 @@ class SafetyFilterNode(Node):
             self._watchdog.set_timeout(name, timeout)
         self._max_extrapolation = self.get_parameter('max_extrapolation').value
         self._block_if_invalid = self.get_parameter('block_if_invalid').value
-        self._intake.configure(settings.intake, self._filter.safety_filter.prepare)
+        self._intake.configure(settings.intake, self._filter_spec(settings))
+
+    def _filter_spec(self, settings):
+        """Return what the obstacle worker prepares geometry for: (model name, config)."""
+        return self._model_name, settings.command_filter.safety_filter.config
 
     def _validate_parameters(self, params):
         """Refuse a change that makes the configuration invalid, with the reason."""
@@ -325,7 +326,6 @@ class SafetyFilterNode(Node):
         self._timer.timer_period_ns = int(1e9 * self._timer_period(settings))
         self._stall_guard.timeout = settings.stall_timeout
         self._stall_guard.period = settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT
-        sys.setswitchinterval(min(sys.getswitchinterval(), settings.period / 4.0))
 
     def _timer_period(self, settings):
         """Step period, or with ``trigger:=command`` the stop watchdog's (at most 50 Hz)."""

@@ -38,6 +38,7 @@ def test_unreadable_obstacles_brake_until_a_readable_message():
         def answer(frame='odom'):
             node._on_odom(serialize_message(odometry(v=0.5, frame=frame)))
             node._intake.process()  # the frame change rebuilds the set
+            node._on_odom(serialize_message(odometry(v=0.5, frame=frame)))  # fresh odometry
             node._on_command(serialize_message(twist(0.5)))
             return deserialize_message(answers[-1], Twist).linear.x
 

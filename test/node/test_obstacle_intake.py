@@ -1,6 +1,4 @@
 """Obstacle intake: conflation, caps and snapshots, in process (no DDS, no node)."""
-import threading
-
 import numpy as np
 from hypothesis import given, strategies as st
 from rclpy.serialization import serialize_message
@@ -9,15 +7,18 @@ from visualization_msgs.msg import Marker
 from node_harness import markers, wall
 from polyc2bf_ros import conversions
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
+from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_intake import IntakeSettings, ObstacleIntake
 
 SQUARE = [(3.0, -0.5), (4.0, -0.5), (4.0, 0.5), (3.0, 0.5), (3.0, -0.5)]
 
 
-def _intake(settings=IntakeSettings(), prepared=None):
-    """An intake in frame odom whose ``prepare`` records the sets it was given."""
-    intake = ObstacleIntake(2, (prepared if prepared is not None else []).append,
-                            lambda: 1.0, settings)
+SPEC = ('unicycle', FilterConfig())
+
+
+def _intake(settings=IntakeSettings()):
+    """Return an in-line intake (no worker) building obstacles in frame odom."""
+    intake = ObstacleIntake(SPEC, lambda: 1.0, settings)
     intake.set_frame('odom')
     return intake
 
@@ -65,13 +66,13 @@ def test_conflated_markers_leave_the_same_obstacles(steps):
 
 def test_queued_messages_are_processed_in_one_pass():
     """Many queued messages: one pass, one snapshot, newest receipt time, every key kept."""
-    prepared = []
-    intake = _intake(prepared=prepared)
+    intake = _intake()
     for i in range(50):
         intake.submit(serialize_message(markers(_square(i % 5, 0.01 * i))), float(i))
     snapshot = intake.process()
     assert snapshot.received == 49.0 and snapshot.tracked == 5 and snapshot.clean
-    assert len(snapshot.obstacles) == 5 and len(prepared) == 1
+    assert len(snapshot.obstacles) == 5
+    assert snapshot.obstacles.base.geometry  # the views are prepared for the filter
     assert intake.process() is snapshot  # nothing new: no pass
 
 
@@ -129,16 +130,39 @@ def test_more_obstacles_than_the_cap_make_the_input_unusable():
     assert '11 obstacle parts exceed max_obstacles (10)' in snapshot.error
 
 
-def test_the_worker_thread_publishes_a_snapshot():
-    """``start``: a submitted message shows up in ``snapshot`` without calling ``process``."""
-    done = threading.Event()
-    intake = ObstacleIntake(2, lambda obstacles: done.set(), lambda: 1.0)
-    intake.set_frame('odom')
+def test_the_worker_process_publishes_snapshots_and_moved_sets_keep_their_base():
+    """``start``: passes run in the worker process; a moved obstacle keeps the node's base."""
+    intake = _intake()
     intake.start()
     try:
         intake.submit(serialize_message(markers(_square(1))), 5.0)
-        assert done.wait(30.0)
-        intake.process()  # waits for the worker's pass
-        assert intake.snapshot.received == 5.0 and len(intake.snapshot.obstacles) == 1
+        first = intake.process()
+        assert first.received == 5.0 and len(first.obstacles) == 1 and first.usable
+        assert first.obstacles.base.geometry  # prepared in the worker, sent along
+        moved = _square(1)
+        moved.pose.position.x = 0.5  # same shape, new pose: a translation
+        intake.submit(serialize_message(markers(moved)), 6.0)
+        second = intake.process()
+        assert second.received == 6.0 and second.obstacles.base is first.obstacles.base
+        np.testing.assert_allclose(second.obstacles.footprints.vertices[0, :4, 0] -
+                                   first.obstacles.footprints.vertices[0, :4, 0], 0.5)
+    finally:
+        intake.stop()
+
+
+def test_a_dead_worker_leaves_the_input_unusable():
+    """The worker process killed: every later snapshot says so, and none is usable."""
+    intake = _intake()
+    intake.start()
+    try:
+        intake.submit(serialize_message(markers(_square(1))), 1.0)
+        assert intake.process().usable
+        intake._worker.kill()
+        intake._worker.wait()
+        intake.submit(serialize_message(markers(_square(1))), 2.0)
+        snapshot = intake.process()
+        assert not snapshot.usable and 'worker process failed' in snapshot.error
+        intake.submit(serialize_message(markers(_square(2))), 3.0)
+        assert not intake.process().usable
     finally:
         intake.stop()

@@ -33,17 +33,22 @@ def test_a_non_positive_timeout_is_refused():
 
 
 def test_a_stuck_step_gets_a_stop_from_the_guard_thread():
-    """The step blocks for 1.5 s: the guard publishes a zero twist meanwhile, counted once."""
+    """The step blocks for 4 s: the guard's thread publishes a zero twist meanwhile, one stall.
+
+    Answers are told apart by the thread that published them.
+    """
     context = rclpy.Context()
     rclpy.init(context=context)
     node = SafetyFilterNode(context=context, parameter_overrides=[
         Parameter('trigger', value='command'), Parameter('obstacles_timeout', value=0.0),
-        Parameter('stall_timeout', value=0.2)])
+        Parameter('stall_timeout', value=1.0), Parameter('odom_timeout', value=10.0),
+        Parameter('cmd_timeout', value=10.0)])
     answers, lock = [], threading.Lock()
 
     def record(data):
         with lock:
-            answers.append((time.monotonic(), deserialize_message(data, Twist).linear.x))
+            answers.append((threading.current_thread().name,
+                            deserialize_message(data, Twist).linear.x))
 
     node._publish = record  # the serialized answers, instead of DDS
     real_filter = node._filter.filter
@@ -51,22 +56,28 @@ def test_a_stuck_step_gets_a_stop_from_the_guard_thread():
         node._on_obstacles(serialize_message(markers()))
         node._on_odom(serialize_message(odometry(v=0.5)))
         node._intake.process()
+        node._on_odom(serialize_message(odometry(v=0.5)))  # fresh after the wait
         node._on_command(serialize_message(twist(0.5)))
-        assert answers[-1][1] > 0.4  # a normal answer first
+        with lock:
+            assert [v for name, v in answers if name != 'stall_guard'][-1] > 0.4
 
         def stuck(*args):
-            time.sleep(1.5)
+            time.sleep(4.0)
             return real_filter(*args)
 
         node._filter.filter = stuck
-        entered = time.monotonic()
+        node._stall_guard.beat()
+        time.sleep(0.3)  # the guard sees the beat: not stalled when the step starts
+        before = node._stall_guard.stalls
+        with lock:
+            count = len(answers)
         node._on_command(serialize_message(twist(0.5)))
         with lock:
-            during = [(t, v) for t, v in answers if t > entered]
-        assert during[-1][1] > 0.4  # the step's own answer, once it returned
-        stops = [t for t, v in during[:-1] if v == 0.0]
-        assert stops, 'no stop while the step was stuck'
-        assert node._stall_guard.stalls == 1
+            during = answers[count:]
+        assert during[-1][0] != 'stall_guard' and during[-1][1] > 0.4  # the step's own answer
+        guard = [v for name, v in during if name == 'stall_guard']
+        assert guard and set(guard) == {0.0}, during
+        assert node._stall_guard.stalls == before + 1
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)
