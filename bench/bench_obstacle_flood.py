@@ -12,7 +12,7 @@ Three processes per case, over real DDS on loopback:
 
 Per case, over the measured window (after ``--warmup`` s)::
 
-    answered  = control periods (1/rate bins) with at least one answer / periods
+    answered  = answers received / control periods elapsed (duration x rate), at most 1
     max gap   = longest time between consecutive answers, in control periods
 
 Cases (the adversarial client's): ``none`` (a few static walls: the floor of the same
@@ -142,15 +142,14 @@ def _drive(node, stop):
 
 
 def _window_metrics(times, start, end, rate):
-    """Answered fraction of 1/rate bins in [start, end) and the longest gap in periods."""
+    """Answers per control period in [start, end) (at most 1) and the longest gap in periods."""
     times = np.sort(np.asarray(times))
     times = times[(times >= start) & (times < end)]
-    bins = int((end - start) * rate)
-    if not len(times) or not bins:
+    periods = (end - start) * rate
+    if not len(times) or periods <= 0.0:
         return 0.0, float('inf')
-    filled = np.unique(((times - start) * rate).astype(int))
     edges = np.concatenate([[start], times, [end]])
-    return len(filled[filled < bins]) / bins, float(np.diff(edges).max() * rate)
+    return min(1.0, len(times) / periods), float(np.diff(edges).max() * rate)
 
 
 def _node_values(diagnostics):
