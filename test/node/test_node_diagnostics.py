@@ -17,6 +17,8 @@ from node_harness import (
 )
 
 RATE = 50.0
+# Waits end as soon as the report is seen; this only turns a hang into a failure.
+WAIT = 30.0
 FIELDS = ('enabled', 'model', 'barrier', 'rate_target_hz', 'rate_achieved_hz', 'latency_p50_ms',
           'latency_p99_ms', 'stale_inputs', 'age_odom_s', 'age_cmd_s', 'age_obstacles_s',
           'steps_ok', 'steps_slack', 'steps_brake', 'steps_escape', 'steps_invalid_input',
@@ -29,11 +31,14 @@ FIELDS = ('enabled', 'model', 'barrier', 'rate_target_hz', 'rate_achieved_hz', '
 def test_diagnostics_fields_follow_the_inputs_and_markers_show_the_cones():
     """Fields track healthy running, a marker in a foreign frame and silent odometry.
 
-    Healthy: level OK, achieved rate near the target, finite min h, markers for
-    a subscriber.  A marker in frame 'map': ERROR naming it, until it is deleted.
+    Healthy: level OK, achieved rate positive and not above the target (how far
+    below depends on the machine), finite min h, markers for a subscriber.  A
+    marker in frame 'map': ERROR naming it, until it is deleted.
     Odometry silent: WARN, stale_inputs 'odom', stale stops counted.
     """
-    with running_filter(params={'model': 'unicycle', 'rate': RATE}) as proc, Harness() as h:
+    # A starved node's stall-guard stop would turn the healthy report into an ERROR.
+    params = {'model': 'unicycle', 'rate': RATE, 'stall_timeout': 10.0}
+    with running_filter(params=params) as proc, Harness() as h:
         drawn = h.collect(MarkerArray, 'safety_filter/markers')
         io = h.filter_io(proc)
         diagnostics = io.diagnostics
@@ -48,7 +53,7 @@ def test_diagnostics_fields_follow_the_inputs_and_markers_show_the_cones():
         def report(predicate):
             count = len(diagnostics)
             ok = h.spin_until(lambda: len(diagnostics) > count and predicate(
-                latest_status(diagnostics)[1]), 5.0, feed, 1.0 / RATE)
+                latest_status(diagnostics)[1]), WAIT, feed, 1.0 / RATE)
             assert ok, (latest_status(diagnostics), node_log(proc))
             return latest_status(diagnostics)
 
@@ -58,10 +63,13 @@ def test_diagnostics_fields_follow_the_inputs_and_markers_show_the_cones():
         assert status.level == DiagnosticStatus.OK and status.hardware_id == 'unicycle'
         assert values['stale_inputs'] == 'none' and values['enabled'] == 'true'
         assert values['obstacles_in_use'] == '1' and math.isfinite(float(values['min_h']))
-        assert 0.3 * RATE < float(values['rate_achieved_hz']) < 1.5 * RATE
+        # A steady timer fires at most once per period (rcl skips missed ones), so only
+        # a rate above the target is wrong; the +50 % covers a report window cut short.
+        assert values['rate_target_hz'] == f'{RATE:g}'
+        assert 0.0 < float(values['rate_achieved_hz']) < 1.5 * RATE
         assert 0.0 < float(values['latency_p50_ms']) <= float(values['latency_p99_ms'])
 
-        assert h.spin_until(lambda: any(len(m.markers) > 1 for _, m in drawn), 3.0, feed,
+        assert h.spin_until(lambda: any(len(m.markers) > 1 for _, m in drawn), WAIT, feed,
                             1.0 / RATE), 'no markers for a subscriber'
         _, latest = drawn[-1]
         namespaces = {m.ns for m in latest.markers if m.action == Marker.ADD}
