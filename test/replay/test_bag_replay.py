@@ -173,8 +173,14 @@ def test_live_replay_timing_selection_remap_and_clock(tmp_path):
 
     Everything selected arrives, in order and with the bag's stamps, under the
     names given by ``--remap`` and by ``--ros-args -r``; nothing excluded or
-    under a remapped-away name does; publish times follow the log times at half
-    speed; ``/clock`` carries the bag time at about 50 Hz.
+    under a remapped-away name does; ``/clock`` carries the bag time and runs at
+    twice wall speed; no message goes out before its bag time on that clock.
+
+    Timing without speed: the player computes each ``/clock`` value from the
+    wall time at which it publishes it, so every pair (publish time, clock value)
+    lies on its line ``bag = rate (wall - w0)`` however late the tick is, and a
+    message may be late on that line but never early.  A starved player sends
+    fewer ticks, never more than one per period (plus 2).
     """
     start, duration, rate, clock_hz = 2.0, 3.0, 2.0, 50.0
     listener = Listener({
@@ -206,18 +212,29 @@ def test_live_replay_timing_selection_remap_and_clock(tmp_path):
     assert [stamp_ns(m) for _, m in got['nominal']] == nominal
     assert got['obstacles'] and not (got['old_odom'] or got['old_nominal'] or got['safe'])
     assert 'done:' in out and '/a1/odom: 360' in out and '/a1/cmd_vel_out' not in out
-    # Timing: publish time = w0 + log time / rate, within a loaded machine's jitter.
-    log_s = np.array(expected) * 1e-9
-    published = np.array([t for t, _ in got['odom']])
-    slope, offset = np.polyfit(log_s, published, 1)
-    assert slope == pytest.approx(1.0 / rate, rel=0.05)
-    assert np.percentile(np.abs(published - (slope * log_s + offset)), 90) < 0.02
-    # /clock: the bag time of the window, never backwards, ~clock_hz over the wall span.
+    # /clock: the bag time of the window, never backwards, at most clock_hz over the span.
     clocks = np.array([m.clock.sec + 1e-9 * m.clock.nanosec for _, m in got['clock']])
+    ticked = np.array([t for t, _ in got['clock']])
     assert np.all(np.diff(clocks) >= 0) and clocks[0] >= start and clocks[-1] <= start + duration
     assert clocks[-1] > start + duration - 0.2
-    span = got['clock'][-1][0] - got['clock'][0][0]
-    assert 0.5 * clock_hz * span <= len(clocks) <= 1.5 * clock_hz * span + 2
+    assert 5 <= len(clocks) <= 1.5 * clock_hz * (ticked[-1] - ticked[0]) + 2
+    # Its line: bag time advances `rate` times as fast as the wall (ticks clipped at the
+    # window's end are off it); w0 = publish time - clock value / rate.
+    # Median of pairwise slopes (Theil-Sen): a tick pre-empted between reading the
+    # time and publishing is off the line, and does not move it.
+    wall, bag = ticked[clocks < start + duration], clocks[clocks < start + duration]
+    i, j = np.triu_indices(len(wall), k=1)
+    apart = wall[j] - wall[i] > 0.1
+    slope = np.median((bag[j] - bag[i])[apart] / (wall[j] - wall[i])[apart])
+    assert slope == pytest.approx(rate, rel=0.05)
+    w0 = np.median(wall - bag / rate)
+    # Messages: never ahead of that clock (5 ms for a tick's own publish delay); a
+    # generous bound on how late, many times the few ms a busy machine adds.
+    log_s = 1e-9 * np.array([m.log_time_ns for m in reader.messages(['/a1/odom'], raw=True,
+                                                                    **window)])
+    lateness = np.array([t for t, _ in got['odom']]) - log_s / rate - w0
+    assert lateness.min() > -0.005, lateness.min()
+    assert np.median(lateness) < 0.5, np.median(lateness)
 
 
 @pytest.mark.slow
