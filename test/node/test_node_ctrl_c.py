@@ -22,7 +22,9 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from node_harness import Harness, node_log, odometry, REPO, twist, wall
 
-PROMPT_S = 5.0  # the reported failure: still running > 20 s after SIGINT
+# The reported failure: still running > 20 s after SIGINT.  A clean exit takes well under
+# a second; PROMPT_S is a hang detector that holds with both cores busy, not a latency bound.
+PROMPT_S = 15.0
 
 
 def _busy_obstacles(t):
@@ -69,7 +71,7 @@ def test_ctrl_c_ends_a_busy_node_promptly(ignore_sigint):
                 io.odom.publish(odometry())
                 io.cmd.publish(twist(0.5))
 
-            assert h.spin_until(lambda: len(io.out) > 50, 20.0, every=flood,
+            assert h.spin_until(lambda: len(io.out) > 50, 60.0, every=flood,
                                 period=1 / 120), node_log(proc)
             h.spin_until(lambda: False, 1.0, every=flood, period=1 / 120)
             proc.send_signal(signal.SIGINT)
