@@ -24,6 +24,7 @@ REPO = Path(__file__).resolve().parents[2]
 # Children run from a temporary directory and import this checkout.
 ENV = {**os.environ, 'PYTHONUNBUFFERED': '1', 'PYTHONPATH': os.pathsep.join(
     filter(None, [str(REPO), os.environ.get('PYTHONPATH')]))}
+AT_REST = 1e-9  # m/s: braked to a stop (the body's speed, from the plant, is ~1e-15 there)
 METRIC_KEYS = {'collision', 'min_clearance_m', 'goal_reached', 'time_to_goal_s',
                'path_length_m'}
 
@@ -96,8 +97,12 @@ def bridge(**params):
     return ('bridge', 'sim_bridge.bridge_node', _ros_args(params))
 
 
-def run_to_end(tmp_path, bridge_params, *others, timeout=60.0):
-    """Run the bridge to the end of its scenario; return its log text."""
+def run_to_end(tmp_path, bridge_params, *others, timeout=300.0):
+    """Run the bridge to the end of its scenario; return its log text.
+
+    ``timeout`` (wall) only turns a hung run into a failure: lockstep runs take as long
+    as the machine needs, so it is many times a run's length on a busy machine.
+    """
     with processes(tmp_path, bridge(**bridge_params), *others) as procs:
         try:
             status = procs[0].wait(timeout=timeout)
@@ -153,12 +158,13 @@ def test_quadruped_lockstep_bag_and_metrics(quadruped_run):
         '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray'}
     metrics = json.loads((tmp_path / 'bag' / 'metrics.json').read_text())
     # The filter publishes markers at 10 Hz and diagnostics at 1 Hz of wall time: a
-    # lockstep run faster than that may end before the first one.
+    # lockstep run faster than that may end before the first one, and on a busy machine
+    # the first one can be late.  A run 10 periods long must have one.
     wall_period = {'/a1/safety_filter/markers': 0.1, '/diagnostics': 1.0}
     for topic, type_name in expected.items():
         msgtype, count, qos = topics[topic]
         assert msgtype == type_name and qos, topic
-        assert count > 0 or metrics['wall_time_s'] < 1.5 * wall_period.get(topic, 0.0), topic
+        assert count > 0 or metrics['wall_time_s'] < 10 * wall_period.get(topic, 0.0), topic
     assert topics['/a1/obstacles'][2][0].durability.name == 'TRANSIENT_LOCAL'
     # One odom/clock/tf per 120 Hz period: the t = 0 re-sends that wait for the
     # controllers to start are published, not recorded.
@@ -266,18 +272,65 @@ def test_filter_stops_before_a_popup_obstacle(tmp_path):
     assert poses[-1][1] < 4.25 - 0.35 and abs(poses[-1][4]) < 0.1  # stopped short of its face
 
 
+class OdomWatcher:
+    """This process's node: a command publisher and the robot's odometry speeds.
+
+    Lets a real-time test wait for what the robot does instead of for wall time, so a
+    slow machine makes it take longer, not fail.
+    """
+
+    def __init__(self, robot='a1'):
+        """Create a private context, a publisher of ``robot/cmd_vel_out``, an odom listener."""
+        import rclpy
+        from geometry_msgs.msg import TwistStamped
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node('teleop', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        reliable = ReliabilityPolicy.RELIABLE
+        self.publisher = self.node.create_publisher(
+            TwistStamped, f'/{robot}/cmd_vel_out', QoSProfile(depth=1, reliability=reliable))
+        self.command = TwistStamped()
+        self.speeds = []
+        self.node.create_subscription(
+            Odometry, f'/{robot}/odom', lambda m: self.speeds.append(m.twist.twist.linear.x),
+            QoSProfile(depth=100, reliability=reliable))
+
+    def spin_until(self, predicate, timeout, speed=None):
+        """Spin (publishing ``speed`` every 10 ms if given) until ``predicate()`` or timeout."""
+        end = time.monotonic() + timeout
+        while not predicate() and time.monotonic() < end:
+            if speed is not None:
+                self.command.twist.linear.x = speed
+                self.publisher.publish(self.command)
+            self.executor.spin_once(timeout_sec=0.01)
+        return predicate()
+
+    def close(self):
+        """Shut the context down."""
+        self.rclpy.try_shutdown(context=self.context)
+
+
 @pytest.mark.slow
 def test_sigint_leaves_a_readable_bag_and_metrics(tmp_path):
     """SIGINT mid-run (real-time mode): exit 0, the bag reads in rosbags, metrics written."""
     params = {'scenario': 'long_wall', 'lockstep': False, 'record': True, 'bag_path': 'bag/run'}
-    with processes(tmp_path, bridge(**params)) as procs:
-        bag = tmp_path / 'bag' / 'run' / 'run_0.mcap'
-        deadline = time.monotonic() + 20.0
-        while not bag.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(1.5)
-        procs[0].send_signal(signal.SIGINT)
-        assert procs[0].wait(timeout=15) == 0, procs[0].log_path.read_text()
+    watcher = OdomWatcher()
+    try:
+        with processes(tmp_path, bridge(**params)) as procs:
+            # Mid-run: once 20 odometry messages went out, however long that takes.
+            assert watcher.spin_until(lambda: len(watcher.speeds) >= 20, 60.0), \
+                procs[0].log_path.read_text()
+            procs[0].send_signal(signal.SIGINT)
+            assert procs[0].wait(timeout=30) == 0, procs[0].log_path.read_text()
+    finally:
+        watcher.close()
     assert 'stopped at' in procs[0].log_path.read_text()
     topics, messages = read_bag(tmp_path / 'bag' / 'run')
     assert topics['/a1/odom'][1] > 10 and len(messages['/a1/odom']) == topics['/a1/odom'][1]
@@ -288,37 +341,31 @@ def test_sigint_leaves_a_readable_bag_and_metrics(tmp_path):
 
 @pytest.mark.slow
 def test_real_time_command_timeout_brakes(tmp_path):
-    """Real-time mode: a command that stops coming is dropped after command_timeout."""
-    import rclpy
-    from geometry_msgs.msg import TwistStamped
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    """Real-time mode: a command that stops coming is dropped after command_timeout.
 
-    # Discovery can take seconds on a loaded machine and eats into the run: 2 s of
-    # commands inside a 6 s run leave room for both the speed-up and the brake.
-    params = {'scenario': 'long_wall', 'lockstep': False, 'duration': 6.0,
+    Driven by what the robot does, not by wall time: 1 m/s goes out until the odometry
+    shows the robot above 0.9 m/s, then nothing; once it shows it at rest, SIGINT ends
+    the run.  The scenario is long enough for any machine; the bag must agree.
+    """
+    params = {'scenario': 'long_wall', 'lockstep': False, 'duration': 120.0,
               'command_timeout': 0.2, 'record': True, 'bag_path': 'bag/run'}
-    context = rclpy.Context()
-    rclpy.init(context=context)
+    watcher = OdomWatcher()
     try:
-        node = rclpy.create_node('teleop', context=context)
-        publisher = node.create_publisher(TwistStamped, '/a1/cmd_vel_out', QoSProfile(
-            depth=1, reliability=ReliabilityPolicy.RELIABLE))
         with processes(tmp_path, bridge(**params)) as procs:
-            deadline = time.monotonic() + 20.0
-            while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
-                time.sleep(0.02)
-            end = time.monotonic() + 2.0
-            while time.monotonic() < end:
-                msg = TwistStamped()
-                msg.twist.linear.x = 1.0
-                publisher.publish(msg)
-                time.sleep(0.01)
-            assert procs[0].wait(timeout=20) == 0, procs[0].log_path.read_text()
+            log = procs[0].log_path
+            assert watcher.spin_until(lambda: watcher.publisher.get_subscription_count(),
+                                      60.0), log.read_text()
+            assert watcher.spin_until(lambda: watcher.speeds and watcher.speeds[-1] > 0.9,
+                                      60.0, speed=1.0), log.read_text()
+            assert watcher.spin_until(lambda: abs(watcher.speeds[-1]) < AT_REST, 60.0), \
+                log.read_text()
+            procs[0].send_signal(signal.SIGINT)
+            assert procs[0].wait(timeout=30) == 0, log.read_text()
     finally:
-        rclpy.try_shutdown(context=context)
+        watcher.close()
     speeds = [p[4] for p in odometry(read_bag(tmp_path / 'bag' / 'run')[1])]
     assert max(speeds) > 0.9
-    assert speeds[-1] == 0.0
+    assert abs(speeds[-1]) < AT_REST
 
 
 @pytest.mark.slow
