@@ -30,6 +30,8 @@ setup(
         (f'share/{PACKAGE}/config', glob('config/*.yaml')),
         (f'share/{PACKAGE}/config/scenarios', glob('config/scenarios/*.yaml')),
         (f'share/{PACKAGE}/launch', glob('launch/*.py')),
+        # BARN worlds with their licence and citation: evaluate --suite barn's default.
+        (f'share/{PACKAGE}/bench/data/barn', glob('bench/data/barn/*')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
