@@ -24,11 +24,11 @@ Per robot namespace ``<ns>`` (the scenario's robot names), in frame ``frame_id``
   importable; the PyPI ROS wheels lack it, so here ``/tf`` is only recorded,
   from hand-written CDR (``sim_bridge.cdr``);
 - subscribes to the safe command: ``<ns>/cmd_vel_out`` (TwistStamped,
-  quadruped: ``linear.x`` = v, ``angular.z`` = omega, tracked by the plant) or
+  quadruped, diff drive: ``linear.x`` = v, ``angular.z`` = omega, tracked by the plant) or
   ``<ns>/wrench_out`` (WrenchStamped, Crazyflie: ``force.z`` = collective thrust,
   ``torque`` = body torques, mixed into rotor thrusts).  Commands are held
   (zero-order hold); a robot whose last command is older than
-  ``command_timeout`` s of sim time, or that never got one, brakes (quadruped:
+  ``command_timeout`` s of sim time, or that never got one, brakes (quadruped, diff drive:
   zero velocity, ramped at the plant's acceleration limit; Crazyflie: the
   quadrotor model's hover brake).
 
@@ -119,7 +119,7 @@ from sim_bridge.cdr import (
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.msg_definitions import message_class
 from sim_bridge.recorder import BagRecorder, close_on_signals
-from sim_bridge.scenario import load_scenario
+from sim_bridge.scenario import load_scenario, UNICYCLE_TYPES
 from sim_bridge.world import SimWorld
 
 try:
@@ -161,6 +161,7 @@ SERVICE_PERIOD = 0.1  # wall s between turns of the executor for services; longe
 # robot type: (command type, safe topic, nominal topic, plant command kind).
 COMMANDS = {
     'quadruped': (TwistStamped, 'cmd_vel_out', 'cmd_vel_in', 'velocity'),
+    'diff_drive': (TwistStamped, 'cmd_vel_out', 'cmd_vel_in', 'velocity'),
     'crazyflie': (WrenchStamped, 'wrench_out', 'wrench_in', 'wrench'),
 }
 LINE_WIDTH = 0.02
@@ -434,7 +435,7 @@ class BridgeNode(Node):
             self.get_logger().error(f'{robot.command_topic}: {exc}', throttle_duration_sec=1.0)
             return
         stamp_ns, (x, _, z, rx, ry, rz) = command.stamp_ns, command.values
-        values = (x, rz) if robot.type == 'quadruped' else (z, rx, ry, rz)
+        values = (x, rz) if robot.type in UNICYCLE_TYPES else (z, rx, ry, rz)
         if self.lockstep and (stamp_ns != self._now_ns or robot.answered_ns == stamp_ns):
             robot.stray += 1
             return
@@ -508,7 +509,7 @@ class BridgeNode(Node):
         for robot in self.robots:
             if robot.command is not None and self.world.time - robot.command_time <= timeout:
                 self.world.set_command(robot.name, robot.command, robot.kind)
-            elif robot.type == 'quadruped':
+            elif robot.type in UNICYCLE_TYPES:
                 self.world.set_command(robot.name, (0.0, 0.0), 'velocity')
             else:
                 state = self.world.robot_state(robot.name)

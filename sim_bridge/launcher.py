@@ -3,10 +3,12 @@
 ``closed_loop_plan(scenario, barrier)`` says which processes a run needs:
 ``sim_bridge``, and per robot namespace ``<ns>`` a ``nominal_controller`` and,
 unless ``barrier`` is ``'none'``, a ``safety_filter`` with the robot type's
-parameter file (``config/quadruped.yaml``, ``config/crazyflie_thrust.yaml``)
-and the lockstep overrides below.  Without a filter the nominal command is
-remapped straight onto the robot's safe-command topic.  ``launch/demo.launch.py``
-turns the same plan into ``launch_ros`` Node actions.
+parameter file (``config/quadruped.yaml``, ``config/diff_drive.yaml``,
+``config/crazyflie_thrust.yaml``), the lockstep overrides below and what the
+robot's body implies (``body_parameters``: a diff-drive disc of radius r guarded
+l ahead of its axle needs ``filter.robot_radius`` = r + l).  Without a filter the
+nominal command is remapped straight onto the robot's safe-command topic.
+``launch/demo.launch.py`` turns the same plan into ``launch_ros`` Node actions.
 
 Lockstep overrides of the filter (what ``test/sim/test_bridge_closed_loop.py``
 established): ``trigger: command`` with ``match_stamps: true`` (one answer per
@@ -49,6 +51,7 @@ FILTER_CHOICES = BARRIERS + ('none',)
 # robot type: (filter parameter file, safe-command topic, nominal-command topic, stamped param).
 ROBOT_IO = {
     'quadruped': ('quadruped.yaml', 'cmd_vel_out', 'cmd_vel_in', {'stamped': True}),
+    'diff_drive': ('diff_drive.yaml', 'cmd_vel_out', 'cmd_vel_in', {'stamped': True}),
     'crazyflie': ('crazyflie_thrust.yaml', 'wrench_out', 'wrench_in', {}),
 }
 LOCKSTEP_FILTER = {'trigger': 'command', 'match_stamps': True, 'odom_timeout': 10.0,
@@ -141,6 +144,21 @@ def params_file(robot_type):
     return CONFIG_DIR / ROBOT_IO[robot_type][0]
 
 
+def body_parameters(spec):
+    """Return the filter overrides ``spec``'s body implies (none but for a diff drive).
+
+    The barrier guards the point ``model_params.offset_l`` ahead of the axle (from the
+    type's parameter file), so ``filter.robot_radius`` = disc radius + offset_l covers the
+    disc from there.
+    """
+    if spec.type != 'diff_drive':
+        return {}
+    # Imported here: it brings rclpy, which planning a run does not otherwise need.
+    from polyc2bf_ros.filter_parameters import load_parameters
+    offset = load_parameters([params_file(spec.type)], (), spec.name)['model_params.offset_l']
+    return {'filter.robot_radius': spec.radius + float(offset)}
+
+
 def scenario_reference(scenario):
     """Return what the bridge's ``scenario`` parameter needs: a shipped name, or an absolute path.
 
@@ -184,7 +202,7 @@ def closed_loop_plan(scenario, barrier='polyc2bf_inflated', bridge_parameters=No
         plan.append(ProcessSpec(f'{robot.name}_nominal', 'nominal_controller',
                                 'sim_bridge.nominal_controller_node', robot.name, controller))
         parameters = {**extra, **LOCKSTEP_FILTER, 'rate': rate, 'filter.barrier': barrier,
-                      **(filter_parameters or {})}
+                      **body_parameters(robot), **(filter_parameters or {})}
         plan.append(ProcessSpec(f'{robot.name}_filter', 'safety_filter',
                                 'polyc2bf_ros.safety_filter_node', robot.name, parameters,
                                 params_file=CONFIG_DIR / config))

@@ -1,7 +1,8 @@
 """Per-robot run metrics sampled from a SimWorld (DESIGN.md section 8 keys).
 
-Call ``RunMetrics.update()`` once per control period (it runs one batch of
-``getClosestPoints`` per robot, too costly for every physics step).  Per robot:
+Call ``RunMetrics.update()`` once per control period (it runs
+``SimWorld.min_clearance`` per robot, ``getClosestPoints`` queries too costly
+for every physics step).  Per robot:
 
 - ``collision``: some sample had a closest-point distance to an obstacle or
   another robot below ``-COLLISION_TOLERANCE`` (1 mm penetration);
@@ -61,7 +62,7 @@ class RunMetrics:
             position = self._position(name)
             metrics.path_length_m += math.dist(position, self._last[name])
             self._last[name] = position
-            clearance = min(self.world.clearances(name).tolist(), default=math.inf)
+            clearance = self.world.min_clearance(name)
             metrics.min_clearance_m = min(metrics.min_clearance_m, clearance)
             if clearance < -COLLISION_TOLERANCE and not metrics.collision:
                 metrics.collision, metrics.collision_time_s = True, time

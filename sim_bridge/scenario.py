@@ -9,10 +9,14 @@ YAML schema (units: m, s, rad, Hz)::
     seed: 0                    # optional, default 0; drives random_obstacles
     robots:                    # names are the robots' ROS namespaces
       - {name: a1, type: quadruped, start: [x, y, yaw], goal: [x, y], radius: 0.4}
+      - {name: base, type: diff_drive, start: [x, y, yaw], goal: [x, y],
+         path: [[x, y], ...]}  # optional: what the ``path`` nominal follows
       - {name: cf, type: crazyflie, start: [x, y, z, yaw], goal: [x, y, z]}
     obstacles:                 # optional
       - polygon: [[x, y], ...] # convex or simple non-convex, either orientation
         z: [z_min, z_max]      # optional, default [0, 1]
+      - cylinder: [x, y]       # instead of polygon: an upright cylinder
+        radius: 0.075          # (required with cylinder)
         velocity: [vx, vy]     # optional, default [0, 0]: constant translation
         name: wall             # optional, default obstacle_<i>
         appear_at: 3.0         # optional, default 0: pop-up time [s]
@@ -24,12 +28,17 @@ YAML schema (units: m, s, rad, Hz)::
       clearance: 1.0           # min distance from every robot's start and goal
       spacing: 0.0             # optional: min gap between obstacles (circumcircles)
 
-``radius`` (optional) is the robot's footprint circle as other robots see it;
-defaults per type in ``ROBOT_RADIUS``.  An obstacle with ``appear_at`` = t_a > 0
-is a pop-up: before sim time t_a it does not exist (no body, no clearance or
-collision, no marker); ``polygon`` is its footprint at t_a, from which it then
-moves with ``velocity``.  Starts are checked only against obstacles present
-at t = 0, goals against every obstacle as listed.  Every problem raises ``ScenarioError``
+``radius`` (optional) is the robot's footprint circle as other robots see it,
+and a ``diff_drive`` base's body (a disc); defaults per type in ``ROBOT_RADIUS``.
+``quadruped`` and ``diff_drive`` are unicycles (``UNICYCLE_TYPES``): start
+``[x, y, yaw]``, goal ``[x, y]``.  A cylinder obstacle is a true cylinder in
+the simulator and is published (and seen by the filter) as the
+``CYLINDER_SIDES``-gon circumscribing it, as the node turns a CYLINDER marker.
+An obstacle with ``appear_at`` = t_a > 0 is a pop-up: before sim time t_a it
+does not exist (no body, no clearance or collision, no marker); ``polygon`` is
+its footprint at t_a, from which it then moves with ``velocity``.  Starts are
+checked only against obstacles present at t = 0, goals against every obstacle
+as listed.  Every problem raises ``ScenarioError``
 naming the file and the field path, e.g.
 ``robots[1].start: expected 3 numbers [x, y, yaw] for a quadruped, got 2``.
 """
@@ -51,14 +60,20 @@ from polyc2bf_ros.core.geometry import (
 )
 
 PACKAGE = 'polyc2bf_ros'
-ROBOT_TYPES = ('quadruped', 'crazyflie')
+ROBOT_TYPES = ('quadruped', 'diff_drive', 'crazyflie')
+UNICYCLE_TYPES = ('quadruped', 'diff_drive')
 # Footprint circle radius [m] around the base: the standing A1 reaches 0.378 m (its rear
-# knees stick out 0.354 m behind the base), the Crazyflie its rotor tips.
-ROBOT_RADIUS = {'quadruped': 0.4, 'crazyflie': cf.BODY_RADIUS}
+# knees stick out 0.354 m behind the base), a diff-drive base is a disc of this radius
+# (BARN's reference paths keep >= 0.225 m from every cylinder in 99 % of its worlds), the
+# Crazyflie its rotor tips.
+ROBOT_RADIUS = {'quadruped': 0.4, 'diff_drive': 0.2, 'crazyflie': cf.BODY_RADIUS}
 # Layouts of start and goal per robot type.
-START_FIELDS = {'quadruped': '[x, y, yaw]', 'crazyflie': '[x, y, z, yaw]'}
-GOAL_FIELDS = {'quadruped': '[x, y]', 'crazyflie': '[x, y, z]'}
+START_FIELDS = {'quadruped': '[x, y, yaw]', 'diff_drive': '[x, y, yaw]',
+                'crazyflie': '[x, y, z, yaw]'}
+GOAL_FIELDS = {'quadruped': '[x, y]', 'diff_drive': '[x, y]', 'crazyflie': '[x, y, z]'}
 DEFAULT_Z = (0.0, 1.0)
+# Sides of the polygon circumscribing a cylinder obstacle: the node's ``cylinder_sides``.
+CYLINDER_SIDES = 12
 # Random polygons have 3..8 vertices; at most this many draws per requested obstacle.
 RANDOM_VERTICES = (3, 8)
 RANDOM_ATTEMPTS = 200
@@ -97,15 +112,30 @@ def _frozen(values):
     return array
 
 
+def cylinder_polygon(centre, radius, sides=CYLINDER_SIDES):
+    """Return the CCW ``sides``-gon circumscribing the circle, as the node builds it.
+
+    Vertices at angles 2 pi (i + 1/2) / sides, distance radius / cos(pi / sides).
+    """
+    angles = 2.0 * np.pi * (np.arange(sides) + 0.5) / sides
+    reach = radius / math.cos(math.pi / sides)
+    return np.asarray(centre, dtype=float) + reach * np.column_stack([np.cos(angles),
+                                                                      np.sin(angles)])
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class RobotSpec:
-    """One robot: namespace ``name``, ``type``, start pose, goal position, footprint radius."""
+    """One robot: namespace ``name``, ``type``, start pose, goal position, footprint radius.
+
+    ``path`` (P, 2), optional: the waypoints the ``path`` nominal controller follows.
+    """
 
     name: str
     type: str
     start: np.ndarray
     goal: np.ndarray
     radius: float
+    path: np.ndarray = None
 
     @property
     def position(self):
@@ -122,7 +152,9 @@ class RobotSpec:
 class ObstacleSpec:
     """A vertical prism: CCW footprint (k, 2) at ``appear_at``, z range, velocity [vx, vy].
 
-    It exists from sim time ``appear_at`` [s] on (0: from the start).
+    It exists from sim time ``appear_at`` [s] on (0: from the start).  With ``radius``
+    it is the cylinder of that radius about the footprint's vertex mean, and the
+    footprint is the polygon circumscribing it (``cylinder_polygon``).
     """
 
     name: str
@@ -130,6 +162,7 @@ class ObstacleSpec:
     z: tuple = DEFAULT_Z
     velocity: np.ndarray = dataclasses.field(default_factory=lambda: _frozen([0.0, 0.0]))
     appear_at: float = 0.0
+    radius: float = None
 
     @property
     def moving(self):
@@ -226,16 +259,17 @@ def random_polygons(spec, seed, robots, fixed=()):
     return tuple(obstacles)
 
 
-class _Reader:
-    """Checks one YAML document field by field; errors carry the field path."""
+class FieldReader:
+    """Checks one parsed document field by field; errors carry the field path."""
 
-    def __init__(self, source):
-        """Remember the file name used as the prefix of every message."""
+    def __init__(self, source, error=ScenarioError):
+        """Remember the prefix of every message (the file) and the exception to raise."""
         self.source = source
+        self.error = error
 
     def fail(self, path, problem):
-        """Raise ScenarioError for ``path``."""
-        raise ScenarioError(f'{self.source}: {path or "document"}: {problem}')
+        """Raise ``error`` for ``path``."""
+        raise self.error(f'{self.source}: {path or "document"}: {problem}')
 
     def mapping(self, value, path, required, optional=()):
         """Check that ``value`` is a mapping with the required keys and no unknown ones."""
@@ -289,29 +323,44 @@ class _Reader:
 
 def _robot(reader, data, path):
     """Parse one entry of ``robots``."""
-    reader.mapping(data, path, ('name', 'type', 'start', 'goal'), ('radius',))
+    reader.mapping(data, path, ('name', 'type', 'start', 'goal'), ('radius', 'path'))
     name = reader.name(data['name'], f'{path}.name')
     kind = data['type']
     if kind not in ROBOT_TYPES:
         reader.fail(f'{path}.type', f'expected one of {", ".join(ROBOT_TYPES)}, got {kind!r}')
-    size = 2 if kind == 'quadruped' else 3
+    size = 2 if kind in UNICYCLE_TYPES else 3
     start = reader.numbers(data['start'], f'{path}.start', size + 1,
                            f'{START_FIELDS[kind]} for a {kind}')
     goal = reader.numbers(data['goal'], f'{path}.goal', size, f'{GOAL_FIELDS[kind]} for a {kind}')
     radius = ROBOT_RADIUS[kind]
     if 'radius' in data:
         radius = reader.number(data['radius'], f'{path}.radius', positive=True)
+    waypoints = None
+    if 'path' in data:
+        points = data['path']
+        if not isinstance(points, list) or len(points) < 2:
+            reader.fail(f'{path}.path', f'expected a list of >= 2 points [x, y], got {points!r}')
+        waypoints = _frozen([reader.numbers(p, f'{path}.path[{i}]', 2, '[x, y]')
+                             for i, p in enumerate(points)])
     return RobotSpec(name=name, type=kind, start=_frozen(start), goal=_frozen(goal),
-                     radius=radius)
+                     radius=radius, path=waypoints)
 
 
 def _obstacle(reader, data, path, index):
     """Parse one entry of ``obstacles``."""
-    reader.mapping(data, path, ('polygon',), ('z', 'velocity', 'name', 'appear_at'))
-    try:
-        polygon = clean_polygon(data['polygon'])
-    except InvalidPolygonError as exc:
-        reader.fail(f'{path}.polygon', str(exc))
+    shape = 'cylinder' if 'cylinder' in data else 'polygon'
+    reader.mapping(data, path, (shape,) + (('radius',) if shape == 'cylinder' else ()),
+                   ('z', 'velocity', 'name', 'appear_at'))
+    radius = None
+    if shape == 'cylinder':
+        centre = reader.numbers(data['cylinder'], f'{path}.cylinder', 2, '[x, y]')
+        radius = reader.number(data['radius'], f'{path}.radius', positive=True)
+        polygon = cylinder_polygon(centre, radius)
+    else:
+        try:
+            polygon = clean_polygon(data['polygon'])
+        except InvalidPolygonError as exc:
+            reader.fail(f'{path}.polygon', str(exc))
     z = reader.interval(data['z'], f'{path}.z') if 'z' in data else DEFAULT_Z
     velocity = np.zeros(2)
     if 'velocity' in data:
@@ -319,7 +368,7 @@ def _obstacle(reader, data, path, index):
     name = reader.name(data['name'], f'{path}.name') if 'name' in data else f'obstacle_{index}'
     appear_at = reader.number(data.get('appear_at', 0.0), f'{path}.appear_at', minimum=0.0)
     return ObstacleSpec(name=name, polygon=_frozen(polygon), z=z, velocity=_frozen(velocity),
-                        appear_at=appear_at)
+                        appear_at=appear_at, radius=radius)
 
 
 def _random(reader, data, path):
@@ -368,7 +417,7 @@ def _check_free(reader, robots, obstacles):
 
 def scenario_from_dict(data, source='<dict>'):
     """Check a parsed YAML document and return its Scenario (ScenarioError if invalid)."""
-    reader = _Reader(source)
+    reader = FieldReader(source)
     reader.mapping(data, '', ('name', 'duration', 'robots'),
                    ('physics_rate', 'control_rate', 'seed', 'obstacles', 'random_obstacles'))
     physics_rate = reader.number(data.get('physics_rate', 240), 'physics_rate', positive=True)

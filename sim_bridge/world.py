@@ -2,16 +2,22 @@
 
 ``SimWorld(scenario)`` builds a DIRECT-mode world: a ground plane, every
 obstacle as a vertical prism (one convex-mesh body per convex part, collision
-margin 0 so distances are exact), and the robots.  ``step()`` advances one
+margin 0 so distances are exact), and the robots.  An obstacle's bodies are
+made when a closest-point query first comes within range of it (creating one
+costs ~0.5 ms, and BARN's worlds have 260 cylinders of which a run passes a
+fraction); a query never skips a body that could answer it, so this changes no
+distance.  With the GUI they are all made at once, to be seen.  ``step()`` advances one
 physics step of ``dt = 1 / physics_rate``; commands are held between
 ``set_command`` calls (zero-order hold).  A pop-up obstacle (``appear_at`` =
 t_a > 0) gets its bodies at the first step with t >= t_a; until then it is in
 no footprint list, clearance or collision, and ``obstacle_version`` counts
 the appearances so a publisher can send the new set at once.
 
-Quadruped (Unitree A1, ``pybullet_data/a1/a1.urdf``, a dynamic body) is the
-paper's acceleration-controlled unicycle.  Its plant state [x, y, theta, v,
-omega] is integrated here, per physics step dt::
+Quadruped (Unitree A1, ``pybullet_data/a1/a1.urdf``, a dynamic body) and
+diff-drive base (an upright PyBullet cylinder of the scenario's ``radius`` and
+``DIFF_DRIVE_HEIGHT``, a dynamic body) are the paper's acceleration-controlled
+unicycle: both are the one plant below, driven by ``cmd_vel`` [v, omega].  Its
+plant state [x, y, theta, v, omega] is integrated here, per physics step dt::
 
     velocity command: a = clip((v_cmd - v) / dt, +-a_max)   (reach v_cmd at a_max)
     acceleration command: a = clip(a_cmd, +-a_max)
@@ -22,8 +28,8 @@ omega] is integrated here, per physics step dt::
 and the Bullet base is reset to that pose at standing height, upright
 (roll = pitch = 0), before anything reads it (closest points,
 ``robot_pose``; every step with the GUI): a reset costs ~20 us per A1.  The
-body (mass > 0) is kept asleep with wake-up disabled and its joint motors
-off, so Bullet never integrates it: gravity cannot sink or tip it and the
+body (mass > 0) is kept asleep with wake-up disabled (and an A1's joint motors
+off), so Bullet never integrates it: gravity cannot sink or tip it and the
 legs stay in the standing pose.  Its Bullet base velocity stays zero (a base
 angular velocity would drive the legs' joints); the plant's velocity is in
 ``robot_state``.  Its links are out of contact solving (collision mask 0),
@@ -32,6 +38,10 @@ so contacts never push it: a collision is detected with ``getClosestPoints``
 trunk's centre of mass); the rear knees reach 0.354 m behind it.  Fixed
 links are merged on load (12 links, not 21), which halves the per-step and
 closest-point cost.
+
+A cylinder obstacle (``ObstacleSpec.radius``) is a PyBullet cylinder
+(collision margin 0), so closest points measure the true cylinder, not the
+polygon the filter is given.
 
 Crazyflie 2.1 (``assets/crazyflie21.urdf``) is a free rigid body with zero
 linear and angular damping (PyBullet's default 0.04 is a hidden drag) and
@@ -56,15 +66,17 @@ from polyc2bf_ros.core import crazyflie as cf
 from polyc2bf_ros.core.geometry import decompose_convex, is_convex
 
 GRAVITY = cf.GRAVITY
-# Quadruped plant limits (at least the filter's unicycle bounds, so its inputs are realisable).
+# Unicycle plant limits (at least the filter's unicycle bounds, so its inputs are realisable).
 QUADRUPED_MAX_SPEED = 2.0             # m/s
 QUADRUPED_MAX_TURN_RATE = 3.0         # rad/s
 QUADRUPED_MAX_ACCEL = 2.0             # m/s^2
 QUADRUPED_MAX_ANGULAR_ACCEL = 4.0     # rad/s^2
 A1_URDF = 'a1/a1.urdf'
 A1_STANDING_POSE = (0.0, 0.9, -1.8)   # hip, thigh, calf [rad], the same for all four legs
-# Asleep and never woken: Bullet neither integrates the A1 nor applies gravity to it.
-A1_ASLEEP = pb.ACTIVATION_STATE_SLEEP | pb.ACTIVATION_STATE_DISABLE_WAKEUP
+# Asleep and never woken: Bullet neither integrates the body nor applies gravity to it.
+ASLEEP = pb.ACTIVATION_STATE_SLEEP | pb.ACTIVATION_STATE_DISABLE_WAKEUP
+DIFF_DRIVE_HEIGHT = 0.25              # m, the disc's height (a Clearpath Jackal is 0.25 m)
+DIFF_DRIVE_MASS = 15.0                # kg (never integrated: only "dynamic" for contacts)
 CRAZYFLIE_URDF = Path(__file__).resolve().parent / 'assets' / 'crazyflie21.urdf'
 CRAZYFLIE_HALF_HEIGHT = 0.015         # m, half the collision cylinder's length
 # Distance below which getClosestPoints counts as a collision (contact-solver
@@ -76,8 +88,12 @@ COLLISION_TOLERANCE = 1e-3            # m
 CLEARANCE_RANGE = 0.5
 # First search distance beyond a pair's lower bound [m]; doubled until points are found.
 SEARCH_STEP = 0.1
+# While nothing moves, the obstacles near a robot are listed with this much more range and
+# the list is kept until the robot has moved as far [m] (``SimWorld._near_obstacles``).
+NEAR_MARGIN = 0.5
 FOOTPRINT_SEGMENTS = 16               # vertices of a robot's footprint circle
-COMMAND_KINDS = {'quadruped': ('velocity', 'acceleration'), 'crazyflie': ('thrusts', 'wrench')}
+COMMAND_KINDS = {'quadruped': ('velocity', 'acceleration'),
+                 'diff_drive': ('velocity', 'acceleration'), 'crazyflie': ('thrusts', 'wrench')}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -113,10 +129,11 @@ def _finite(cmd, size, what):
 class _Obstacle:
     """Static or constant-velocity prism: one mass-0 body per convex part, sharing an anchor.
 
-    The bodies exist from ``appear()`` on (at construction when ``appear_at`` is 0).
+    It is present from ``appear()`` on (at construction when ``appear_at`` is 0); its
+    bodies are made then, or with ``lazy`` on the first ``bodies_at``.
     """
 
-    def __init__(self, spec, index, client):
+    def __init__(self, spec, index, client, lazy):
         """Describe the prism; part vertices are relative to the footprint's vertex mean."""
         self.spec = spec
         self.client = client
@@ -125,32 +142,48 @@ class _Obstacle:
         velocity = np.append(spec.velocity, 0.0)
         self.footprint = Footprint(spec.name, spec.polygon, spec.z[0], spec.z[1], velocity,
                                    index)
-        self.parts = [spec.polygon] if is_convex(spec.polygon) else decompose_convex(
-            spec.polygon)
-        self.bodies = []
+        self.bodies, self.heights = [], []  # a body per part, and its frame's z
         self.lower = spec.polygon.min(axis=0)
         self.upper = spec.polygon.max(axis=0)
+        self.lazy = lazy
+        self.present = False
         if spec.appear_at <= 0.0:
             self.appear(0.0)
 
-    @property
-    def present(self):
-        """Return True once the obstacle has appeared."""
-        return bool(self.bodies)
-
-    def appear(self, time):
-        """Create one convex-mesh body per part, placed where the obstacle is at ``time``."""
-        for part in self.parts:
+    def _shapes(self):
+        """Return (collision shape, z of the body frame) per body: a cylinder, or mesh parts."""
+        z_min, z_max = self.spec.z
+        if self.spec.radius is not None:
+            shape = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=self.spec.radius,
+                                            height=z_max - z_min, physicsClientId=self.client)
+            return [(shape, 0.5 * (z_min + z_max))]
+        polygon = self.spec.polygon
+        shapes = []
+        for part in [polygon] if is_convex(polygon) else decompose_convex(polygon):
             local = part - self.anchor
             vertices = [(x, y, z) for z in self.spec.z for x, y in local]
-            shape = pb.createCollisionShape(pb.GEOM_MESH, vertices=vertices,
-                                            physicsClientId=self.client)
-            body = pb.createMultiBody(0.0, shape, basePosition=(*self.anchor, 0.0),
-                                      physicsClientId=self.client)
-            pb.changeDynamics(body, -1, collisionMargin=0.0, physicsClientId=self.client)
-            self.bodies.append(body)
-        if self.moving:
-            self.place(time)
+            shapes.append((pb.createCollisionShape(pb.GEOM_MESH, vertices=vertices,
+                                                   physicsClientId=self.client), 0.0))
+        return shapes
+
+    def appear(self, time):
+        """Make it present at ``time``, with its bodies unless they are made on first use."""
+        self.present = True
+        if not self.lazy:
+            self.bodies_at(time)
+
+    def bodies_at(self, time):
+        """Return its bodies, made first (a cylinder, or a convex mesh per part) if need be."""
+        if not self.bodies:
+            for shape, z in self._shapes():
+                body = pb.createMultiBody(0.0, shape, basePosition=(*self.anchor, z),
+                                          physicsClientId=self.client)
+                self.heights.append(z)
+                pb.changeDynamics(body, -1, collisionMargin=0.0, physicsClientId=self.client)
+                self.bodies.append(body)
+            if self.moving:
+                self.place(time)
+        return self.bodies
 
     def offset(self, time):
         """Return the translation since it appeared: velocity * (time - appear_at)."""
@@ -159,8 +192,8 @@ class _Obstacle:
     def place(self, time):
         """Move every part to its position at ``time``."""
         x, y = self.anchor + self.offset(time)
-        for body in self.bodies:
-            pb.resetBasePositionAndOrientation(body, (x, y, 0.0), (0.0, 0.0, 0.0, 1.0),
+        for body, z in zip(self.bodies, self.heights):
+            pb.resetBasePositionAndOrientation(body, (x, y, z), (0.0, 0.0, 0.0, 1.0),
                                                physicsClientId=self.client)
 
     def footprint_at(self, time):
@@ -214,32 +247,20 @@ def _quiet_stdout():
         os.close(saved)
 
 
-class _Quadruped(_Robot):
-    """Unitree A1 driven as an acceleration-limited unicycle (see the module docstring)."""
+class _Unicycle(_Robot):
+    """The acceleration-limited unicycle plant of a kinematic body (the module docstring).
 
-    def __init__(self, spec, client, ground):
-        """Load the A1 (fixed links merged) standing at the start pose, asleep, uncollidable.
+    The body is kept asleep and out of contact solving; its base sits at ``height``.
+    """
 
-        The standing height is the distance from the legs to the ``ground`` body
-        when the base is at z = 1: base z = 1 - that distance puts the feet on z = 0.
-        """
-        x, y, yaw = spec.start
-        with _quiet_stdout():
-            body = pb.loadURDF(A1_URDF, (x, y, 1.0), _yaw_quaternion(yaw),
-                               flags=pb.URDF_MERGE_FIXED_LINKS, physicsClientId=client)
-        links = range(-1, pb.getNumJoints(body, physicsClientId=client))
-        for joint in links[1:]:  # merged: hip, thigh, calf of each leg in turn
-            pb.resetJointState(body, joint, A1_STANDING_POSE[joint % 3], physicsClientId=client)
-        # No joint motors: Bullet would still solve their constraints for a sleeping body.
-        pb.setJointMotorControlArray(body, list(links[1:]), pb.VELOCITY_CONTROL,
-                                     forces=[0.0] * (len(links) - 1), physicsClientId=client)
-        for link in links:
+    def __init__(self, spec, body, client, height):
+        """Put ``body`` to sleep for good, drop it from contacts, start from the spec's pose."""
+        for link in range(-1, pb.getNumJoints(body, physicsClientId=client)):
             pb.setCollisionFilterGroupMask(body, link, 0, 0, physicsClientId=client)
-        pb.changeDynamics(body, -1, activationState=A1_ASLEEP, physicsClientId=client)
-        gap = min(point[8] for point in pb.getClosestPoints(body, ground, 1.0,
-                                                              physicsClientId=client))
-        self.height = 1.0 - gap
-        pb.resetBasePositionAndOrientation(body, (x, y, self.height), _yaw_quaternion(yaw),
+        pb.changeDynamics(body, -1, activationState=ASLEEP, physicsClientId=client)
+        x, y, yaw = spec.start
+        self.height = height
+        pb.resetBasePositionAndOrientation(body, (x, y, height), _yaw_quaternion(yaw),
                                            physicsClientId=client)
         super().__init__(spec, body, client)
         self.state = np.array([x, y, yaw, 0.0, 0.0])
@@ -270,7 +291,7 @@ class _Quadruped(_Robot):
         self.state[:] = x, y, theta, v_new, omega_new
 
     def sync(self):
-        """Put the base at the plant's pose, upright at standing height."""
+        """Put the base at the plant's pose, upright at its height."""
         x, y, theta = self.state[:3].tolist()
         pb.resetBasePositionAndOrientation(self.body, (x, y, self.height),
                                            _yaw_quaternion(theta), physicsClientId=self.client)
@@ -288,6 +309,42 @@ class _Quadruped(_Robot):
         x, y, theta, v, _ = self.state
         velocity = np.array([v * math.cos(theta), v * math.sin(theta), 0.0])
         return np.array([x, y, self.height]), velocity, 0.0, self.height + self.top
+
+
+class _Quadruped(_Unicycle):
+    """Unitree A1: the unicycle plant carrying the standing A1 (fixed links merged)."""
+
+    def __init__(self, spec, client, ground):
+        """Load the A1 standing at the start pose, joint motors off.
+
+        The standing height is the distance from the legs to the ``ground`` body
+        when the base is at z = 1: base z = 1 - that distance puts the feet on z = 0.
+        """
+        x, y, yaw = spec.start
+        with _quiet_stdout():
+            body = pb.loadURDF(A1_URDF, (x, y, 1.0), _yaw_quaternion(yaw),
+                               flags=pb.URDF_MERGE_FIXED_LINKS, physicsClientId=client)
+        joints = range(pb.getNumJoints(body, physicsClientId=client))
+        for joint in joints:  # merged: hip, thigh, calf of each leg in turn
+            pb.resetJointState(body, joint, A1_STANDING_POSE[joint % 3], physicsClientId=client)
+        # No joint motors: Bullet would still solve their constraints for a sleeping body.
+        pb.setJointMotorControlArray(body, list(joints), pb.VELOCITY_CONTROL,
+                                     forces=[0.0] * len(joints), physicsClientId=client)
+        gap = min(point[8] for point in pb.getClosestPoints(body, ground, 1.0,
+                                                              physicsClientId=client))
+        super().__init__(spec, body, client, 1.0 - gap)
+
+
+class _DiffDrive(_Unicycle):
+    """Diff-drive base: the unicycle plant carrying an upright cylinder of the spec's radius."""
+
+    def __init__(self, spec, client):
+        """Create the disc (collision margin 0) standing on the ground at the start pose."""
+        shape = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=spec.radius,
+                                        height=DIFF_DRIVE_HEIGHT, physicsClientId=client)
+        body = pb.createMultiBody(DIFF_DRIVE_MASS, shape, physicsClientId=client)
+        pb.changeDynamics(body, -1, collisionMargin=0.0, physicsClientId=client)
+        super().__init__(spec, body, client, 0.5 * DIFF_DRIVE_HEIGHT)
 
 
 class _Crazyflie(_Robot):
@@ -364,17 +421,19 @@ class SimWorld:
         pb.setTimeStep(self.dt, physicsClientId=client)
         pb.setPhysicsEngineParameter(deterministicOverlappingPairs=1, physicsClientId=client)
         ground = pb.loadURDF('plane.urdf', physicsClientId=client)
-        self._obstacles = [_Obstacle(spec, index, client)
+        self._obstacles = [_Obstacle(spec, index, client, lazy=not gui)
                            for index, spec in enumerate(scenario.all_obstacles())]
         self._present = np.array([o.present for o in self._obstacles], dtype=bool)
         self._hidden = sorted((o for o in self._obstacles if not o.present),
                               key=lambda o: o.spec.appear_at)
         self.obstacle_version = 0
         self._moving = [o for o in self._obstacles if o.moving and o.present]
-        self._robots = {spec.name: (_Quadruped(spec, client, ground) if spec.type == 'quadruped'
-                                    else _Crazyflie(spec, client)) for spec in scenario.robots}
+        plants = {'quadruped': lambda spec: _Quadruped(spec, client, ground),
+                  'diff_drive': lambda spec: _DiffDrive(spec, client),
+                  'crazyflie': lambda spec: _Crazyflie(spec, client)}
+        self._robots = {spec.name: plants[spec.type](spec) for spec in scenario.robots}
         self._plants = list(self._robots.values())
-        # Only a Crazyflie is integrated by Bullet; quadruped plants and obstacles are placed
+        # Only a Crazyflie is integrated by Bullet; unicycle plants and obstacles are placed
         # by resets, so a world without one skips stepSimulation (see step()).
         self._bullet_steps = any(isinstance(p, _Crazyflie) for p in self._plants)
         for index, plant in enumerate(self._plants):
@@ -383,6 +442,7 @@ class SimWorld:
         self._upper = np.array([o.upper for o in self._obstacles]).reshape(-1, 2)
         self._offsets = np.zeros_like(self._lower)
         self._snapshot_step, self._footprints, self._centres, self._pairs = -1, {}, {}, {}
+        self._near = {}  # (robot, search distance) -> listed obstacles (_near_obstacles)
         self._velocities = np.array([o.spec.velocity for o in self._obstacles]).reshape(-1, 2)
         self._appear_at = np.array([o.spec.appear_at for o in self._obstacles]).reshape(-1, 1)
 
@@ -403,7 +463,8 @@ class SimWorld:
     def set_command(self, robot, cmd, kind=None):
         """Hold ``cmd`` for ``robot`` until the next call.
 
-        Quadruped: kind 'velocity' (default) [v, omega] or 'acceleration' [a, alpha].
+        Quadruped, diff drive: kind 'velocity' (default) [v, omega] or 'acceleration'
+        [a, alpha].
         Crazyflie: kind 'thrusts' (default) f (4,) [N] or 'wrench' [T, tau_x, tau_y, tau_z].
         Raises ValueError for an unknown kind or a wrongly sized or non-finite command.
         """
@@ -525,32 +586,87 @@ class SimWorld:
         Robot bodies are moved to their plants' poses only when a query runs.
         """
         plant = self._robots[robot]
-        centres = self._robot_snapshot()[1]
-        others = [name for name in self._robots if name != robot]
         obstacles = np.full(len(self._obstacles), np.inf)
-        position = centres[robot]
-        if self._obstacles:
-            gaps = np.maximum(np.maximum(self._lower + self._offsets - position,
-                                         position - self._upper - self._offsets), 0.0)
-            bounds = np.hypot(gaps[:, 0], gaps[:, 1]) - plant.reach
-            for index in np.flatnonzero((bounds <= max_distance) & self._present):
-                obstacles[index] = min(self._distance(plant.body, body, bounds[index],
-                                                      max_distance)
-                                       for body in self._obstacles[index].bodies)
-        present = obstacles[self._present]
-        result = np.concatenate([present, np.full(len(others), np.inf)])
-        x, y = position
-        for index, name in enumerate(others, start=len(present)):
-            other = self._robots[name]
+        for index, bound in zip(*self._near_obstacles(robot, max_distance)):
+            obstacles[index] = self._obstacle_distance(plant, index, bound, max_distance)
+        return np.concatenate([obstacles[self._present],
+                               self._robot_distances(robot, max_distance)])
+
+    def min_clearance(self, robot, max_distance=CLEARANCE_RANGE):
+        """Return ``min(clearances(robot, max_distance))`` (inf if empty), with fewer queries.
+
+        Obstacles are queried in the order of their lower bounds, and none once the
+        bound exceeds the best distance found: no such obstacle can be closer.
+        """
+        plant = self._robots[robot]
+        best = min(self._robot_distances(robot, max_distance), default=math.inf)
+        for bound, index in sorted(zip(*self._near_obstacles(robot, max_distance)[::-1])):
+            reach = min(best, max_distance)
+            if bound > reach:
+                break
+            best = min(best, self._obstacle_distance(plant, index, bound, reach))
+        return best
+
+    def _near_obstacles(self, robot, max_distance):
+        """Return the present obstacles with lower bound <= ``max_distance``: indices, bounds.
+
+        Bound on the distance to ``robot``: the gap between the obstacle's bounding box and
+        the robot's base, minus the robot's reach.  While nothing moves, the obstacles with
+        bound <= max_distance + NEAR_MARGIN are listed once per robot, and that list serves
+        until the robot's base has moved NEAR_MARGIN: a bound falls by at most the distance
+        moved, so no obstacle outside the list can have come within range.
+        """
+        position = self._robot_snapshot()[1][robot]
+        x, y = position.tolist()
+        reach = self._robots[robot].reach
+        key = (robot, max_distance)
+        listed = self._near.get(key)
+        if (listed is None or self._moving or listed[0] != self.obstacle_version
+                or math.hypot(listed[1][0] - x, listed[1][1] - y) > NEAR_MARGIN):
+            margin = 0.0 if self._moving else NEAR_MARGIN
+            lower, upper = self._lower + self._offsets, self._upper + self._offsets
+            gaps = np.maximum(np.maximum(lower - position, position - upper), 0.0)
+            index = np.flatnonzero((np.hypot(gaps[:, 0], gaps[:, 1]) - reach
+                                    <= max_distance + margin) & self._present)
+            boxes = np.hstack([index[:, None], lower[index], upper[index]]).tolist()
+            listed = self._near[key] = (self.obstacle_version, (x, y), boxes)
+        indices, bounds = [], []
+        for index, low_x, low_y, high_x, high_y in listed[2]:
+            bound = math.hypot(max(low_x - x, x - high_x, 0.0),
+                               max(low_y - y, y - high_y, 0.0)) - reach
+            if bound <= max_distance:
+                indices.append(int(index))
+                bounds.append(bound)
+        return indices, bounds
+
+    def _obstacle_distance(self, plant, index, lower_bound, max_distance):
+        """Return the distance from ``plant``'s body to obstacle ``index`` (``_distance``)."""
+        return min(self._distance(plant.body, body, lower_bound, max_distance)
+                   for body in self._obstacles[index].bodies_at(self.time))
+
+    def _robot_distances(self, robot, max_distance):
+        """Return the distances to every other robot, in order (inf beyond ``max_distance``).
+
+        A pair is queried once per physics step and search distance.
+        """
+        plant = self._robots[robot]
+        centres = self._robot_snapshot()[1]
+        x, y = centres[robot]
+        distances = []
+        for name, other in self._robots.items():
+            if name == robot:
+                continue
             other_x, other_y = centres[name]
             bound = math.hypot(other_x - x, other_y - y) - plant.reach - other.reach
+            distance = np.inf
             if bound <= max_distance:
                 key = (min(plant.body, other.body), max(plant.body, other.body), max_distance)
                 if key not in self._pairs:
                     self._pairs[key] = self._distance(plant.body, other.body, bound,
                                                       max_distance)
-                result[index] = self._pairs[key]
-        return result
+                distance = self._pairs[key]
+            distances.append(distance)
+        return distances
 
     def _distance(self, body_a, body_b, lower_bound, max_distance):
         """Return the smallest getClosestPoints distance between two bodies, inf if none.
