@@ -1,16 +1,20 @@
-"""``nominal_controller``: a go-to-goal reference controller per robot; it ignores obstacles.
+"""``nominal_controller``: a reference controller per robot; it ignores obstacles.
 
 One node per robot namespace.  On every ``odom`` (nav_msgs/Odometry, read from
 its CDR bytes by ``polyc2bf_ros.conversions.read_odometry``, as the safety filter
 does: rclpy's deserializer costs more than the controller) it answers at once
-with the go-to-goal command of ``polyc2bf_ros.core.nominal``:
+with the command of ``polyc2bf_ros.core.nominal``:
 
-- ``robot_type: quadruped``: ``cmd_vel_in`` (geometry_msgs/TwistStamped),
-  ``linear.x = v``, ``angular.z = omega`` from
-  ``UnicycleGoalController.velocity_command``;
+- ``robot_type: quadruped`` or ``diff_drive``: ``cmd_vel_in``
+  (geometry_msgs/TwistStamped), ``linear.x = v``, ``angular.z = omega`` from
+  ``UnicycleGoalController.velocity_command`` to ``goal`` (``controller:
+  goal``), or from ``UnicyclePathController`` following the last
+  ``nav_msgs/Path`` received on ``plan`` (``controller: path``, Nav2's topic;
+  poses in the odometry frame; a new plan restarts from its beginning; zero
+  velocity until the first plan, and for an empty one);
 - ``robot_type: crazyflie``: ``wrench_in`` (geometry_msgs/WrenchStamped),
   collective thrust on ``force.z`` and body torques from
-  ``QuadrotorGoalController.wrench`` (gravity compensated).
+  ``QuadrotorGoalController.wrench`` (gravity compensated; ``controller: goal``).
 
 The command's header stamp is the stamp of the odometry it answers (the
 bridge's lockstep mode matches commands to periods by it) and its frame the
@@ -23,37 +27,54 @@ import sys
 
 import numpy as np
 from geometry_msgs.msg import TwistStamped, WrenchStamped
-from nav_msgs.msg import Odometry
+from nav_msgs.msg import Odometry, Path
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from polyc2bf_ros import conversions
-from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+from polyc2bf_ros.core.nominal import (
+    QuadrotorGoalController,
+    ReferencePath,
+    UnicycleGoalController,
+    UnicyclePathController,
+)
 from polyc2bf_ros.node_main import run_node
 
 # robot_type: (controller class, core model name for the odometry state, goal size).
 ROBOT_TYPES = {
     'quadruped': (UnicycleGoalController, 'unicycle', 2),
+    'diff_drive': (UnicycleGoalController, 'unicycle', 2),
     'crazyflie': (QuadrotorGoalController, 'quadrotor', 3),
 }
+CONTROLLERS = ('goal', 'path')
 COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 ODOM_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+# Reliable and volatile: matches a planner's plan publisher, latched or not.
+PLAN_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class NominalControllerNode(Node):
     """Answer each odometry message with the reference controller's command."""
 
     def __init__(self, **kwargs):
-        """Declare ``robot_type``, ``goal`` and ``gains.*``; wire odom -> command."""
+        """Declare ``robot_type``, ``controller``, ``goal`` and ``gains.*``; wire the topics."""
         super().__init__('nominal_controller', **kwargs)
         robot_type = self.declare_parameter('robot_type', 'quadruped', ParameterDescriptor(
-            description='quadruped (TwistStamped on cmd_vel_in) or crazyflie (WrenchStamped '
-            'on wrench_in)', read_only=True)).value
+            description='quadruped or diff_drive (TwistStamped on cmd_vel_in) or crazyflie '
+            '(WrenchStamped on wrench_in)', read_only=True)).value
         if robot_type not in ROBOT_TYPES:
             raise ValueError(f"parameter 'robot_type' must be one of {', '.join(ROBOT_TYPES)}, "
                              f'got {robot_type!r}')
+        kind = self.declare_parameter('controller', 'goal', ParameterDescriptor(
+            description="'goal': go to the goal parameter; 'path': pure pursuit along the "
+            'nav_msgs/Path on plan (unicycle robot types)', read_only=True)).value
+        if kind not in CONTROLLERS or (kind == 'path' and robot_type == 'crazyflie'):
+            raise ValueError(f"parameter 'controller' must be 'goal', or 'path' for a "
+                             f'unicycle robot type, got {kind!r} for a {robot_type}')
         controller_class, self._model, goal_size = ROBOT_TYPES[robot_type]
+        if kind == 'path':
+            controller_class = UnicyclePathController
         goal = self.declare_parameter('goal', [0.0] * goal_size, ParameterDescriptor(
             description=f'goal position, {goal_size} numbers [m] in the odometry frame')).value
         self._goal = np.array(goal, dtype=float)
@@ -68,8 +89,12 @@ class NominalControllerNode(Node):
                     floating_point_range=[FloatingPointRange(from_value=0.0,
                                                              to_value=1000.0)])).value
         self._controller = controller_class(**gains)
-        self._state = np.zeros(5 if robot_type == 'quadruped' else 12)
-        if robot_type == 'quadruped':
+        self._target = self._goal
+        self._state = np.zeros(12 if robot_type == 'crazyflie' else 5)
+        if kind == 'path':
+            self._target = None  # no plan yet: stand still
+            self.create_subscription(Path, 'plan', self._on_plan, PLAN_QOS)
+        if robot_type != 'crazyflie':
             self._out = TwistStamped()
             self._publisher = self.create_publisher(TwistStamped, 'cmd_vel_in', COMMAND_QOS)
             self._fill = self._fill_twist
@@ -78,7 +103,17 @@ class NominalControllerNode(Node):
             self._publisher = self.create_publisher(WrenchStamped, 'wrench_in', COMMAND_QOS)
             self._fill = self._fill_wrench
         self.create_subscription(Odometry, 'odom', self._on_odom, ODOM_QOS, raw=True)
-        self.get_logger().info(f'{robot_type} to goal {self._goal.tolist()}')
+        self.get_logger().info(f'{robot_type} following the plan' if kind == 'path'
+                               else f'{robot_type} to goal {self._goal.tolist()}')
+
+    def _on_plan(self, msg):
+        """Follow ``msg`` (nav_msgs/Path) from its beginning; an empty one stops the robot."""
+        points = [(p.pose.position.x, p.pose.position.y) for p in msg.poses]
+        try:
+            self._target = ReferencePath(points) if points else None
+        except ValueError as exc:  # NaN/Inf
+            self.get_logger().error(f'plan dropped: {exc}', throttle_duration_sec=1.0)
+            self._target = None
 
     def _on_odom(self, data):
         """Publish the command for this odometry (CDR ``data``), stamped with its stamp."""
@@ -98,13 +133,14 @@ class NominalControllerNode(Node):
         self._publisher.publish(self._out)
 
     def _fill_twist(self):
-        """Velocity command [v, omega] of the unicycle go-to-goal law."""
-        conversions.fill_twist(self._out.twist, 'unicycle',
-                               self._controller.velocity_command(self._state, self._goal), 0.0)
+        """Velocity command [v, omega] of the unicycle law (zero without a plan to follow)."""
+        command = (np.zeros(2) if self._target is None
+                   else self._controller.velocity_command(self._state, self._target))
+        conversions.fill_twist(self._out.twist, 'unicycle', command, 0.0)
 
     def _fill_wrench(self):
         """Wrench [T, tau] of the quadrotor position/attitude PD."""
-        thrust, tx, ty, tz = self._controller.wrench(self._state, self._goal).tolist()
+        thrust, tx, ty, tz = self._controller.wrench(self._state, self._target).tolist()
         wrench = self._out.wrench
         wrench.force.z = thrust
         wrench.torque.x, wrench.torque.y, wrench.torque.z = tx, ty, tz

@@ -1,13 +1,17 @@
-"""Reference (nominal) go-to-goal controllers; they know nothing about obstacles.
+"""Reference (nominal) controllers; they know nothing about obstacles.
 
-Like the paper's PD reference controllers, these stand in for any planner.
-Each returns the model's input (accelerations or rotor thrusts).
+Go-to-goal: like the paper's PD reference controllers, these stand in for any
+planner.  Path following (``UnicyclePathController``, pure pursuit along a
+``ReferencePath``): a planner's path plus a local controller, the way a safety
+filter is deployed under a navigation stack.  Each returns the model's input
+(accelerations or rotor thrusts), or a velocity command.
 
 They run every control period for every robot of a simulation, so the small
 vector algebra is spelled out on floats (norms and dot products stay numpy's,
 ``v.dot(v)``, and angles ``np.arctan2``, whose SIMD version rounds differently
 from ``math.atan2``), and the quadrotor's law is one compiled kernel.
 """
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -61,6 +65,137 @@ class UnicycleGoalController:
     def __call__(self, state, goal):
         """Return the acceleration input [a, alpha]."""
         return (self.velocity_command(state, goal) - state[3:5]) / self.time_constant
+
+
+class ReferencePath:
+    """Waypoints (P, 2) with their arc lengths, and how far along them a follower is.
+
+    Repeated consecutive waypoints are dropped.  ``progress`` [m of arc] only grows:
+    ``advance`` moves it to the path point nearest the robot within a window ahead,
+    so a path that passes near itself is not short-cut.
+    """
+
+    def __init__(self, points):
+        """Take (P, 2) finite waypoints, P >= 1 (ValueError otherwise)."""
+        points = np.asarray(points, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 2 or not len(points) \
+                or not np.isfinite(points).all():
+            raise ValueError(f'a path is (P >= 1, 2) finite points, got shape {points.shape}')
+        keep = np.concatenate([[True], np.any(np.diff(points, axis=0) != 0.0, axis=1)])
+        self.points = points[keep]
+        lengths = np.hypot(*np.diff(self.points, axis=0).T)
+        self.arc = np.concatenate([[0.0], np.cumsum(lengths)])
+        # Per segment as floats (this runs every control period): start, edge, length, arc.
+        self._segments = [(*a, *e, length, s) for a, e, length, s in zip(
+            self.points[:-1].tolist(), np.diff(self.points, axis=0).tolist(),
+            lengths.tolist(), self.arc[:-1].tolist())]
+        self._starts = self.arc[:-1].tolist()
+        self._end = tuple(self.points[-1].tolist())
+        self.progress = 0.0
+
+    @property
+    def length(self):
+        """Return the path's length [m]."""
+        return float(self.arc[-1])
+
+    def advance(self, position, window):
+        """Move ``progress`` to the nearest point with arc in [progress, progress + window].
+
+        Per segment i (start a_i at arc s_i, edge e_i of length L_i) the projection
+        t = <p - a_i, e_i> / L_i^2 is clipped to the window's part of the segment.
+        """
+        x, y = float(position[0]), float(position[1])
+        low_arc, high_arc = self.progress, self.progress + window
+        first = max(bisect.bisect_right(self._starts, low_arc) - 1, 0)
+        best, best_arc = math.inf, self.progress
+        for ax, ay, ex, ey, length, start in self._segments[first:]:
+            if start > high_arc:
+                break
+            low = max(low_arc - start, 0.0) / length
+            high = min(high_arc - start, length) / length
+            t = min(max(((x - ax) * ex + (y - ay) * ey) / (length * length), low), high)
+            distance = math.hypot(x - ax - t * ex, y - ay - t * ey)
+            if low <= high and distance < best:
+                best, best_arc = distance, start + t * length
+        self.progress = max(self.progress, best_arc)
+        return self.progress
+
+    def point_at(self, arc):
+        """Return the path point (x, y) at arc length ``arc`` (clipped to the path's ends)."""
+        index = bisect.bisect_right(self._starts, arc) - 1
+        if index < 0 or not self._segments:
+            return tuple(self.points[0].tolist())
+        ax, ay, ex, ey, length, start = self._segments[index]
+        if arc >= start + length:
+            return self._end
+        t = (arc - start) / length
+        return ax + t * ex, ay + t * ey
+
+
+@dataclass
+class UnicyclePathController:
+    """Pure pursuit along a ``ReferencePath``: steer on the arc through a point ahead.
+
+    Progress s (``ReferencePath.advance`` within ``search`` m ahead); carrot c = path(s + L)
+    with the speed-scaled look-ahead L = clip(``lookahead_time`` |v|, ``min_lookahead``,
+    ``max_lookahead``) (slow in a turn, close to the path); (dx, dy) = c in the robot frame,
+    d = |c - p|, alpha = atan2(dy, dx); r = d + (path length - s - L)^+ is what is left to
+    drive.  Then::
+
+        kappa  = 2 dy / d^2                           (the arc through p and c)
+        v*     = min(v_max, k_d r, sqrt(a_lat / |kappa|), omega_max / |kappa|)
+        omega* = v* kappa
+
+    and where the carrot lies more than ``turn_in_place`` rad off the heading, v* = 0
+    and omega* = clip(k_theta alpha, +-omega_max).  Within ``goal_tolerance`` of the
+    path's end the robot stops; u = [(v* - v) / tau, (omega* - omega) / tau].
+    """
+
+    lookahead_time: float = 0.5
+    min_lookahead: float = 0.15
+    max_lookahead: float = 0.5
+    search: float = 1.0
+    max_speed: float = 1.0
+    distance_gain: float = 1.0
+    max_lateral_accel: float = 0.5
+    heading_gain: float = 2.0
+    max_turn_rate: float = 1.5
+    turn_in_place: float = 1.0
+    time_constant: float = 0.3
+    goal_tolerance: float = 0.1
+
+    def velocity_command(self, state, path):
+        """Return the desired [v, omega] and advance ``path.progress``."""
+        x, y, theta = state[:3].tolist()
+        progress = path.advance((x, y), self.search)
+        end_x, end_y = path.point_at(path.length)
+        if (progress >= path.length - self.goal_tolerance
+                and math.hypot(end_x - x, end_y - y) < self.goal_tolerance):
+            return np.zeros(2)
+        lookahead = min(max(self.lookahead_time * abs(state[3]), self.min_lookahead),
+                        self.max_lookahead)
+        carrot_x, carrot_y = path.point_at(progress + lookahead)
+        carrot_x, carrot_y = carrot_x - x, carrot_y - y
+        c, s = math.cos(theta), math.sin(theta)
+        dx, dy = c * carrot_x + s * carrot_y, c * carrot_y - s * carrot_x
+        distance = math.hypot(dx, dy)
+        if distance < 1e-9:
+            return np.zeros(2)
+        alpha = math.atan2(dy, dx)
+        if abs(alpha) > self.turn_in_place:
+            turn = min(max(self.heading_gain * alpha, -self.max_turn_rate), self.max_turn_rate)
+            return np.array([0.0, turn])
+        left = distance + max(path.length - progress - lookahead, 0.0)
+        curvature = 2.0 * dy / distance ** 2
+        speed = min(self.max_speed, self.distance_gain * left)
+        if curvature != 0.0:
+            speed = min(speed, math.sqrt(self.max_lateral_accel / abs(curvature)),
+                        self.max_turn_rate / abs(curvature))
+        return np.array([speed, speed * curvature])
+
+    def __call__(self, state, path):
+        """Return the acceleration input [a, alpha]."""
+        return (self.velocity_command(state, path) - state[3:5]) / self.time_constant
 
 
 @dataclass
