@@ -4,16 +4,22 @@ The evaluation's runner.  Each control period ``T`` (the bridge's: ``n =
 round(physics_rate / control_rate)`` physics steps), for every robot at once::
 
     state    = world.robot_state(robot)                      (the odometry's state)
-    command  = nominal law of ``nominal_controller`` (go-to-goal: [v, omega] or wrench)
+    command  = nominal law of ``nominal_controller``: [v, omega] or wrench
     safe     = CommandFilter.filter(state, yaw, command, obstacles)   (the node's decision)
     world.set_command(robot, safe); n x world.step()        (zero-order hold)
 
-The filter is configured from the same parameter file the node gets
-(``config/quadruped.yaml``, ``config/crazyflie_thrust.yaml``), read and built as
-the node does (``polyc2bf_ros.filter_parameters``), with the
-lockstep run's ``rate`` = 1/T and the chosen ``filter.barrier``; with ``barrier='none'``
-the nominal command goes straight to the robot.  Metrics come from the bridge's
-own ``RunMetrics`` (sampled once per period).
+Nominal laws (``NOMINALS``): ``goal``, the go-to-goal controller of the robot's
+type; ``path``, pure pursuit along the robot's scenario ``path``
+(``UnicyclePathController``, unicycle types only).  The filter is configured
+from the same parameter file the node gets (``config/quadruped.yaml``,
+``config/diff_drive.yaml``, ``config/crazyflie_thrust.yaml``), read and built as
+the node does (``polyc2bf_ros.filter_parameters``), with the lockstep run's
+``rate`` = 1/T, the chosen ``filter.barrier`` and what the body implies
+(``launcher.body_parameters``); with ``barrier='none'`` the nominal command goes
+straight to the robot.  Metrics come from the bridge's own ``RunMetrics``
+(sampled once per period).  ``until``, if given, is asked after every period
+whether the run is over (the BARN protocol ends runs early); the traces then
+end there.
 
 Obstacles are what the bridge publishes, built as the node builds them:
 static and moving prisms from their footprint polygons and z ranges; other
@@ -43,12 +49,18 @@ from visualization_msgs.msg import Marker
 
 from polyc2bf_ros import conversions
 from polyc2bf_ros.core import crazyflie
-from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+from polyc2bf_ros.core.nominal import (
+    QuadrotorGoalController,
+    ReferencePath,
+    UnicycleGoalController,
+    UnicyclePathController,
+)
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters
-from sim_bridge.launcher import control_rate, FILTER_CHOICES, params_file
+from sim_bridge.launcher import body_parameters, control_rate, FILTER_CHOICES, params_file
 from sim_bridge.metrics import RunMetrics
-from sim_bridge.scenario import load_scenario
+from sim_bridge.scenario import load_scenario, UNICYCLE_TYPES
 from sim_bridge.world import SimWorld
 
 # The node's defaults for markers without their own parameters (safety_filter_node).
@@ -57,8 +69,16 @@ WALL_THICKNESS = 0.05
 # robot type: (nominal controller, world command kind, state index of the yaw)
 ROBOT_TYPES = {
     'quadruped': (UnicycleGoalController, 'velocity', 2),
+    'diff_drive': (UnicycleGoalController, 'velocity', 2),
     'crazyflie': (QuadrotorGoalController, 'wrench', 8),
 }
+NOMINALS = ('goal', 'path')
+
+
+def default_barrier(robot_type):
+    """Return the ``filter.barrier`` the shipped parameter file of ``robot_type`` runs."""
+    parameters = load_parameters([params_file(robot_type)], (), '')
+    return parameters.get('filter.barrier', FilterConfig.barrier)
 
 
 def _cylinder_polygon(radius):
@@ -93,18 +113,22 @@ class RobotTrace:
 
     def speeds(self):
         """Return the speed [m/s] at every recorded state (|v| or |velocity|)."""
-        if self.type == 'quadruped':
+        if self.type in UNICYCLE_TYPES:
             return np.abs(self.states[:, 3])
         return np.linalg.norm(self.states[:, 3:6], axis=1)
 
     def positions(self):
         """Return the positions (K + 1, 2 or 3): [x, y] or [x, y, z]."""
-        return self.states[:, :2] if self.type == 'quadruped' else self.states[:, :3]
+        return self.states[:, :2] if self.type in UNICYCLE_TYPES else self.states[:, :3]
 
 
 @dataclasses.dataclass
 class ClosedLoopRun:
-    """Result of ``run_in_process``: the scenario run, per-robot traces and bridge metrics."""
+    """Result of ``run_in_process``: the scenario run, per-robot traces and bridge metrics.
+
+    ``ended`` is what ``until`` answered when it ended the run early (None: it ran the
+    scenario's duration).
+    """
 
     scenario: object
     barrier: str
@@ -113,18 +137,25 @@ class ClosedLoopRun:
     metrics: dict
     wall_time_s: float
     robot_radius: float = None
+    nominal: str = 'goal'
+    ended: object = None
 
 
 class _Robot:
     """One robot's controller, filter and trace buffers."""
 
-    def __init__(self, spec, barrier, period, steps, world):
+    def __init__(self, spec, barrier, nominal, period, steps, world):
         """Build the nominal law and (unless ``barrier`` is 'none') the node's CommandFilter."""
         controller_class, self.kind, self.yaw_index = ROBOT_TYPES[spec.type]
         self.spec = spec
-        self.controller = controller_class()
+        self.controller, self.target = controller_class(), spec.goal
+        if nominal == 'path':
+            if spec.type not in UNICYCLE_TYPES or spec.path is None:
+                raise ValueError(f'robot {spec.name!r}: the path nominal needs a unicycle '
+                                 f'robot with a path, not a {spec.type} with path {spec.path}')
+            self.controller, self.target = UnicyclePathController(), ReferencePath(spec.path)
         parameters = {**load_parameters([params_file(spec.type)], (), spec.name),
-                      'rate': 1.0 / period}
+                      'rate': 1.0 / period, **body_parameters(spec)}
         self.filter = None
         # The model gives u and u_nom for the intervention metric even without a filter.
         self.reference = build_filter(parameters).command_filter
@@ -132,7 +163,7 @@ class _Robot:
             self.filter = build_filter({**parameters, 'filter.barrier': barrier}).command_filter
         self.robot_radius = self.reference.safety_filter.config.robot_radius
         state = world.robot_state(spec.name)
-        dim = 2 if spec.type == 'quadruped' else 4
+        dim = 2 if spec.type in UNICYCLE_TYPES else 4
         inputs = self.reference.model.input_dim
         self.times = np.arange(steps) * period
         self.states = np.zeros((steps + 1, state.size))
@@ -146,9 +177,9 @@ class _Robot:
     def command(self, k, state, obstacles):
         """Return the safe command of period ``k`` and record it."""
         if self.kind == 'velocity':
-            nominal = self.controller.velocity_command(state, self.spec.goal)
+            nominal = self.controller.velocity_command(state, self.target)
         else:
-            nominal = self.controller.wrench(state, self.spec.goal)
+            nominal = self.controller.wrench(state, self.target)
         command, status = nominal, 'none'
         if self.filter is not None:
             start = time.perf_counter()
@@ -160,6 +191,12 @@ class _Robot:
         self.commands[k] = command
         self.statuses.append(status)
         return command
+
+    def truncate(self, steps):
+        """Keep the first ``steps`` periods (the run ended there)."""
+        self.times, self.states = self.times[:steps], self.states[:steps + 1]
+        self.nominal, self.commands = self.nominal[:steps], self.commands[:steps]
+        self.statuses, self.latency = self.statuses[:steps], self.latency[:steps]
 
     def _model_inputs(self):
         """Return (u_nom, u) per period, in the model's inputs, from the recorded commands.
@@ -281,13 +318,16 @@ def obstacle_free(scenario):
 
 
 def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=None,
-                   progress=None):
+                   progress=None, nominal='goal', until=None):
     """Run ``scenario`` (Scenario or name) in lockstep in this process; return ClosedLoopRun.
 
-    ``progress(sim_time, duration)`` is called about once per simulated second.
+    ``progress(sim_time, duration)`` is called about once per simulated second;
+    ``until(sim_time, world, metrics)`` after every period: anything true ends the run.
     """
     if barrier not in FILTER_CHOICES:
         raise ValueError(f'filter must be one of {", ".join(FILTER_CHOICES)}, got {barrier!r}')
+    if nominal not in NOMINALS:
+        raise ValueError(f'nominal must be one of {", ".join(NOMINALS)}, got {nominal!r}')
     scenario = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
     if seed is not None:
         scenario = scenario.with_seed(seed)
@@ -299,11 +339,11 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
     try:
         steps = int(round(scenario.duration / period))
         metrics = RunMetrics(world)
-        robots = {spec.name: _Robot(spec, barrier, period, steps, world)
+        robots = {spec.name: _Robot(spec, barrier, nominal, period, steps, world)
                   for spec in scenario.robots}
         view = _ObstacleView(world)
         report_every = max(1, round(1.0 / period))
-        start = time.perf_counter()
+        start, ended = time.perf_counter(), None
         for k in range(steps):
             commands = {}
             for name, robot in robots.items():
@@ -319,10 +359,16 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
                 robot.states[k + 1] = world.robot_state(name)
             if progress is not None and (k + 1) % report_every == 0:
                 progress((k + 1) * period, scenario.duration)
+            ended = until((k + 1) * period, world, metrics) if until is not None else None
+            if ended:
+                for robot in robots.values():
+                    robot.truncate(k + 1)
+                break
         wall = time.perf_counter() - start
         radius = next(iter(robots.values())).robot_radius
         return ClosedLoopRun(scenario=scenario, barrier=barrier, period=period,
                              robots={n: r.trace() for n, r in robots.items()},
-                             metrics=metrics.to_json(), wall_time_s=wall, robot_radius=radius)
+                             metrics=metrics.to_json(), wall_time_s=wall, robot_radius=radius,
+                             nominal=nominal, ended=ended or None)
     finally:
         world.close()

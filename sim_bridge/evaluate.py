@@ -4,6 +4,16 @@ Usage::
 
     evaluate [--scenarios long_wall ...] [--filters c3bf none ...] [--seeds 0 1 2]
              [--random-seeds 3] [--duration S] [--out runs/eval] [--no-plots]
+    evaluate --suite barn [--worlds FILE] [--nominal path|goal ...] [--filters ...]
+             [--jobs N] [--limit K] [--out runs/barn] [--no-plots]
+
+``--filters`` takes ``polyc2bf_paper``, ``polyc2bf_inflated``, ``c3bf``, ``none``
+and ``default`` (the barrier the robot type's shipped parameter file runs).  The
+BARN suite (``sim_bridge.barn``, ``sim_bridge.barn_suite``) runs the worlds of
+``--worlds`` (default: the shipped ``bench/data/barn/barn_worlds.json``; ``--limit``:
+the first K) with each nominal (default ``path``) and filter (default
+``default``) over ``--jobs`` processes (default: the CPU count).  What follows
+describes the scenario suite.
 
 Each run is the in-process lockstep loop of ``sim_bridge.closed_loop`` (the
 PyBullet world, the ``nominal_controller`` law and the node's ``CommandFilter``),
@@ -60,7 +70,7 @@ from pathlib import Path
 import numpy as np
 
 from sim_bridge import plots
-from sim_bridge.closed_loop import obstacle_free, run_in_process
+from sim_bridge.closed_loop import default_barrier, NOMINALS, obstacle_free, run_in_process
 from sim_bridge.launcher import FILTER_CHOICES
 from sim_bridge.metrics import GOAL_TOLERANCE
 from sim_bridge.scenario import load_scenario, scenario_names
@@ -71,6 +81,8 @@ STALL_SPEED = 0.05    # m/s
 FALLBACKS = ('slack', 'brake', 'escape')
 GRAZE = 0.01          # m: clearances below this are reported as near-contacts
 DEFAULT_RANDOM_SEEDS = 3
+FILTER_NAMES = FILTER_CHOICES + ('default',)
+SUITES = ('scenarios', 'barn')
 KEYS = ('scenario', 'filter', 'seed', 'success', 'collision', 'deadlock', 'min_clearance_m',
         'time_to_goal_ratio', 'mean_intervention', 'fallback_rate', 'latency_p50_us',
         'latency_p99_us')
@@ -100,12 +112,13 @@ def _robot_record(trace, metrics, reference_time, period):
             'path_length_m': metrics['path_length_m']}
 
 
-def summarise(run, reference_times):
-    """Return the result record of one ClosedLoopRun (DESIGN.md section 8 keys + extras)."""
-    robots = {}
-    for name, trace in run.robots.items():
-        robots[name] = _robot_record(trace, run.metrics[name], reference_times.get(name),
-                                     run.period)
+def filter_statistics(run):
+    """Return what the filter did in a run (module docstring); filter-only values None for none.
+
+    Keys: mean_intervention, fallback_rate, latency_p50_us, latency_p99_us,
+    mean_intervention_unclipped, intervention_units, fallback_steps, fallback_at_start,
+    steps.
+    """
     filtered = run.barrier != 'none'
     statuses = [s for trace in run.robots.values() for s in trace.statuses]
     latency = np.concatenate([t.latency_s for t in run.robots.values()]) * 1e6
@@ -114,34 +127,55 @@ def summarise(run, reference_times):
         u_nom = np.clip(trace.u_nom, *trace.input_box)
         clipped.append(np.linalg.norm(trace.u - u_nom, axis=1))
         raw.append(np.linalg.norm(trace.u - trace.u_nom, axis=1))
-    clearances = [r['min_clearance_m'] for r in robots.values()
-                  if r['min_clearance_m'] is not None]
-    ratios = [r['time_to_goal_ratio'] for r in robots.values()]
-    collision = any(r['collision'] for r in robots.values())
-    reached = all(r['goal_reached'] for r in robots.values())
-    no_cone = any(t.statuses[0] in FALLBACKS for t in run.robots.values() if t.statuses)
-    success = reached and not collision and not no_cone
-    deadlock = any(r['deadlock'] for r in robots.values())
-    outcome = ('collision' if collision else 'no_cone_at_start' if no_cone else 'success'
-               if success else 'deadlock' if deadlock else 'timeout')
     counts = {status: statuses.count(status) for status in FALLBACKS}
-    record = {
-        'scenario': run.scenario.name, 'filter': run.barrier, 'seed': run.scenario.seed,
-        'success': success, 'collision': collision, 'deadlock': deadlock,
-        'min_clearance_m': min(clearances) if clearances else None,
-        'time_to_goal_ratio': _round(float(np.mean(ratios))) if None not in ratios else None,
+    return {
         'mean_intervention': _round(float(np.mean(np.concatenate(clipped)))) if filtered
         else None,
         'fallback_rate': _round(sum(counts.values()) / len(statuses), 5) if filtered else None,
         'latency_p50_us': _round(float(np.percentile(latency, 50)), 1) if filtered else None,
         'latency_p99_us': _round(float(np.percentile(latency, 99)), 1) if filtered else None,
-        'outcome': outcome,
         'mean_intervention_unclipped': _round(float(np.mean(np.concatenate(raw))))
         if filtered else None,
         'intervention_units': _units(run),
         'fallback_steps': counts if filtered else None,
+        'fallback_at_start': any(t.statuses[0] in FALLBACKS for t in run.robots.values()
+                                 if t.statuses),
+        'steps': len(statuses),
+    }
+
+
+def summarise(run, reference_times):
+    """Return the result record of one ClosedLoopRun (DESIGN.md section 8 keys + extras)."""
+    robots = {}
+    for name, trace in run.robots.items():
+        robots[name] = _robot_record(trace, run.metrics[name], reference_times.get(name),
+                                     run.period)
+    stats = filter_statistics(run)
+    clearances = [r['min_clearance_m'] for r in robots.values()
+                  if r['min_clearance_m'] is not None]
+    ratios = [r['time_to_goal_ratio'] for r in robots.values()]
+    collision = any(r['collision'] for r in robots.values())
+    reached = all(r['goal_reached'] for r in robots.values())
+    no_cone = stats['fallback_at_start']
+    success = reached and not collision and not no_cone
+    deadlock = any(r['deadlock'] for r in robots.values())
+    outcome = ('collision' if collision else 'no_cone_at_start' if no_cone else 'success'
+               if success else 'deadlock' if deadlock else 'timeout')
+    record = {
+        'scenario': run.scenario.name, 'filter': run.barrier, 'seed': run.scenario.seed,
+        'success': success, 'collision': collision, 'deadlock': deadlock,
+        'min_clearance_m': min(clearances) if clearances else None,
+        'time_to_goal_ratio': _round(float(np.mean(ratios))) if None not in ratios else None,
+        'mean_intervention': stats['mean_intervention'],
+        'fallback_rate': stats['fallback_rate'],
+        'latency_p50_us': stats['latency_p50_us'],
+        'latency_p99_us': stats['latency_p99_us'],
+        'outcome': outcome,
+        'mean_intervention_unclipped': stats['mean_intervention_unclipped'],
+        'intervention_units': stats['intervention_units'],
+        'fallback_steps': stats['fallback_steps'],
         'fallback_at_start': no_cone, 'goal_reached': reached,
-        'steps': len(statuses), 'duration_s': run.scenario.duration,
+        'steps': stats['steps'], 'duration_s': run.scenario.duration,
         'wall_time_s': round(run.wall_time_s, 2), 'robots': robots,
     }
     return record
@@ -150,8 +184,9 @@ def summarise(run, reference_times):
 def _units(run):
     kinds = {run.scenario.robot(name).type for name in run.robots}
     units = {'quadruped': 'unicycle [a m/s^2, alpha rad/s^2]',
+             'diff_drive': 'unicycle [a m/s^2, alpha rad/s^2]',
              'crazyflie': 'rotor thrusts [N]'}
-    return ', '.join(units[k] for k in sorted(kinds))
+    return ', '.join(sorted({units[k] for k in kinds}))
 
 
 # -- progress ------------------------------------------------------------------------------
@@ -194,11 +229,21 @@ class Progress:
 
 # -- the suite ------------------------------------------------------------------------------
 
+def resolve_filters(filters, robot_type):
+    """Return ``filters`` with ``default`` replaced by ``robot_type``'s shipped barrier, unique."""
+    return list(dict.fromkeys(default_barrier(robot_type) if name == 'default' else name
+                              for name in filters))
+
+
 def plan_runs(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS, duration=None):
-    """Return ``[(Scenario, filter)]``: random scenarios once per seed, the others once."""
+    """Return ``[(Scenario, filter)]``: random scenarios once per seed, the others once.
+
+    ``default`` is the shipped barrier of the scenario's first robot's type.
+    """
     runs = []
     for name in scenarios:
         base = load_scenario(name)
+        chosen_filters = resolve_filters(filters, base.robots[0].type)
         if duration is not None:
             base = dataclasses.replace(base, duration=float(duration))
         if base.random_obstacles is not None:
@@ -206,7 +251,7 @@ def plan_runs(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
             variants = [base.with_seed(s) for s in chosen]
         else:
             variants = [base]
-        runs += [(variant, barrier) for variant in variants for barrier in filters]
+        runs += [(variant, barrier) for variant in variants for barrier in chosen_filters]
     return runs
 
 
@@ -437,24 +482,56 @@ def _plots(out, runs, rows):
     plots.metrics_figure(out / 'metrics.png', rows, filters, scenarios)
 
 
+def _parser():
+    """Return the command line parser of both suites."""
+    parser = argparse.ArgumentParser(prog='evaluate', description=__doc__.split('\n')[0])
+    parser.add_argument('--suite', choices=SUITES, default='scenarios',
+                        help='scenarios (default): the shipped scenario files; barn: BARN worlds')
+    parser.add_argument('--filters', nargs='+', default=None, choices=FILTER_NAMES,
+                        metavar='FILTER', help=f'filters among {", ".join(FILTER_NAMES)} '
+                        '(default: all but default for scenarios, default for barn)')
+    parser.add_argument('--out', default=None,
+                        help='output directory (default runs/eval, runs/barn for barn)')
+    parser.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
+    scenarios = parser.add_argument_group('scenario suite')
+    scenarios.add_argument('--scenarios', nargs='+', default=None, metavar='NAME',
+                           help=f'scenarios (default: all shipped: {", ".join(scenario_names())})')
+    scenarios.add_argument('--seeds', nargs='+', type=int, default=None,
+                           help='seeds of the scenarios with random obstacles')
+    scenarios.add_argument('--random-seeds', type=int, default=None,
+                           help="without --seeds: this many seeds from the scenario's own "
+                           f'(default {DEFAULT_RANDOM_SEEDS})')
+    scenarios.add_argument('--duration', type=float, default=None,
+                           help="sim seconds per run (default: each scenario's)")
+    barn = parser.add_argument_group('barn suite')
+    barn.add_argument('--worlds', default=None, metavar='FILE',
+                      help='BARN world file (default: the shipped bench/data/barn copy)')
+    barn.add_argument('--nominal', nargs='+', choices=NOMINALS, default=None,
+                      help='nominal controller(s): path (default) and/or goal')
+    barn.add_argument('--jobs', type=int, default=None,
+                      help='processes (default: the CPU count)')
+    barn.add_argument('--limit', type=int, default=None, metavar='K',
+                      help='only the first K worlds of the file')
+    return parser
+
+
+SUITE_OPTIONS = {'scenarios': ('scenarios', 'seeds', 'random_seeds', 'duration'),
+                 'barn': ('worlds', 'nominal', 'jobs', 'limit')}
+
+
 def main(argv=None):
     """Run the evaluation suite and write its outputs; exit 0, 2 on bad arguments, 130 on ^C."""
-    parser = argparse.ArgumentParser(prog='evaluate', description=__doc__.split('\n')[0])
-    parser.add_argument('--scenarios', nargs='+', default=None, metavar='NAME',
-                        help=f'scenarios (default: all shipped: {", ".join(scenario_names())})')
-    parser.add_argument('--filters', nargs='+', default=list(FILTER_CHOICES),
-                        choices=FILTER_CHOICES, metavar='FILTER',
-                        help=f'filters (default: all: {", ".join(FILTER_CHOICES)})')
-    parser.add_argument('--seeds', nargs='+', type=int, default=None,
-                        help='seeds of the scenarios with random obstacles')
-    parser.add_argument('--random-seeds', type=int, default=DEFAULT_RANDOM_SEEDS,
-                        help="without --seeds: this many seeds from the scenario's own "
-                        f'(default {DEFAULT_RANDOM_SEEDS})')
-    parser.add_argument('--duration', type=float, default=None,
-                        help="sim seconds per run (default: each scenario's)")
-    parser.add_argument('--out', default='runs/eval', help='output directory (runs/eval)')
-    parser.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
+    parser = _parser()
     args = parser.parse_args(argv)
+    for suite, options in SUITE_OPTIONS.items():
+        given = [f'--{o.replace("_", "-")}' for o in options if getattr(args, o) is not None]
+        if suite != args.suite and given:
+            parser.error(f'{", ".join(given)} belong(s) to --suite {suite}')
+    command = ('evaluate ' + ' '.join(sys.argv[1:] if argv is None else argv)).strip()
+    if args.suite == 'barn':
+        # Imported here: the BARN suite builds on this module's record helpers.
+        from sim_bridge.barn_suite import main_barn
+        return main_barn(parser, args, command)
     scenarios = args.scenarios or scenario_names()
     unknown = [s for s in scenarios if s not in scenario_names() and not Path(s).is_file()]
     if unknown:
@@ -462,21 +539,22 @@ def main(argv=None):
                      f'{", ".join(scenario_names())}')
     if args.duration is not None and args.duration <= 0:
         parser.error('--duration must be > 0')
-    if args.random_seeds < 1:
+    random_seeds = DEFAULT_RANDOM_SEEDS if args.random_seeds is None else args.random_seeds
+    if random_seeds < 1:
         parser.error('--random-seeds must be >= 1')
-    command = 'evaluate ' + ' '.join(sys.argv[1:] if argv is None else argv)
+    out = args.out or 'runs/eval'
     try:
-        records, runs = run_suite(scenarios, args.filters, args.seeds, args.random_seeds,
-                                  args.duration)
+        records, runs = run_suite(scenarios, args.filters or list(FILTER_CHOICES), args.seeds,
+                                  random_seeds, args.duration)
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130
-    rows = write_outputs(args.out, records, runs, command.strip(), not args.no_plots)
+    rows = write_outputs(out, records, runs, command, not args.no_plots)
     print(markdown_table(rows))
     print()
     for line in findings(records, rows):
         print(f'- {line}')
-    print(f'\nwrote {Path(args.out) / "results.json"}, results.md'
+    print(f'\nwrote {Path(out) / "results.json"}, results.md'
           + ('' if args.no_plots else ', trajectories.png, metrics.png'))
     return 0
 

@@ -12,10 +12,15 @@ backend) and written as PNG.  Top views draw, as the paper's figures do:
   collision was first detected.
 
 Quadrotor scenarios add a side view (x, z) with each prism's x extent and z range.
+
+BARN figures (``barn_*``): outcome shares per filter x nominal beside the DWA
+baseline, sample worlds' cylinders with each filter's path, and the metric's
+histogram.
 """
 import math
 
 import numpy as np
+from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, FancyArrowPatch, Polygon, Rectangle
 
@@ -212,4 +217,108 @@ def metrics_figure(path_png, rows, filters, scenarios):
     axes[-1].set_xticks(x, scenarios, rotation=30, ha='right')
     figure.legend(*axes[0].get_legend_handles_labels(), ncols=len(filters), fontsize=9,
                   loc='outside upper center')
+    figure.savefig(path_png, dpi=90)
+
+
+# -- BARN ----------------------------------------------------------------------------------
+
+OUTCOME_COLORS = {'success': 'tab:green', 'collision': 'tab:red', 'deadlock': 'tab:orange',
+                  'timeout': '0.6'}
+NOMINAL_STYLES = {'path': '-', 'goal': '--'}
+
+
+def _combo_label(name, nominal):
+    return f'{name}\n{nominal}'
+
+
+def barn_outcomes_figure(path_png, rows, baseline):
+    """Stacked bars per filter x nominal: shares of success, collision, deadlock, timeout.
+
+    ``rows`` are ``barn_suite.aggregate_barn`` rows; ``baseline`` (DWA) is the last bar.
+    """
+    labels = [_combo_label(r['filter'], r['nominal']) for r in rows] + ['DWA\n(BARN)']
+    shares = {outcome: [r[outcome] for r in rows] + [baseline.get(outcome, 0.0)]
+              for outcome in OUTCOME_COLORS}
+    figure = Figure(figsize=(max(6.0, 1.1 * len(labels) + 1.5), 4.8), layout='constrained')
+    ax = figure.subplots()
+    x = np.arange(len(labels))
+    bottom = np.zeros(len(labels))
+    for outcome, color in OUTCOME_COLORS.items():
+        ax.bar(x, shares[outcome], 0.7, bottom=bottom, color=color, label=outcome)
+        bottom += shares[outcome]
+    for index, share in enumerate(shares['success']):
+        ax.annotate(f'{share:.2f}', (index, share / 2), ha='center', va='center', fontsize=8)
+    ax.set_xticks(x, labels, fontsize=8)
+    ax.set_ylim(0.0, 1.0)
+    ax.set_ylabel('share of worlds')
+    ax.grid(True, axis='y', linewidth=0.3)
+    ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.15), ncols=4, fontsize=8)
+    ax.set_title("BARN outcomes (DWA: the benchmark's published baseline)")
+    figure.savefig(path_png, dpi=90)
+
+
+def _draw_barn_world(ax, world):
+    """Draw the cylinders, reference path, start and goal (with its 1 m circle) of a world."""
+    ax.add_collection(PatchCollection([Circle(c, world.cylinder_radius) for c in world.centers],
+                                      facecolor='0.45', edgecolor='none'))
+    ax.plot(*world.reference_path.T, color='0.3', linestyle=':', linewidth=1.0,
+            label='reference path')
+    ax.plot(*world.start[:2], 'ok', markersize=4)
+    ax.plot(*world.goal, '*k', markersize=9)
+    ax.add_patch(Circle(world.goal, 1.0, fill=False, edgecolor='0.4', linewidth=0.6))
+    low = np.minimum(world.centers.min(axis=0), world.goal - 1.0) - 0.3
+    high = np.maximum(world.centers.max(axis=0), world.goal + 1.0) + 0.3
+    ax.set_xlim(low[0], high[0])
+    ax.set_ylim(low[1], high[1])
+    ax.set_aspect('equal')
+    ax.tick_params(labelsize=7)
+
+
+def barn_trajectories_figure(path_png, worlds, trajectories, combos):
+    """Grid of sample worlds (columns) x nominal (rows), every filter's path over the cylinders.
+
+    ``trajectories[(world id, filter, nominal)]`` holds ``positions`` (K, 2) and
+    ``collision`` (a point or None).
+    """
+    nominals = list(dict.fromkeys(nominal for _, nominal in combos))
+    figure = Figure(figsize=(2.9 * len(worlds) + 0.5, 6.2 * len(nominals)),
+                    layout='constrained')
+    axes = figure.subplots(len(nominals), len(worlds), squeeze=False)
+    for row, nominal in zip(axes, nominals):
+        for ax, world in zip(row, worlds):
+            _draw_barn_world(ax, world)
+            for name, combo_nominal in combos:
+                trajectory = trajectories.get((world.world, name, combo_nominal))
+                if combo_nominal != nominal or trajectory is None:
+                    continue
+                ax.plot(*trajectory['positions'].T, color=FILTER_COLORS.get(name, 'gray'),
+                        linewidth=1.2, label=name)
+                if trajectory['collision'] is not None:
+                    ax.plot(*trajectory['collision'], 'x', color='red', markersize=8,
+                            markeredgewidth=2)
+            ax.set_title(f'world {world.world}, {nominal}', fontsize=9)
+    axes[0, 0].legend(loc='lower right', fontsize=6)
+    figure.suptitle('BARN sample worlds: paths per filter (x: collision)')
+    figure.savefig(path_png, dpi=80)
+
+
+def barn_metric_figure(path_png, records, combos, baseline_metric):
+    """Histogram of BARN's metric over the successful runs, per filter x nominal."""
+    figure = Figure(figsize=(7.5, 4.5), layout='constrained')
+    ax = figure.subplots()
+    bins = np.linspace(0.0, 0.5, 21)
+    for name, nominal in combos:
+        group = [r for r in records if r['filter'] == name and r['nominal'] == nominal]
+        metrics = [r['barn_metric'] for r in group if r['success']]
+        mean = np.mean([r['barn_metric'] for r in group])
+        ax.hist(metrics, bins=bins, histtype='step', linewidth=1.5,
+                color=FILTER_COLORS.get(name, 'gray'), linestyle=NOMINAL_STYLES.get(nominal),
+                label=f'{name} / {nominal}: {len(metrics)}/{len(group)} succeeded, '
+                f'mean {mean:.3f}')
+    ax.axvline(baseline_metric, color='black', linestyle=':', linewidth=1.0,
+               label=f'DWA mean over all runs ({baseline_metric:.3f})')
+    ax.set_xlabel('BARN metric of a successful run (failures score 0)')
+    ax.set_ylabel('worlds')
+    ax.legend(fontsize=7)
+    ax.grid(True, linewidth=0.3)
     figure.savefig(path_png, dpi=90)

@@ -1,0 +1,261 @@
+"""``evaluate --suite barn``: every BARN world x filter x nominal, in lockstep, in parallel.
+
+Each run is ``closed_loop.run_in_process`` on the world's Scenario
+(``sim_bridge.barn``: a 0.2 m diff-drive disc, PyBullet closest points for
+collisions), with the ``goal`` or ``path`` nominal and ``BarnReferee`` ending
+it.  A world's Scenario is built once and runs all its filter x nominal
+combinations in one task; tasks go out over ``jobs`` processes (one progress
+bar, counted in runs).
+
+Per run (one record in ``results.json``; DESIGN.md section 8 keys first):
+``suite`` ('barn'), ``world`` (its id), ``filter``, ``nominal``, ``success``,
+``collision``, ``timeout``, ``deadlock`` (exactly one of the last four is true:
+``outcome`` names it), ``time_s`` (sim time when the run ended: at the goal for
+a success), ``barn_metric`` (``barn.barn_metric``), ``min_clearance_m`` (null:
+nothing came within 0.5 m), ``mean_intervention`` and ``fallback_rate`` as in
+the scenario suite (``evaluate.filter_statistics``; null for ``none``); extras:
+``optimal_time_s``, ``final_distance_m`` (to the goal), ``path_length_m``,
+latency, fallback steps, ``steps`` and ``wall_time_s``.
+
+``results.md``: one row per filter x nominal (rates over worlds, mean metric
+with failures as 0) beside BARN's DWA baseline, and the plots
+``outcomes.png`` (success / collision / deadlock / timeout rates),
+``trajectories.png`` (sample worlds: cylinders, reference path, every
+filter's path per nominal) and ``metric_histogram.png``.
+"""
+import json
+import math
+import os
+import sys
+import time
+from concurrent.futures import as_completed, ProcessPoolExecutor
+from datetime import datetime
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from sim_bridge import plots
+from sim_bridge.barn import (
+    barn_metric,
+    BarnError,
+    BarnReferee,
+    load_worlds,
+    ROBOT_NAME,
+    WORLDS_FILE,
+)
+from sim_bridge.closed_loop import run_in_process
+from sim_bridge.evaluate import filter_statistics, Progress, resolve_filters
+from sim_bridge.world import CLEARANCE_RANGE
+
+BARN_KEYS = ('suite', 'world', 'filter', 'nominal', 'success', 'collision', 'timeout',
+             'deadlock', 'time_s', 'barn_metric', 'min_clearance_m', 'mean_intervention',
+             'fallback_rate')
+OUTCOMES = ('success', 'collision', 'deadlock', 'timeout')
+# BARN's DWA (move_base) over 50 worlds x 10 runs, from the benchmark's README.
+DWA_BASELINE = {'success': 0.88, 'collision': 0.048, 'timeout': 0.072, 'barn_metric': 0.1693}
+TRACE_PERIOD = 0.1      # s between the trajectory points kept for the plots
+SAMPLE_WORLDS = 4       # worlds drawn in trajectories.png
+
+
+def _round(value, digits=4):
+    return None if value is None else round(float(value), digits)
+
+
+def barn_record(world, run):
+    """Return the result record of one BARN run (module docstring)."""
+    outcome = run.ended or 'timeout'
+    trace = run.robots[ROBOT_NAME]
+    metrics = run.metrics[ROBOT_NAME]
+    time_s = len(trace.times) * run.period
+    success = outcome == 'success'
+    stats = filter_statistics(run)
+    return {
+        'suite': 'barn', 'world': world.world, 'filter': run.barrier, 'nominal': run.nominal,
+        'success': success, 'collision': outcome == 'collision',
+        'timeout': outcome == 'timeout', 'deadlock': outcome == 'deadlock',
+        'time_s': _round(time_s, 3),
+        'barn_metric': _round(barn_metric(success, time_s, world.optimal_time)),
+        'min_clearance_m': metrics['min_clearance_m'],
+        'mean_intervention': stats['mean_intervention'],
+        'fallback_rate': stats['fallback_rate'],
+        'outcome': outcome, 'optimal_time_s': _round(world.optimal_time, 3),
+        'final_distance_m': _round(math.dist(trace.positions()[-1], world.goal)),
+        'path_length_m': metrics['path_length_m'],
+        'latency_p50_us': stats['latency_p50_us'], 'latency_p99_us': stats['latency_p99_us'],
+        'fallback_steps': stats['fallback_steps'], 'steps': stats['steps'],
+        'wall_time_s': round(run.wall_time_s, 2),
+    }
+
+
+def _trajectory(run):
+    """Return the positions every TRACE_PERIOD s (and the last) and the collision point."""
+    positions = run.robots[ROBOT_NAME].positions()
+    stride = max(1, round(TRACE_PERIOD / run.period))
+    kept = np.vstack([positions[::stride], positions[-1:]]).astype(np.float32)
+    return {'positions': kept, 'collision': positions[-1] if run.ended == 'collision' else None}
+
+
+def run_world(world, combos):
+    """Run ``world`` (BarnWorld) with every (filter, nominal) of ``combos``.
+
+    Return [(record, trajectory)] in ``combos`` order; the Scenario is built once.
+    """
+    scenario = world.scenario()
+    results = []
+    for barrier, nominal in combos:
+        run = run_in_process(scenario, barrier, nominal=nominal, until=BarnReferee())
+        results.append((barn_record(world, run), _trajectory(run)))
+    return results
+
+
+def run_barn(worlds, combos, jobs=None, progress=True):
+    """Run every world x combo over ``jobs`` processes (default: the CPU count).
+
+    Return (records, trajectories) in world, then combo order; trajectories are keyed
+    by (world id, filter, nominal).  With one job everything runs in this process.
+    """
+    jobs = jobs or os.cpu_count() or 1
+    bar = Progress(len(worlds) * len(combos)) if progress else None
+    done, results = 0, {}
+
+    def finished(world, result):
+        nonlocal done
+        results[world.world] = result
+        done += len(combos)
+        if bar is not None:
+            bar.update(done, f'world {world.world}', force=True)
+
+    if jobs == 1:
+        for world in worlds:
+            finished(world, run_world(world, combos))
+    else:
+        # spawn: a fresh interpreter per worker, whatever this process holds (PyBullet, DDS).
+        pool = ProcessPoolExecutor(min(jobs, len(worlds)), mp_context=get_context('spawn'))
+        try:
+            futures = {pool.submit(run_world, world, combos): world for world in worlds}
+            for future in as_completed(futures):
+                finished(futures[future], future.result())
+        finally:
+            pool.shutdown(cancel_futures=True)
+    if bar is not None:
+        bar.close()
+    records, trajectories = [], {}
+    for world in worlds:
+        for record, trajectory in results[world.world]:
+            records.append(record)
+            trajectories[(record['world'], record['filter'], record['nominal'])] = trajectory
+    return records, trajectories
+
+
+# -- tables and plots -----------------------------------------------------------------------
+
+def aggregate_barn(records):
+    """Return one row per (filter, nominal) in record order: rates over worlds and means."""
+    groups = {}
+    for record in records:
+        groups.setdefault((record['filter'], record['nominal']), []).append(record)
+    rows = []
+    for (name, nominal), group in groups.items():
+        successes = [r['time_s'] for r in group if r['success']]
+        clearances = [r['min_clearance_m'] for r in group if r['min_clearance_m'] is not None]
+        interventions = [r['mean_intervention'] for r in group
+                         if r['mean_intervention'] is not None]
+        fallbacks = [r['fallback_rate'] for r in group if r['fallback_rate'] is not None]
+        row = {'filter': name, 'nominal': nominal, 'runs': len(group)}
+        row.update({outcome: sum(r[outcome] for r in group) / len(group)
+                    for outcome in OUTCOMES})
+        row.update({
+            'barn_metric': float(np.mean([r['barn_metric'] for r in group])),
+            'mean_success_time_s': float(np.mean(successes)) if successes else None,
+            'min_clearance_m': min(clearances) if clearances else None,
+            'mean_intervention': float(np.mean(interventions)) if interventions else None,
+            'fallback_rate': float(np.mean(fallbacks)) if fallbacks else None,
+        })
+        rows.append(row)
+    return rows
+
+
+def _cell(value, digits=3):
+    return '–' if value is None else f'{value:.{digits}f}'
+
+
+def barn_table(rows):
+    """Return the Markdown table of aggregated rows, with BARN's DWA baseline last."""
+    lines = ['| filter | nominal | worlds | success | collision | deadlock | timeout | '
+             'metric | time of successes [s] | min clearance [m] | mean intervention | '
+             'fallback rate |', '|' + '---|' * 12]
+    for r in rows:
+        clearance = (f'> {CLEARANCE_RANGE:g}' if r['min_clearance_m'] is None
+                     else f'{r["min_clearance_m"]:.3f}')
+        lines.append(
+            f'| {r["filter"]} | {r["nominal"]} | {r["runs"]} | {r["success"]:.3f} | '
+            f'{r["collision"]:.3f} | {r["deadlock"]:.3f} | {r["timeout"]:.3f} | '
+            f'{r["barn_metric"]:.3f} | {_cell(r["mean_success_time_s"], 1)} | {clearance} | '
+            f'{_cell(r["mean_intervention"])} | {_cell(r["fallback_rate"])} |')
+    base = DWA_BASELINE
+    lines.append(f'| DWA (move_base, BARN) | – | 50 x 10 runs | {base["success"]:.3f} | '
+                 f'{base["collision"]:.3f} | – | {base["timeout"]:.3f} | '
+                 f'{base["barn_metric"]:.3f} | – | – | – | – |')
+    return '\n'.join(lines)
+
+
+def write_barn_outputs(out, records, trajectories, worlds, command, wall_time_s, jobs,
+                       plots_too=True):
+    """Write results.json, results.md and (unless ``plots_too`` is False) the PNGs."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'results.json').write_text(json.dumps(records, indent=1) + '\n')
+    rows = aggregate_barn(records)
+    load = ', '.join(f'{v:.2f}' for v in os.getloadavg())
+    text = ['# Evaluation: BARN worlds (lockstep, in-process, PyBullet)', '',
+            f'Command: `{command}`  ',
+            f'Date: {datetime.now().isoformat(timespec="seconds")}; wall time '
+            f'{wall_time_s:.0f} s over {jobs} process(es); load average after the run: '
+            f'{load}.  ',
+            f'{len(records)} runs over {len(worlds)} worlds (from `{worlds[0].source}`); '
+            'per run JSON in `results.json`.  Definitions: `sim_bridge/barn.py` and '
+            '`sim_bridge/barn_suite.py` docstrings.  Rates are shares of the worlds; the '
+            "metric is BARN's (failures count 0, at most 0.5); DWA is BARN's published "
+            'baseline, not run here.',
+            '', barn_table(rows), '']
+    if plots_too:
+        text += ['![outcomes](outcomes.png)', '', '![trajectories](trajectories.png)', '',
+                 '![metric histogram](metric_histogram.png)', '']
+    (out / 'results.md').write_text('\n'.join(text))
+    if plots_too:
+        combos = [(r['filter'], r['nominal']) for r in rows]
+        plots.barn_outcomes_figure(out / 'outcomes.png', rows, DWA_BASELINE)
+        step = max(1, len(worlds) // SAMPLE_WORLDS)
+        plots.barn_trajectories_figure(out / 'trajectories.png', worlds[::step][:SAMPLE_WORLDS],
+                                       trajectories, combos)
+        plots.barn_metric_figure(out / 'metric_histogram.png', records, combos,
+                                 DWA_BASELINE['barn_metric'])
+    return rows
+
+
+def main_barn(parser, args, command):
+    """``evaluate --suite barn``: run, write and print; exit 0, 2 on bad arguments, 130 on ^C."""
+    for option in ('jobs', 'limit'):
+        if getattr(args, option) is not None and getattr(args, option) < 1:
+            parser.error(f'--{option} must be >= 1')
+    try:
+        worlds = load_worlds(args.worlds or WORLDS_FILE)[:args.limit]
+    except BarnError as exc:
+        parser.error(str(exc))
+    filters = resolve_filters(args.filters or ['default'], 'diff_drive')
+    combos = [(name, nominal) for nominal in args.nominal or ['path'] for name in filters]
+    jobs = args.jobs or os.cpu_count() or 1
+    out = Path(args.out or 'runs/barn')
+    start = time.monotonic()
+    try:
+        records, trajectories = run_barn(worlds, combos, jobs)
+    except KeyboardInterrupt:
+        print('\nevaluate: interrupted; nothing written', file=sys.stderr)
+        return 130
+    rows = write_barn_outputs(out, records, trajectories, worlds, command,
+                              time.monotonic() - start, jobs, not args.no_plots)
+    print(barn_table(rows))
+    print(f'\nwrote {out / "results.json"}, results.md'
+          + ('' if args.no_plots else ', outcomes.png, trajectories.png, metric_histogram.png'))
+    return 0
