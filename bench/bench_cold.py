@@ -97,9 +97,10 @@ def node_subjects():
     node._intake.process()
     path(real_filter)()
     obstacles = node._take_obstacles().obstacles
-    last = real_filter(node._state, 0.0, (1.0, 0.0), obstacles, 0.0)
+    state = node._decision.state
+    last = real_filter(state, 0.0, (1.0, 0.0), obstacles, 0.0)
     subjects = {'node_path': path(real_filter), 'node_shell': path(lambda *_: last),
-                **filter_subjects(command_filter, node._state, obstacles)}
+                **filter_subjects(command_filter, state, obstacles)}
 
     def close():
         node.destroy_node()

@@ -424,7 +424,7 @@ def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_ever
     node._on_odom(serialize_message(odom))
     static_markers, dynamic, move = sim_markers(static, robots, moving)
     timings = {'full': ([], [], [], []), 'moving': ([], [], [], [])}
-    state, command = node._state.copy(), (0.5, 0.0)
+    state, command = node._decision.state, (0.5, 0.0)
     try:
         for k in range(messages):
             move(k / rate)
@@ -445,7 +445,8 @@ def run_obstacle_updates(static, robots, moving, messages, rate=120.0, full_ever
                         parsed - start, handled - parsed, processed - handled,
                         stepped - processed)):
                     column.append(1e6 * seconds)
-        in_use, tracked = len(node._obstacles.obstacles), node._obstacles.tracked
+        snapshot = node._decision.snapshot
+        in_use, tracked = len(snapshot.obstacles), snapshot.tracked
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

@@ -1,13 +1,16 @@
-"""The ``safety_filter`` node's parameters without ROS: rcl YAML files -> ``CommandFilter``.
+"""The ``safety_filter`` node's parameters: the table, and parameters -> settings, without ROS.
 
-Offline bag replay and the in-process evaluation decide exactly as the node does,
-so they build the node's ``CommandFilter`` from the same parameter files
-(``--params-file``), with the node's defaults (``NODE_PARAMETERS``) for the rest
-and ``model_params.*`` / ``filter.*`` as the node declares them.  rcl's file
-format: top-level keys are node name patterns (``/**`` any namespaces, ``*`` one
-token) holding ``ros__parameters``; nested mappings flatten to dotted names.
+One home for what the node's parameters mean.  The node declares ``NODE_PARAMETERS``,
+``filter.*`` (``FILTER_PARAMETERS``, one per ``FilterConfig`` field but ``control_period``,
+which is ``1 / rate``) and the read-only ``model_params.*`` (``model_parameters``), and
+builds everything it derives from them with ``build_settings``; offline bag replay and the
+in-process evaluation build the same from the same parameter files (``load_parameters``:
+rcl's YAML format, top-level keys are node name patterns (``/**`` any namespaces, ``*`` one
+token) holding ``ros__parameters``; nested mappings flatten to dotted names) with
+``build_filter``, the node's defaults filling in the rest.
 """
 import dataclasses
+import inspect
 import re
 from pathlib import Path
 
@@ -15,11 +18,67 @@ import yaml
 
 from polyc2bf_ros.core.command_filter import CommandFilter
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
+from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import FilterConfig
-from polyc2bf_ros.safety_filter_node import NODE_PARAMETERS
+from polyc2bf_ros.obstacle_intake import IntakeSettings, MAX_OBSTACLES
 
 NODE_NAME = 'safety_filter'
+# With ``trigger: command`` the node's timer (stale-command stops) runs at most this often.
+COMMAND_WATCHDOG_PERIOD = 0.02
 
+# name: (default, (min, max) or None, description, read-only)
+NODE_PARAMETERS = {
+    'model': ('unicycle', None, f'robot model, one of {", ".join(MODEL_NAMES)}', True),
+    'stamped': (False, None, 'cmd_vel_in / cmd_vel_out are TwistStamped instead of Twist', True),
+    'trigger': ('timer', None, "'timer': step every 1/rate s; 'command': one step per "
+                'nominal command', True),
+    'match_stamps': (False, None, "with trigger 'command': answer a stamped command only once "
+                     'odometry stamped no earlier than it has arrived and the obstacle '
+                     'messages received before it are processed (lockstep simulation, '
+                     'repeatable runs); leave off when commands and odometry use different '
+                     'clocks', True),
+    'rate': (100.0, (1.0, 2000.0), 'control rate [Hz]: timer rate, and T = 1/rate in '
+             'v_safe = v + u_safe T', False),
+    'velocity_tau': (0.0, (0.0, 10.0), 'tau [s] in u_nom = (v_cmd - v) / tau; 0 = one '
+                     'control period (transparent when nothing constrains)', False),
+    'odom_timeout': (0.25, (0.002, 10.0), 'odometry older than this [s] -> stop', False),
+    'cmd_timeout': (0.5, (0.002, 10.0), 'nominal command older than this [s] -> stop', False),
+    'obstacles_timeout': (1.0, (0.0, 3600.0), 'obstacles older than this [s] -> stop; 0 = '
+                          'never stale once received (latched static map)', False),
+    'max_extrapolation': (0.5, (0.0, 5.0), 'obstacles are moved by velocity * age, age = '
+                          'odometry stamp - obstacle stamp clipped to [0, this] [s]', False),
+    'wall_thickness': (0.05, (0.001, 10.0), 'width [m] of walls from 2-point / collinear '
+                       'outlines whose marker has no line width (scale.x)', False),
+    'cylinder_sides': (12, (3, 64), 'sides of the polygon circumscribing CYLINDER / SPHERE '
+                       'markers', False),
+    'block_if_invalid': (True, None, 'rejected obstacles (wrong frame, unusable) are not fresh '
+                         'data: stop once they have lasted obstacles_timeout (at once if 0)',
+                         False),
+    'max_vertices': (MAX_VERTICES, (3, 100000), 'outline points per polygon; more become an '
+                     'enclosing convex polygon of this many vertices', False),
+    'max_parts': (MAX_PARTS, (1, 10000), 'pieces per marker and convex parts per non-convex '
+                  'obstacle; more: one enclosing polygon / its convex hull', False),
+    'max_obstacles': (MAX_OBSTACLES, (1, 100000), 'convex obstacle parts in use; more: the '
+                      'obstacle input is unusable (stop)', False),
+    'stall_timeout': (0.5, (0.01, 10.0), 'no control step for this long [s] (steady clock): '
+                      'a separate thread publishes the stop', False),
+}
+
+# FilterConfig field: ((min, max) or None, description); control_period comes from rate.
+FILTER_PARAMETERS = {
+    'barrier': (None, "cone construction: 'polyc2bf_paper' (segment extended by w/2), "
+                "'polyc2bf_inflated' (polygon inflated by the radius) or 'c3bf' (circles)"),
+    'robot_radius': ((0.0, 10.0), 'robot radius w/2 [m]'),
+    'gamma': ((0.0, 1000.0), 'class-K gain in h_dot + gamma h >= margin [1/s], > 0'),
+    'margin_gain': ((0.0, 1000.0), 'sample-and-hold margin = margin_gain * T'),
+    'solver': (None, "QP solver: 'daqp' or 'proxsuite'"),
+    'velocity_epsilon': ((0.0, 10.0), 'smooth norm sqrt(|v_rel|^2 + eps^2) [m/s], > 0'),
+    'slack_weight': ((0.0, 1e12), 'weight of the shared slack when the QP is infeasible, > 0'),
+    'prune': (None, 'drop rows that no input in the box can violate (same solution)'),
+    'escape_speed': ((0.0, 10.0), 'speed [m/s] of the escape from inside an obstacle'),
+    'escape_gain': ((0.0, 1000.0), 'gain [1/s] of the escape velocity loop, > 0'),
+    'inflation_segments': ((3, 256), 'segments of the robot disc for polyc2bf_inflated'),
+}
 
 class ParameterError(ValueError):
     """An unreadable parameter file or an invalid parameter value, with the reason."""
@@ -75,54 +134,111 @@ def load_parameters(params_files, overrides, namespace):
     return values
 
 
-@dataclasses.dataclass
-class FilterSetup:
-    """The node's decision, built from its parameters: filter and message-side settings.
+def model_parameters(model_name):
+    """Return ``{name: default}`` of the numeric constructor arguments of a model."""
+    signature = inspect.signature(MODELS[model_name].__init__)
+    return {name: float(p.default) for name, p in signature.parameters.items()
+            if isinstance(p.default, (float, int)) and not isinstance(p.default, bool)}
 
-    ``ignored`` lists parameter names the node does not declare (callers report them).
+
+FILTER_FIELDS = tuple(f.name for f in dataclasses.fields(FilterConfig)
+                      if f.name != 'control_period')
+
+
+@dataclasses.dataclass
+class NodeSettings:
+    """Everything the node derives from its parameters, built and validated together.
+
+    ``parameters`` is every value used (defaults filled in); ``ignored`` the names given
+    that the node does not declare (callers report them).
     """
 
-    command_filter: object
+    command_filter: CommandFilter
     model_name: str
-    parameters: dict
+    period: float
+    per_command: bool
+    timeouts: dict
+    intake: IntakeSettings
+    stall_timeout: float
+    block_if_invalid: bool
     max_extrapolation: float
-    wall_thickness: float
-    cylinder_sides: int
+    parameters: dict
     ignored: tuple = ()
 
+    @property
+    def tick(self):
+        """Return the period of the node's timer: the step, or the stale-command check."""
+        return max(self.period, COMMAND_WATCHDOG_PERIOD) if self.per_command else self.period
 
-def build_filter(parameters):
-    """Build ``CommandFilter`` and settings as the node does from ``parameters``.
 
-    Missing parameters take the node's defaults; unknown names end up in ``ignored``.
+def build_settings(values, model=None):
+    """Return ``NodeSettings`` from ``{name: value}``; ``ParameterError`` names what is wrong.
+
+    ``values`` holds every node parameter (``model_params.*`` and ``filter.*`` included);
+    ``model`` reuses an already built model instead of building one from ``model_params``.
     """
-    values = {name: spec[0] for name, spec in NODE_PARAMETERS.items()}
-    fields = [f.name for f in dataclasses.fields(FilterConfig) if f.name != 'control_period']
-    model_params, filter_params, unknown = {}, {}, []
-    for name, value in parameters.items():
-        group, _, field = name.partition('.')
-        if name in values:
-            values[name] = value
-        elif group == 'model_params' and field:
-            model_params[field] = value
-        elif group == 'filter' and field in fields:
-            filter_params[field] = value
-        else:
-            unknown.append(name)
     model_name = values['model']
     if model_name not in MODELS:
-        raise ParameterError(f"parameter 'model' must be one of {MODEL_NAMES}, got {model_name!r}")
+        raise ParameterError(f"parameter 'model' must be one of {MODEL_NAMES}, "
+                             f'got {model_name!r}')
+    if values['trigger'] not in ('timer', 'command'):
+        raise ParameterError("parameter 'trigger' must be 'timer' or 'command', "
+                             f"got {values['trigger']!r}")
     try:
-        model = make_model(model_name, **model_params)
+        if model is None:
+            model = make_model(model_name, **{
+                name: values.get(f'model_params.{name}', default)
+                for name, default in model_parameters(model_name).items()})
         rate = float(values['rate'])
         if not rate > 0.0:
             raise ValueError(f'rate must be positive, got {rate}')
-        config = FilterConfig(control_period=1.0 / rate, **filter_params).validate()
+        period = 1.0 / rate
+        config = FilterConfig(control_period=period, **{
+            name: values[f'filter.{name}'] for name in FILTER_FIELDS}).validate()
         command_filter = CommandFilter(model, config, float(values['velocity_tau']))
     except (TypeError, ValueError) as exc:
         raise ParameterError(f'invalid filter parameters: {exc}') from None
-    values.update({f'model_params.{k}': v for k, v in model_params.items()})
-    values.update({f'filter.{k}': getattr(config, k) for k in fields})
-    return FilterSetup(command_filter, model_name, values, float(values['max_extrapolation']),
-                       float(values['wall_thickness']), int(values['cylinder_sides']),
-                       tuple(sorted(unknown)))
+    timeouts = {name: float(values[f'{name}_timeout']) for name in ('odom', 'cmd', 'obstacles')}
+    for name, timeout in timeouts.items():
+        if 0.0 < timeout <= period:
+            raise ParameterError(f'{name}_timeout ({timeout:g} s) must exceed the control '
+                                 f'period 1/rate ({period:g} s)')
+    settings = NodeSettings(
+        command_filter=command_filter, model_name=model_name, period=period,
+        per_command=values['trigger'] == 'command', timeouts=timeouts,
+        intake=IntakeSettings(*(values[name] for name in IntakeSettings._fields)),
+        stall_timeout=float(values['stall_timeout']),
+        block_if_invalid=bool(values['block_if_invalid']),
+        max_extrapolation=float(values['max_extrapolation']), parameters=dict(values))
+    if not settings.stall_timeout > 2.0 * settings.tick:
+        raise ParameterError(f'stall_timeout ({settings.stall_timeout:g} s) must exceed two '
+                             f'control ticks ({2.0 * settings.tick:g} s)')
+    return settings
+
+
+def default_values(model_name):
+    """Return ``{name: default}`` of every parameter the node declares for ``model_name``."""
+    values = {name: spec[0] for name, spec in NODE_PARAMETERS.items()}
+    values['model'] = model_name
+    values.update({f'model_params.{name}': default
+                   for name, default in model_parameters(model_name).items()})
+    defaults = FilterConfig()
+    values.update({f'filter.{name}': getattr(defaults, name) for name in FILTER_FIELDS})
+    return values
+
+
+def build_filter(parameters):
+    """Return ``NodeSettings`` as the node builds them from ``parameters`` (defaults for the rest).
+
+    Unknown names end up in ``ignored``.
+    """
+    model_name = parameters.get('model', NODE_PARAMETERS['model'][0])
+    if model_name not in MODELS:
+        raise ParameterError(f"parameter 'model' must be one of {MODEL_NAMES}, "
+                             f'got {model_name!r}')
+    values = default_values(model_name)
+    unknown = sorted(name for name in parameters if name not in values)
+    values.update({name: value for name, value in parameters.items() if name in values})
+    settings = build_settings(values)
+    settings.ignored = tuple(unknown)
+    return settings

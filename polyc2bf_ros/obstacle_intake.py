@@ -34,10 +34,10 @@ import pickle
 import subprocess
 import sys
 import threading
-from dataclasses import dataclass, field
 from typing import NamedTuple
 
 from polyc2bf_ros import conversions
+from polyc2bf_ros.core.decision import ObstacleSnapshot
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles import ObstacleSet
@@ -58,42 +58,11 @@ class IntakeSettings(NamedTuple):
     max_obstacles: int = MAX_OBSTACLES
 
 
-@dataclass(frozen=True)
-class ObstacleSnapshot:
-    """The obstacle input as of the newest message processed.
+class ObstacleJob(NamedTuple):
+    """One pass: messages [(data, received)], odometry frame, settings, filter, stamp [s].
 
-    ``received``: monotonic receipt time of that message (None before any readable one);
-    ``rejected`` / ``wrong_frame``: ``{key: reason}``; ``invalid``: some marker had NaN/Inf;
-    ``unreadable`` / ``error``: why the last message could not be read / the set not be
-    built ('' if fine); ``simplified``: obstacles whose outline was replaced by an enclosing
-    polygon; ``hulled``: keys replaced by their hull (too many convex parts).
+    ``data`` is a serialized MarkerArray, or a MarkerArray message (offline replay).
     """
-
-    obstacles: ObstacleSet = field(default_factory=ObstacleSet.empty)
-    t_ref: float = math.nan
-    received: float = None
-    rejected: dict = field(default_factory=dict)
-    wrong_frame: dict = field(default_factory=dict)
-    invalid: bool = False
-    unreadable: str = ''
-    error: str = ''
-    tracked: int = 0
-    simplified: int = 0
-    hulled: tuple = ()
-
-    @property
-    def usable(self):
-        """Return False when the filter must brake: NaN/Inf, unreadable, or no set built."""
-        return not (self.invalid or self.unreadable or self.error)
-
-    @property
-    def clean(self):
-        """Return True when nothing was refused: fresh data under ``block_if_invalid``."""
-        return self.usable and not (self.rejected or self.wrong_frame)
-
-
-class _Job(NamedTuple):
-    """One pass: messages [(data, received)], odometry frame, settings, filter, stamp [s]."""
 
     messages: list
     frame: object
@@ -113,11 +82,12 @@ class ObstaclePipeline:
         self._filter_spec = self._filter = None
 
     def run(self, job):
-        """Process one ``_Job``; return the ``ObstacleSnapshot``."""
+        """Process one ``ObstacleJob``; return the ``ObstacleSnapshot``."""
         markers = []
         for data, received in job.messages:
             try:
-                markers += conversions.read_marker_array(data).markers
+                markers += (conversions.read_marker_array(data) if isinstance(data, bytes)
+                            else data).markers
             except ValueError as exc:
                 self._unreadable = f'malformed obstacle message: {exc}'
                 continue
@@ -165,7 +135,7 @@ def _replace(snapshot, obstacles):
 
 
 def serve(inbox, outbox):
-    """Worker process loop: read pickled ``_Job``s from ``inbox``, write encoded snapshots."""
+    """Worker process loop: pickled ``ObstacleJob``s from ``inbox``, snapshots to ``outbox``."""
     pipeline, last_base = ObstaclePipeline(), None
     while True:
         try:
@@ -183,8 +153,12 @@ def serve(inbox, outbox):
 class ObstacleIntake:
     """Queue obstacle messages and hand them to the worker process (module docstring)."""
 
-    def __init__(self, filter_spec, now, settings=IntakeSettings()):
-        """``filter_spec`` = (model name, ``FilterConfig``); ``now()`` [s] stamps markers."""
+    def __init__(self, filter_spec, now, settings=IntakeSettings(), on_snapshot=None):
+        """``filter_spec`` = (model name, ``FilterConfig``); ``now()`` [s] stamps markers.
+
+        ``on_snapshot()``, if given, is called from the feeder thread after each pass.
+        """
+        self._on_snapshot = on_snapshot
         self._filter_spec = filter_spec
         self._now = now
         self._settings = settings
@@ -237,6 +211,18 @@ class ObstacleIntake:
             self._feeder.join(timeout)
         self._stop_worker()
 
+    @property
+    def generation(self):
+        """Return how many inputs (messages, frames, settings) were given so far."""
+        return self._generation
+
+    def covers(self, generation):
+        """Return True once the snapshot covers every input up to ``generation``.
+
+        Without ``start`` nothing is processed until ``process`` is called: True.
+        """
+        return self._feeder is None or self._done >= generation
+
     def process(self, timeout=30.0):
         """Return the snapshot once every message submitted so far is processed.
 
@@ -253,14 +239,15 @@ class ObstacleIntake:
         return self.snapshot
 
     def _take(self):
-        """Return (the next ``_Job``: everything queued, or None if nothing to do, generation)."""
+        """Return (the next ``ObstacleJob``, or None if there is nothing to do; generation)."""
         with self._lock:
             messages, self._pending = self._pending, []
             dirty, self._dirty = self._dirty, False
             if not messages and not dirty:
                 return None, self._generation
-            return (_Job(messages, self._frame, self._settings, self._filter_spec, self._now()),
-                    self._generation)
+            job = ObstacleJob(messages, self._frame, self._settings, self._filter_spec,
+                              self._now())
+            return job, self._generation
 
     def _feed(self):
         while not self._stopping:
@@ -274,6 +261,8 @@ class ObstacleIntake:
                 self.snapshot = snapshot
                 self._done = generation
                 self._progress.notify_all()
+            if self._on_snapshot is not None:
+                self._on_snapshot()
 
     def _run_in_worker(self, job):
         """Send one job to the worker process and decode its answer; unusable if it died."""

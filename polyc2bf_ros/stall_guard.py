@@ -1,7 +1,8 @@
 """An independent stop: a thread that acts when the control loop stops beating.
 
-The control loop calls ``beat`` on every step and control tick.  The guard's own thread
-wakes every ``period`` s on the steady clock; once no beat has come for ``timeout`` s it
+The control loop calls ``beat`` on every step and control tick; the first beat arms the
+guard (start-up takes as long as it takes).  The guard's own thread wakes every
+``period`` s on the steady clock; once no beat has come for ``timeout`` s it
 calls ``on_stall(silence_s)`` on every wake-up until the beats resume, and counts one stall.
 It covers any callback that never returns (a runaway computation, a blocked call): while
 CPython's interpreter is shared, a thread that runs Python hands it over every
@@ -23,7 +24,7 @@ class StallGuard:
         self.period = float(period) if period is not None else self.timeout / 4.0
         self._on_stall = on_stall
         self._clock = clock
-        self._last = clock()
+        self._last = None  # armed by the first beat
         self._stop = threading.Event()
         self._thread = None
         self.stalls = 0
@@ -35,6 +36,8 @@ class StallGuard:
 
     def check(self, now):
         """One wake-up at ``now``: call ``on_stall`` if silent too long; return whether it did."""
+        if self._last is None:
+            return False
         silence = now - self._last
         if silence < self.timeout:
             self.stalled = False
@@ -47,7 +50,6 @@ class StallGuard:
 
     def start(self):
         """Start the guard's thread (a daemon)."""
-        self._last = self._clock()
         self._thread = threading.Thread(target=self._run, name='stall_guard', daemon=True)
         self._thread.start()
 

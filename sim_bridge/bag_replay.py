@@ -50,13 +50,12 @@ Offline check (``--offline``, no DDS)::
 
 feeds the bag's ``/NS/odom``, ``/NS/obstacles`` and nominal commands
 (``/NS/cmd_vel_in``, or ``/NS/wrench_in`` for the quadrotor model) straight
-into the node's decision, ``core.CommandFilter``, configured from the same
+into the node's decision, ``core.decision.ControlDecision``, configured from the same
 parameter file(s) the node takes (rcl's YAML: the sections whose node name
 pattern matches ``/NS/safety_filter``, e.g. ``/**/safety_filter``) plus ``-p``
 overrides, with the node's defaults for the rest.  Obstacles go through the
-node's own path (``conversions.apply_markers`` into an ``ObstacleTracker``,
-``ObstacleTracker.obstacle_set`` in the odometry frame), with the node's age rule
-``age = clip(t_odom - t_ref, 0, max_extrapolation)``.
+node's own pipeline (``obstacle_intake.ObstaclePipeline``, in process), and the log
+times stand in for the node's steady clock.
 
 Each recorded safe command (``/NS/cmd_vel_out`` / ``/NS/wrench_out``, stamped
 with the stamp of the nominal command it answers) is paired with the odometry
@@ -93,10 +92,9 @@ from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 
 from polyc2bf_ros import conversions
-from polyc2bf_ros.core.obstacle_tracker import extrapolation_age, ObstacleTracker
-from polyc2bf_ros.core.obstacles import ObstacleSet
-from polyc2bf_ros.core.safety_filter import FilterStatus
+from polyc2bf_ros.core.decision import ControlDecision
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters, ParameterError
+from polyc2bf_ros.obstacle_intake import ObstacleJob, ObstaclePipeline
 from sim_bridge.bag_reader import BagReader
 from sim_bridge.msg_definitions import message_class
 
@@ -674,60 +672,62 @@ def _command_vector(msg, velocity, model_name):
 
 
 class _OfflineNode:
-    """The node's inputs and decision, fed from a bag instead of subscriptions."""
+    """The node's decision (``ControlDecision``) and obstacle pipeline, fed from a bag.
+
+    Log times stand in for the node's steady clock (the bridge logs what it receives when
+    it receives it), so the watchdogs see what the node saw.
+    """
 
     def __init__(self, setup):
         self.setup = setup
         self.filter = setup.command_filter
-        self.tracker = ObstacleTracker()
-        self.obstacle_set = ObstacleSet.empty()
-        self.obstacle_error = False
-        self.t_ref = math.nan
+        self.decision = ControlDecision(setup.command_filter, setup.timeouts,
+                                        setup.block_if_invalid, setup.max_extrapolation)
+        self.pipeline = ObstaclePipeline()
+        self.spec = (setup.model_name, setup.command_filter.safety_filter.config)
         self.frame = None
-        self.dirty = True
-        self.odometry = {}   # stamp ns -> (state, yaw)
-        self.nominal = {}    # stamp ns -> command vector
+        self.odometry = {}   # stamp ns -> (log time s, state, yaw)
+        self.nominal = {}    # stamp ns -> (log time s, command vector)
+
+    def _obstacles(self, messages, now):
+        """Run the node's obstacle pipeline on ``messages`` and hand the result over."""
+        self.decision.obstacles(self.pipeline.run(ObstacleJob(
+            messages, self.frame, self.setup.intake, self.spec, now)))
 
     def on_obstacles(self, msg, t_ns):
-        """Apply a MarkerArray (zero stamps read as the log time)."""
-        conversions.apply_markers(self.tracker, msg, t_ns * 1e-9, self.setup.wall_thickness,
-                                  self.setup.cylinder_sides)
-        self.dirty = True
+        """Process a MarkerArray (zero stamps read as the log time)."""
+        self._obstacles([(msg, t_ns * 1e-9)], t_ns * 1e-9)
 
-    def on_odometry(self, msg):
-        """Keep the state of each odometry stamp."""
+    def on_odometry(self, msg, t_ns):
+        """Keep the state of each odometry stamp; a new frame rebuilds the obstacles."""
         state = np.zeros(self.filter.model.state_dim)
         yaw = conversions.odometry_to_state(msg, self.setup.model_name, state)
-        self.odometry[stamp_ns(msg)] = (state, yaw)
+        self.odometry[stamp_ns(msg)] = (t_ns * 1e-9, state, yaw)
         frame = msg.header.frame_id.lstrip('/')
         if frame != self.frame:
-            self.frame, self.dirty = frame, True
+            self.frame = frame
+            self._obstacles([], t_ns * 1e-9)
 
-    def on_nominal(self, msg):
+    def on_nominal(self, msg, t_ns):
         """Keep the nominal command of each stamp."""
-        self.nominal[stamp_ns(msg)] = _command_vector(msg, self.filter.velocity,
-                                                      self.setup.model_name)
+        self.nominal[stamp_ns(msg)] = (t_ns * 1e-9, _command_vector(
+            msg, self.filter.velocity, self.setup.model_name))
 
     def answer(self, stamp):
         """Return ``(command, status, nominal, state)`` for the stamp, or None if unpaired."""
         if stamp not in self.odometry or stamp not in self.nominal:
             return None
-        if self.dirty and self.frame is not None:
-            try:
-                self.obstacle_set, self.t_ref, _ = self.tracker.obstacle_set(
-                    self.frame, self.filter.model.position_dim)
-                self.obstacle_error = False
-            except ValueError:
-                self.obstacle_set, self.obstacle_error = ObstacleSet.empty(), True
-            self.dirty = False
-        state, yaw = self.odometry[stamp]
-        command = self.nominal[stamp]
-        if (self.tracker.has_invalid or self.obstacle_error or not np.isfinite(state).all()
-                or not math.isfinite(yaw)):
-            return self.filter.stop(state), FilterStatus.INVALID_INPUT.value, command, state
-        age = extrapolation_age(stamp * 1e-9, self.t_ref, self.setup.max_extrapolation)
-        safe, info = self.filter.filter(state, yaw, command, self.obstacle_set, age)
-        return safe, info.status.value, command, state
+        odom_time, state, yaw = self.odometry[stamp]
+        cmd_time, command = self.nominal[stamp]
+        decision = self.decision
+        finite = bool(np.isfinite(state).all() and math.isfinite(yaw))
+        decision.odometry(odom_time, *((state, yaw, stamp * 1e-9) if finite else ()))
+        finite_command = bool(np.isfinite(command).all())
+        decision.command(cmd_time, *((command,) if finite_command else ()))
+        result = decision.step(max(odom_time, cmd_time))
+        if result.action == 'filter':
+            return result.command, result.info.status.value, command, state
+        return result.command, result.reason, command, state
 
 
 def offline_check(bag, robot=None, parameters=None, tolerance=1e-6):
@@ -786,9 +786,9 @@ def offline_check(bag, robot=None, parameters=None, tolerance=1e-6):
         if role == 'obstacles':
             node.on_obstacles(msg, t_ns)
         elif role == 'odom':
-            node.on_odometry(msg)
+            node.on_odometry(msg, t_ns)
         elif role == 'nominal':
-            node.on_nominal(msg)
+            node.on_nominal(msg, t_ns)
         else:
             pending.append((stamp_ns(msg), _command_vector(msg, velocity, setup.model_name)))
     flush()

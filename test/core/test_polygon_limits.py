@@ -20,7 +20,7 @@ from polyc2bf_ros.core.polygon_limits import (
 
 
 def _star(points, inner=0.5, phase=0.0):
-    """A star with ``points`` tips (2 * points vertices, ``points`` reflex ones)."""
+    """Return a star with ``points`` tips (2 * points vertices, ``points`` reflex ones)."""
     angles = phase + np.pi * np.arange(2 * points) / points
     radii = np.where(np.arange(2 * points) % 2 == 0, 1.0, inner)
     return np.column_stack([radii * np.cos(angles), radii * np.sin(angles)])

@@ -43,15 +43,16 @@ def test_unreadable_obstacles_brake_until_a_readable_message():
             return deserialize_message(answers[-1], Twist).linear.x
 
         take(good)
-        assert answer() > 0.4 and len(node._obstacles.obstacles) == 1
+        assert answer() > 0.4 and len(node._decision.snapshot.obstacles) == 1
         take(good[:-40])
         assert answer() == 0.0
         assert answer(frame='map') == 0.0
-        assert node._counts['invalid_input'] == 2 and node._counts['stale_stop'] == 0
+        counts = node._decision.counts
+        assert counts['invalid_input'] == 2 and counts['stale_stop'] == 0
         assert 'truncated' in node._last_invalid
         take(good)
         assert answer(frame='map') > 0.4  # readable again; the wall is in another frame
-        assert answer() > 0.4 and len(node._obstacles.obstacles) == 1
+        assert answer() > 0.4 and len(node._decision.snapshot.obstacles) == 1
     finally:
         node.destroy_node()
         rclpy.try_shutdown(context=context)

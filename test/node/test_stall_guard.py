@@ -14,9 +14,10 @@ from polyc2bf_ros.stall_guard import StallGuard
 
 
 def test_the_guard_acts_only_after_the_timeout_and_counts_each_stall_once():
-    """Silent >= timeout: ``on_stall`` per check with the silence; a beat ends the stall."""
+    """Armed by a beat; silent >= timeout: ``on_stall`` per check; a beat ends the stall."""
     calls = []
     guard = StallGuard(0.2, calls.append, clock=lambda: 0.0)
+    assert not guard.check(100.0)  # not armed before the first beat
     guard.beat(10.0)
     assert not guard.check(10.19) and calls == []
     assert guard.check(10.25) and guard.check(10.5)

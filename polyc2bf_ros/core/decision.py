@@ -1,0 +1,159 @@
+"""The node's decision per control step, without ROS: the latest inputs -> what to publish.
+
+The shell hands over each input as it arrives, with the steady-clock time ``now`` [s]:
+``odometry`` (state, yaw and stamp, or None when the message was unreadable or held
+NaN/Inf), ``command`` (the nominal command vector, or None when unusable) and ``obstacles``
+(an ``ObstacleSnapshot``).  ``step(now)`` returns a ``Decision``::
+
+    filtering disabled           -> 'pass' (the nominal command as it came), or 'stop' if
+                                    the command is stale or unusable
+    an input stale               -> 'stop', counted 'stale_stop'
+    an input unusable            -> 'stop', counted 'invalid_input'
+    rejected obstacles blocking  -> 'stop', counted 'blocked_stop'
+    otherwise                    -> 'filter': CommandFilter.filter(state, yaw, command,
+                                    obstacles, age), counted by the filter's status
+
+An input is stale when it never arrived or is older than its timeout (0: never, once
+received; ``core.watchdog``).  A new obstacle snapshot with a receipt time is fresh data,
+but under ``block_if_invalid`` only when nothing in it was rejected (wrong frame, unusable
+marker): rejected input then stops the robot once it has lasted ``obstacles_timeout``, or at
+once when that is 0 ('blocked_stop').  The obstacles are moved to the odometry's stamp by
+``age = clip(t_odom - t_ref, 0, max_extrapolation)`` (``extrapolation_age``).  A stop is the
+model's stop command (``CommandFilter.stop``).  The node, offline bag replay and the
+evaluation all decide through this class.
+"""
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple, Optional
+
+from polyc2bf_ros.core.obstacle_tracker import extrapolation_age
+from polyc2bf_ros.core.obstacles import ObstacleSet
+from polyc2bf_ros.core.safety_filter import FilterStatus
+from polyc2bf_ros.core.watchdog import Watchdog
+
+COUNTS = tuple(s.value for s in FilterStatus) + ('stale_stop', 'blocked_stop')
+
+
+@dataclass(frozen=True)
+class ObstacleSnapshot:
+    """The obstacle input as of the newest message processed.
+
+    ``received``: monotonic receipt time of that message (None before any readable one);
+    ``rejected`` / ``wrong_frame``: ``{key: reason}``; ``invalid``: some marker had NaN/Inf;
+    ``unreadable`` / ``error``: why the last message could not be read / the set not be
+    built ('' if fine); ``simplified``: obstacles whose outline was replaced by an enclosing
+    polygon; ``hulled``: keys replaced by their hull (too many convex parts).
+    """
+
+    obstacles: ObstacleSet = field(default_factory=ObstacleSet.empty)
+    t_ref: float = math.nan
+    received: Optional[float] = None
+    rejected: dict = field(default_factory=dict)
+    wrong_frame: dict = field(default_factory=dict)
+    invalid: bool = False
+    unreadable: str = ''
+    error: str = ''
+    tracked: int = 0
+    simplified: int = 0
+    hulled: tuple = ()
+
+    @property
+    def usable(self):
+        """Return False when the filter must brake: NaN/Inf, unreadable, or no set built."""
+        return not (self.invalid or self.unreadable or self.error)
+
+    @property
+    def clean(self):
+        """Return True when nothing was refused: fresh data under ``block_if_invalid``."""
+        return self.usable and not (self.rejected or self.wrong_frame)
+
+
+class Decision(NamedTuple):
+    """What to publish: ``action`` 'filter', 'stop' or 'pass'; ``command`` for the first two.
+
+    ``info`` is the filter's ``FilterInfo`` for 'filter'; ``reason`` the count a stop went to
+    ('stale_stop', 'invalid_input', 'blocked_stop').
+    """
+
+    action: str
+    command: object = None
+    info: object = None
+    reason: str = ''
+
+
+class ControlDecision:
+    """Inputs, watchdogs and the ``CommandFilter``: one call per step (module docstring)."""
+
+    def __init__(self, command_filter, timeouts, block_if_invalid=True, max_extrapolation=0.5):
+        """Decide with ``command_filter``; ``timeouts`` = {'odom', 'cmd', 'obstacles': s}."""
+        self.watchdog = Watchdog(timeouts)
+        self.configure(command_filter, timeouts, block_if_invalid, max_extrapolation)
+        self.counts = dict.fromkeys(COUNTS, 0)
+        self.enabled = True
+        self.snapshot = ObstacleSnapshot()
+        self.state = None
+        self.yaw = 0.0
+        self.odom_stamp = -math.inf
+        self.odom_valid = False
+        self.command_vector = None
+        self.command_valid = False
+
+    def configure(self, command_filter, timeouts, block_if_invalid, max_extrapolation):
+        """Take new settings (a parameter change); the inputs held are kept."""
+        self.filter = command_filter
+        for name, timeout in timeouts.items():
+            self.watchdog.set_timeout(name, timeout)
+        self.block_if_invalid = bool(block_if_invalid)
+        self.max_extrapolation = float(max_extrapolation)
+
+    def odometry(self, now, state=None, yaw=0.0, stamp=-math.inf):
+        """Take odometry that arrived at ``now``: the state, or None if it was unusable."""
+        self.watchdog.feed('odom', now)
+        self.odom_valid = state is not None
+        if state is not None:
+            self.state, self.yaw, self.odom_stamp = state, yaw, stamp
+
+    def command(self, now, vector=None):
+        """Take a nominal command that arrived at ``now``: its vector, or None if unusable."""
+        self.watchdog.feed('cmd', now)
+        self.command_valid = vector is not None
+        if vector is not None:
+            self.command_vector = vector
+
+    def obstacles(self, snapshot):
+        """Adopt an obstacle snapshot; feed the watchdog when it is fresh data."""
+        if snapshot is self.snapshot:
+            return
+        self.snapshot = snapshot
+        if snapshot.received is not None and (snapshot.clean or not self.block_if_invalid):
+            self.watchdog.feed('obstacles', snapshot.received)
+
+    def stop(self):
+        """Return the stop command from the last usable state (zeros before any)."""
+        if self.state is None:
+            return self.filter.stop((0.0,) * self.filter.model.state_dim)
+        return self.filter.stop(self.state)
+
+    def step(self, now):
+        """Return the ``Decision`` for this step (module docstring)."""
+        if not self.enabled:
+            if self.watchdog.is_stale('cmd', now) or not self.command_valid:
+                return self._stop('stale_stop' if self.command_valid else 'invalid_input')
+            return Decision('pass')
+        if self.watchdog.any_stale(now):
+            return self._stop('stale_stop')
+        snapshot = self.snapshot
+        if not (self.odom_valid and self.command_valid and snapshot.usable):
+            return self._stop('invalid_input')
+        if (self.block_if_invalid and not snapshot.clean
+                and self.watchdog.timeout('obstacles') == 0.0):
+            return self._stop('blocked_stop')
+        age = extrapolation_age(self.odom_stamp, snapshot.t_ref, self.max_extrapolation)
+        safe, info = self.filter.filter(self.state, self.yaw, self.command_vector,
+                                        snapshot.obstacles, age)
+        self.counts[info.status.value] += 1
+        return Decision('filter', safe, info)
+
+    def _stop(self, reason):
+        self.counts[reason] += 1
+        return Decision('stop', self.stop(), reason=reason)
