@@ -90,7 +90,7 @@ CLEARANCE_RANGE = 0.5
 SEARCH_STEP = 0.1
 # While nothing moves, the obstacles near a robot are listed with this much more range and
 # the list is kept until the robot has moved as far [m] (``SimWorld._near_obstacles``).
-NEAR_MARGIN = 0.5
+NEAR_MARGIN = 0.25
 FOOTPRINT_SEGMENTS = 16               # vertices of a robot's footprint circle
 COMMAND_KINDS = {'quadruped': ('velocity', 'acceleration'),
                  'diff_drive': ('velocity', 'acceleration'), 'crazyflie': ('thrusts', 'wrench')}
