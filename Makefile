@@ -40,7 +40,9 @@ $(DEPS_STAMP): requirements.lock | $(PY)
 
 $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
 	@echo "== compiling the filter's kernels ahead of time (numba pycc, about a minute)"
-	$(BUILD_KERNELS)
+	@$(BUILD_KERNELS) || { rm -f polyc2bf_ros/core/_kernels*.so polyc2bf_ros/core/_kernels.digest; \
+	  echo "WARNING: the ahead-of-time kernel build failed (no C compiler or numba.pycc?);" \
+	       "the filter compiles its kernels just in time instead (numba's cache, slower start)"; }
 	@echo "== installing polyc2bf_ros into $(VENV)"
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation .
 	@touch $@
