@@ -22,7 +22,7 @@ Per robot namespace ``<ns>`` (the scenario's robot names), in frame ``frame_id``
 - publishes ``/clock`` (rosgraph_msgs/Clock) once per control period;
 - ``/tf`` (world -> ``<ns>/base_link``): published when ``tf2_msgs`` is
   importable; the PyPI ROS wheels lack it, so here ``/tf`` is only recorded,
-  from hand-written CDR (``sim_bridge.cdr``);
+  serialized by ``sim_bridge.cdr``;
 - subscribes to the safe command: ``<ns>/cmd_vel_out`` (TwistStamped,
   quadruped, diff drive: ``linear.x`` = v, ``angular.z`` = omega, tracked by the plant) or
   ``<ns>/wrench_out`` (WrenchStamped, Crazyflie: ``force.z`` = collective thrust,
@@ -67,8 +67,8 @@ recording only), the filter's ``<ns>/safety_filter/markers`` (unless
 ``record_filter_markers`` is off: a filter renders its markers only while
 someone subscribes, ~10 Hz of work per filter that large or fast runs may
 not want) and ``/diagnostics``.
-Log time is sim time.  Published messages are serialized once (odometry,
-clock and tf by ``sim_bridge.cdr``) and the same bytes are published and
+Log time is sim time.  Published messages are serialized once (odometry
+and tf by ``sim_bridge.cdr``) and the same bytes are published and
 recorded; received ones are taken raw.  Messages are waited for on one rcl
 wait set of the bridge's subscriptions (``Inbox``), the executor turns every
 0.1 s (wall) for the parameter services.  SIGINT/SIGTERM
@@ -110,7 +110,6 @@ from visualization_msgs.msg import Marker, MarkerArray
 from polyc2bf_ros.conversions import SerializedCommand
 from polyc2bf_ros.core.models import make_model
 from sim_bridge.cdr import (
-    clock_cdr,
     OdometryCdr,
     tf_message_cdr,
     TF_MESSAGE_DEFINITION,
@@ -470,7 +469,7 @@ class BridgeNode(Node):
                 self._send(robot.obstacles_pub, robot.obstacles_topic,
                            serialize_message(MarkerArray(markers=own)), record)
             self._send_odometry(robot, time_msg, position, quaternion, record)
-        self._send(self._clock_pub, '/clock', clock_cdr(time_msg.sec, time_msg.nanosec), record)
+        self._send(self._clock_pub, '/clock', serialize_message(Clock(clock=time_msg)), record)
         if self._tf_pub is not None or self.recorder is not None:
             self._send(self._tf_pub, '/tf', tf_message_cdr(transforms), record)
         if self._unrecorded:

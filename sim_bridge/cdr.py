@@ -1,30 +1,34 @@
-"""Hand-written CDR of the bridge's per-period messages: /tf, odometry and clock.
+"""CDR of the bridge's per-period odometry (hand-written) and ``/tf`` (rosbags).
 
-rclpy serializes through Python message objects: an ``Odometry`` (two float64[36]
-covariances) took ~120 us to serialize here, more than a DDS hop.  These functions
-build the bytes rclpy would (little-endian CDR after the 4-byte encapsulation
-header; alignment counted from the end of that header), so the bridge can
-publish and record the same bytes.  They equal rclpy's output except in
-alignment padding, which Fast CDR leaves unset and these write as zeros;
-test/sim/test_cdr.py checks them with ``rclpy.serialization`` and ``rosbags``.
+``OdometryCdr`` is the one hand-written serializer left: it is on the lockstep
+bridge's per-period path, once per robot.  Building an rclpy ``Odometry`` and
+``serialize_message`` took 36-110 us here, ``OdometryCdr.pack`` 0.6-1.4 us
+(rosbags' type store 21-26 us; best of 5 x 5000 calls, timeit, over runs from
+an idle to a loaded machine).  The lockstep bridge runs its periods back to
+back, ~725 us each with one robot and no filter (bench/results/sim.json,
+quadruped_50_obstacles_no_filter: real-time factor 11.5 at 120 Hz), so rclpy
+would add 5-15% per robot.  The bytes are rclpy's except in alignment
+padding, which Fast CDR leaves unset and this writes as zeros (little-endian
+CDR after the 4-byte encapsulation header, alignment counted from the end of
+that header); test/sim/test_cdr.py compares them byte for byte with
+``serialize_message`` and rosbags.
 
-- ``tf_message_cdr``: ``tf2_msgs/msg/TFMessage``, also because the PyPI ROS
-  wheels lack ``tf2_msgs`` (rclpy cannot serialize one here);
-  ``TF_MESSAGE_DEFINITION`` is its ``.msg`` text for the bag's schema;
-- ``clock_cdr``: ``rosgraph_msgs/msg/Clock``;
-- ``OdometryCdr``: ``nav_msgs/msg/Odometry`` with fixed frame ids and zero
-  covariances (what the bridge sends).
+``tf_message_cdr`` serializes ``tf2_msgs/msg/TFMessage`` with rosbags' Jazzy
+type store, as the PyPI ROS wheels lack ``tf2_msgs`` (rclpy cannot serialize
+one here; ``TF_MESSAGE_DEFINITION`` is its ``.msg`` text for the bag's
+schema): 8.5-23 us for one transform against 2-4.5 us by hand, 1-2.5% of
+that period per robot.  ``/clock`` goes through rclpy (7-17 us, 1-2.5%).
 
 The readers (odometry, stamped commands) are the safety filter's own:
 ``polyc2bf_ros.conversions.read_odometry`` and ``SerializedCommand``.
-
-(A MarkerArray writer was tried and dropped: reading the fields of rclpy
-``Marker`` objects costs as much as rclpy's own serializer, ~33 us a marker.)
 """
 import struct
 
+from rosbags.typesys import get_typestore, Stores
+
 TF_MESSAGE_TYPE = 'tf2_msgs/msg/TFMessage'
 TF_MESSAGE_DEFINITION = 'geometry_msgs/TransformStamped[] transforms\n'
+_TYPES = get_typestore(Stores.ROS2_JAZZY)
 _ENCAPSULATION = b'\x00\x01\x00\x00'  # CDR_LE, no options
 _STAMP = struct.Struct('<iI')
 _UINT32 = struct.Struct('<I')
@@ -48,22 +52,18 @@ def tf_message_cdr(transforms):
     Each transform is ``(sec, nanosec, frame_id, child_frame_id, translation (3),
     rotation (4, x y z w))``.
     """
-    parts = [_UINT32.pack(len(transforms))]
-    offset = 4
-    for sec, nanosec, frame_id, child_frame_id, translation, rotation in transforms:
-        chunk = b'\x00' * (-offset % 4) + _STAMP.pack(sec, nanosec)
-        chunk += _string(frame_id, offset + len(chunk))
-        chunk += _string(child_frame_id, offset + len(chunk))
-        chunk += b'\x00' * (-(offset + len(chunk)) % 8)
-        chunk += struct.pack('<7d', *translation, *rotation)
-        parts.append(chunk)
-        offset += len(chunk)
-    return _ENCAPSULATION + b''.join(parts)
-
-
-def clock_cdr(sec, nanosec):
-    """Return the serialized rosgraph_msgs/Clock of time ``sec`` + ``nanosec``."""
-    return _ENCAPSULATION + _STAMP.pack(sec, nanosec)
+    types = _TYPES.types
+    message = types[TF_MESSAGE_TYPE](transforms=[
+        types['geometry_msgs/msg/TransformStamped'](
+            header=types['std_msgs/msg/Header'](
+                stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec),
+                frame_id=frame_id),
+            child_frame_id=child_frame_id,
+            transform=types['geometry_msgs/msg/Transform'](
+                translation=types['geometry_msgs/msg/Vector3'](*translation),
+                rotation=types['geometry_msgs/msg/Quaternion'](*rotation)))
+        for sec, nanosec, frame_id, child_frame_id, translation, rotation in transforms])
+    return bytes(_TYPES.serialize_cdr(message, TF_MESSAGE_TYPE))
 
 
 class OdometryCdr:
