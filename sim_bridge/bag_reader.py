@@ -1,30 +1,32 @@
-"""Small reader of ROS 2 MCAP bags for replay, independent of rosbag2.
+"""Reader of ROS 2 MCAP bags for replay, on the ``mcap`` library and rclpy.
 
 ``BagReader(path)`` opens a rosbag2 bag directory (its ``metadata.yaml`` names the
 MCAP files; without one, every ``*.mcap`` in it, sorted) or a single ``.mcap``
-file.  ``topics`` lists each topic's type, message count, offered QoS profiles
-(parsed from the channel's ``offered_qos_profiles``, rosbag2 metadata version 8
-or 9) and type hash; ``time_range`` gives the first and last log time;
-``messages()`` yields ``(topic, type_name, log_time_ns, message)`` in log-time
-order per file (ties in file order), optionally only of some topics and of a
-log-time window ``start_ns <= t < end_ns``, messages deserialized with
-``rclpy.serialization.deserialize_message`` into the classes ``pkg.msg.Type``, or
-left as CDR bytes with ``raw=True`` (what a player publishes as it is).
+file.  ``topics`` lists each topic's type, message count and offered QoS
+profiles (the channel's ``offered_qos_profiles``, rosbag2 metadata version 8
+or 9, parsed by rosbags' ``parse_qos``); ``time_range`` gives the first and
+last log time; ``messages()`` yields ``(topic, type_name, log_time_ns,
+message)`` in log-time order per file (ties in file order), optionally only of
+some topics and of a log-time window ``start_ns <= t < end_ns``, messages
+deserialized with ``rclpy.serialization.deserialize_message`` into the classes
+``pkg.msg.Type`` (``message_class``), or left as CDR bytes with ``raw=True``
+(what a player publishes as it is).
 
-A file cut short by a hard kill (no summary or footer) is read by scanning
-from the start up to the last complete record, so every chunk written before
-the kill is recovered.
+A file cut short by a hard kill (no footer, so no summary: rosbags' reader
+refuses it) is read in file order by the mcap library's non-seeking reader up
+to its first incomplete record, so every chunk finished before the kill is
+recovered; its ``topics`` are those with recovered messages.
 """
 import functools
-import struct
+import importlib
+import io
 from pathlib import Path
 from typing import NamedTuple
 
 import yaml
 from mcap.exceptions import McapError
-from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
+from mcap.reader import NonSeekingReader, SeekingReader
+from mcap.writer import MCAP0_MAGIC
 from rclpy.duration import Duration
 from rclpy.qos import (
     DurabilityPolicy,
@@ -34,8 +36,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 from rclpy.serialization import deserialize_message
-
-from sim_bridge.msg_definitions import message_class
+from rosbags.rosbag2.metadata import parse_qos
 
 
 class BagTopic(NamedTuple):
@@ -45,7 +46,6 @@ class BagTopic(NamedTuple):
     type_name: str
     message_count: int
     qos_profiles: tuple
-    type_hash: str
 
 
 class BagMessage(NamedTuple):
@@ -57,9 +57,16 @@ class BagMessage(NamedTuple):
     message: object
 
 
-def parse_qos_profiles(text):
-    """Return the ``QoSProfile`` list of an ``offered_qos_profiles`` YAML string."""
-    return [_qos_profile(item) for item in yaml.safe_load(text or '[]') or []]
+@functools.lru_cache(maxsize=None)
+def message_class(type_name):
+    """Return the rclpy class of ``'pkg/msg/Type'``; ``LookupError`` if it is not installed."""
+    package, _, short = type_name.partition('/msg/')
+    if not (package and short) or '/' in package + short:
+        raise ValueError(f'not a message type name: {type_name!r} (expected pkg/msg/Type)')
+    try:
+        return getattr(importlib.import_module(f'{package}.msg'), short)
+    except (ImportError, AttributeError):
+        raise LookupError(f'message class {package}.msg.{short} is not installed') from None
 
 
 class BagReader:
@@ -80,31 +87,32 @@ class BagReader:
             raise FileNotFoundError(f'no MCAP file in {path}')
 
     @functools.cached_property
+    def _overviews(self):
+        return [_overview(path) for path in self.files]
+
+    @functools.cached_property
     def topics(self):
         """Return ``{topic: BagTopic}`` over all files of the bag."""
         found = {}
-        for path in self.files:
-            for channel, schema, count in _file_channels(path):
+        for channels, _, _ in self._overviews:
+            for channel, schema, count in channels:
                 known = found.get(channel.topic)
                 if known is not None:
                     found[channel.topic] = known._replace(
                         message_count=known.message_count + count)
                     continue
+                profiles = parse_qos(channel.metadata.get('offered_qos_profiles', ''))
                 found[channel.topic] = BagTopic(
                     channel.topic, schema.name if schema else '', count,
-                    tuple(parse_qos_profiles(channel.metadata.get('offered_qos_profiles', ''))),
-                    channel.metadata.get('topic_type_hash', ''))
+                    tuple(_rclpy_qos(qos) for qos in profiles))
         return found
 
     @functools.cached_property
     def time_range(self):
         """Return ``(first, last)`` log time [ns] over all files; ``(None, None)`` if empty."""
-        first = last = None
-        for path in self.files:
-            for start, end in _file_time_range(path):
-                first = start if first is None else min(first, start)
-                last = end if last is None else max(last, end)
-        return first, last
+        starts = [first for _, first, _ in self._overviews if first is not None]
+        ends = [last for _, _, last in self._overviews if last is not None]
+        return (min(starts), max(ends)) if starts else (None, None)
 
     def messages(self, topics=None, raw=False, start_ns=None, end_ns=None):
         """Yield ``BagMessage`` tuples, only of ``topics`` if given; CDR bytes if ``raw``.
@@ -127,97 +135,69 @@ class BagReader:
                 yield BagMessage(channel.topic, type_name, record.log_time, message)
 
 
-def _qos_profile(item):
-    def policy(enum, value):
-        return enum(value) if isinstance(value, int) else enum[value.upper()]
-
+def _rclpy_qos(qos):
+    """Return rosbags' ``Qos`` as an rclpy ``QoSProfile`` (their policy enums share values)."""
     def duration(value):
-        return Duration(seconds=value['sec'], nanoseconds=value['nsec'])
+        return Duration(seconds=value.sec, nanoseconds=value.nsec)
 
     return QoSProfile(
-        history=policy(HistoryPolicy, item['history']),
-        depth=item['depth'],
-        reliability=policy(ReliabilityPolicy, item['reliability']),
-        durability=policy(DurabilityPolicy, item['durability']),
-        deadline=duration(item['deadline']),
-        lifespan=duration(item['lifespan']),
-        liveliness=policy(LivelinessPolicy, item['liveliness']),
-        liveliness_lease_duration=duration(item['liveliness_lease_duration']),
-        avoid_ros_namespace_conventions=item['avoid_ros_namespace_conventions'])
+        history=HistoryPolicy(qos.history.value), depth=qos.depth,
+        reliability=ReliabilityPolicy(qos.reliability.value),
+        durability=DurabilityPolicy(qos.durability.value),
+        deadline=duration(qos.deadline), lifespan=duration(qos.lifespan),
+        liveliness=LivelinessPolicy(qos.liveliness.value),
+        liveliness_lease_duration=duration(qos.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=qos.avoid_ros_namespace_conventions)
 
 
-def _summary(stream):
-    """Return the file's summary, or None when it has none (cut short, or written without)."""
-    try:
-        return SeekingReader(stream).get_summary()
-    except Exception:  # whatever the cut-off tail decodes to, there is no summary to use
+def _indexed_reader(stream):
+    """Return a ``SeekingReader`` of a finished file with a summary, else None.
+
+    A finished file ends in the MCAP magic after its footer; one cut short does not.
+    """
+    end = stream.seek(0, io.SEEK_END)
+    stream.seek(max(0, end - len(MCAP0_MAGIC)))
+    if end <= len(MCAP0_MAGIC) or stream.read() != MCAP0_MAGIC:
         return None
+    stream.seek(0)
+    reader = SeekingReader(stream)
+    summary = reader.get_summary()
+    return reader if summary is not None and summary.statistics is not None else None
 
 
-def _file_channels(path):
-    """Yield ``(channel, schema, message_count)`` for each channel of one MCAP file."""
+def _overview(path):
+    """Return ``([(channel, schema, message count)], first, last)`` of one MCAP file."""
     with open(path, 'rb') as stream:
-        summary = _summary(stream)
-        if summary is not None and summary.statistics is not None:
-            counts = summary.statistics.channel_message_counts
-            for channel in summary.channels.values():
-                yield (channel, summary.schemas.get(channel.schema_id),
-                       counts.get(channel.id, 0))
-            return
-        schemas, channels, counts = {}, {}, {}
-        for record in _scan(stream):
-            if isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Message):
-                counts[record.channel_id] = counts.get(record.channel_id, 0) + 1
-        for channel in channels.values():
-            yield channel, schemas.get(channel.schema_id), counts.get(channel.id, 0)
+        reader = _indexed_reader(stream)
+        summary = reader and reader.get_summary()
+    if summary is not None:
+        stats = summary.statistics
+        channels = [(channel, summary.schemas.get(channel.schema_id),
+                     stats.channel_message_counts.get(channel.id, 0))
+                    for channel in summary.channels.values()]
+        if not stats.message_count:
+            return channels, None, None
+        return channels, stats.message_start_time, stats.message_end_time
+    found, counts, times = {}, {}, []
+    for schema, channel, record in _file_messages(path):
+        found[channel.id] = (channel, schema)
+        counts[channel.id] = counts.get(channel.id, 0) + 1
+        times.append(record.log_time)
+    channels = [(channel, schema, counts[key]) for key, (channel, schema) in found.items()]
+    return channels, min(times, default=None), max(times, default=None)
 
 
-def _file_time_range(path):
-    """Yield the ``(first, last)`` log time of one MCAP file, if it has messages."""
-    with open(path, 'rb') as stream:
-        summary = _summary(stream)
-        if summary is not None and summary.statistics is not None:
-            if summary.statistics.message_count:
-                yield summary.statistics.message_start_time, summary.statistics.message_end_time
-            return
-        times = [r.log_time for r in _scan(stream) if isinstance(r, Message)]
-        if times:
-            yield min(times), max(times)
-
-
-def _file_messages(path, topics, start_ns=None, end_ns=None):
+def _file_messages(path, topics=None, start_ns=None, end_ns=None):
     """Yield ``(schema, channel, message)`` of one MCAP file, recovering a cut-short one."""
     with open(path, 'rb') as stream:
-        if _summary(stream) is not None:
-            stream.seek(0)
-            yield from SeekingReader(stream).iter_messages(
-                topics=topics, log_time_order=True, starting_at=start_ns, ending_before=end_ns)
+        window = dict(starting_at=start_ns, ending_before=end_ns)
+        reader = _indexed_reader(stream)
+        if reader is not None:
+            yield from reader.iter_messages(topics, log_time_order=True, **window)
             return
-        schemas, channels = {}, {}
-        for record in _scan(stream):
-            if isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Message):
-                channel = channels[record.channel_id]
-                if ((topics is None or channel.topic in topics)
-                        and (start_ns is None or record.log_time >= start_ns)
-                        and (end_ns is None or record.log_time < end_ns)):
-                    yield schemas.get(channel.schema_id), channel, record
-
-
-def _scan(stream):
-    """Yield the records of an MCAP stream from its start up to the first incomplete one."""
-    stream.seek(0)
-    records = StreamReader(stream).records
-    while True:
+        stream.seek(0)
         try:
-            record = next(records)
-        except (StopIteration, McapError, EOFError, OSError, ValueError, struct.error):
+            yield from NonSeekingReader(stream).iter_messages(topics, log_time_order=False,
+                                                              **window)
+        except McapError:  # the first incomplete record (EndOfFile): the end of what is kept
             return
-        yield record

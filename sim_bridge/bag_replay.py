@@ -95,8 +95,7 @@ from polyc2bf_ros import conversions
 from polyc2bf_ros.core.decision import ControlDecision
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters, ParameterError
 from polyc2bf_ros.obstacle_intake import ObstacleJob, ObstaclePipeline
-from sim_bridge.bag_reader import BagReader
-from sim_bridge.msg_definitions import message_class
+from sim_bridge.bag_reader import BagReader, message_class
 
 CLOCK_TOPIC = '/clock'
 DEFAULT_CLOCK_HZ = 100.0

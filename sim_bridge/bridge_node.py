@@ -109,14 +109,9 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from polyc2bf_ros.conversions import SerializedCommand
 from polyc2bf_ros.core.models import make_model
-from sim_bridge.cdr import (
-    OdometryCdr,
-    tf_message_cdr,
-    TF_MESSAGE_DEFINITION,
-    TF_MESSAGE_TYPE,
-)
+from sim_bridge.bag_reader import message_class
+from sim_bridge.cdr import OdometryCdr, tf_message_cdr, TF_MESSAGE_TYPE
 from sim_bridge.metrics import RunMetrics
-from sim_bridge.msg_definitions import message_class
 from sim_bridge.recorder import BagRecorder, close_on_signals
 from sim_bridge.scenario import load_scenario, UNICYCLE_TYPES
 from sim_bridge.world import SimWorld
@@ -284,8 +279,7 @@ class BridgeNode(Node):
         if TFMessage is not None:
             self._tf_pub = self._publisher(TFMessage, '/tf', PUBLISHED_QOS)
         elif self.recorder is not None:
-            self.recorder.add_topic('/tf', TF_MESSAGE_TYPE, PUBLISHED_QOS,
-                                    definition=TF_MESSAGE_DEFINITION)
+            self.recorder.add_topic('/tf', TF_MESSAGE_TYPE, PUBLISHED_QOS)
         self.robots = [self._add_robot(name) for name in self.world.robot_names]
         self._markers = {}  # (footprint.robot, footprint.index) -> (Marker, dynamic)
         self._obstacle_version = self.world.obstacle_version

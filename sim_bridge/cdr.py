@@ -15,8 +15,7 @@ that header); test/sim/test_cdr.py compares them byte for byte with
 
 ``tf_message_cdr`` serializes ``tf2_msgs/msg/TFMessage`` with rosbags' Jazzy
 type store, as the PyPI ROS wheels lack ``tf2_msgs`` (rclpy cannot serialize
-one here; ``TF_MESSAGE_DEFINITION`` is its ``.msg`` text for the bag's
-schema): 8.5-23 us for one transform against 2-4.5 us by hand, 1-2.5% of
+one here): 8.5-23 us for one transform against 2-4.5 us by hand, 1-2.5% of
 that period per robot.  ``/clock`` goes through rclpy (7-17 us, 1-2.5%).
 
 The readers (odometry, stamped commands) are the safety filter's own:
@@ -27,7 +26,6 @@ import struct
 from rosbags.typesys import get_typestore, Stores
 
 TF_MESSAGE_TYPE = 'tf2_msgs/msg/TFMessage'
-TF_MESSAGE_DEFINITION = 'geometry_msgs/TransformStamped[] transforms\n'
 _TYPES = get_typestore(Stores.ROS2_JAZZY)
 _ENCAPSULATION = b'\x00\x01\x00\x00'  # CDR_LE, no options
 _STAMP = struct.Struct('<iI')

@@ -6,108 +6,83 @@ Layout (a rosbag2 bag directory, as ``ros2 bag record -o DIR`` makes)::
     DIR/metadata.yaml   rosbag2 metadata, version 9, written by close()
 
 ``ros2 bag info|play DIR`` and ``rosbags`` open the directory; both (and Foxglove)
-also open ``DIR_0.mcap`` on its own.  The MCAP file carries what the rosbag2 MCAP
-storage plugin writes (rosbag2_storage_mcap/src/mcap_storage.cpp): profile ``ros2``;
-per type a schema named ``pkg/msg/Type`` with encoding ``ros2msg`` and the full
-``.msg`` text (see ``msg_definitions``); per topic a channel with message encoding
-``cdr`` and metadata ``offered_qos_profiles`` (the QoS YAML of rosbag2_storage's
-``serialize_rclcpp_qos_vector``, version 9: enum names, durations as sec/nsec)
-and ``topic_type_hash`` (RIHS01 hash, empty when the type is not installed);
-messages in zstd (default) or lz4 compressed chunks with message indexes; and, on
-close, a metadata record ``rosbag2`` holding the bag's metadata YAML
-(``serialized_metadata``) and ``ROS_DISTRO``, which rosbag2 reads back from a
-lone ``.mcap``.
+also open ``DIR_0.mcap`` on its own.  The file is written by the ``mcap``
+library's ``Writer`` with what the rosbag2 MCAP storage plugin writes: profile
+``ros2``; per type a schema ``pkg/msg/Type``, encoding ``ros2msg``, text from
+rosbags' Jazzy type store (``generate_msgdef``: the type's fields, then each
+dependency after a line of 80 ``=`` and ``MSG: pkg/Type``); per topic a
+channel with message encoding ``cdr`` and metadata ``offered_qos_profiles``
+(rosbags' ``dump_qos_v9`` as YAML) and ``topic_type_hash`` (the type store's
+RIHS01 hash, which rclpy reports too); messages in zstd (default) or lz4
+compressed chunks with message indexes; and, on close, a metadata record
+``rosbag2`` holding the bag's metadata YAML (``serialized_metadata``) and
+``ROS_DISTRO``, which rosbag2 reads back from a lone ``.mcap``.  YAML is
+PyYAML's.
 
-Writing a message costs one CDR serialization plus an append to the open chunk;
-all YAML and schema work happens in ``add_topic`` and ``close``.  A node that
-publishes what it records serializes once: ``data = serialize_message(msg)``,
-``publisher.publish(data)`` (rclpy publishes bytes as they are) and
-``recorder.write_serialized(topic, data, t)``.  A chunk is
-written out when it reaches ``chunk_size`` or is ``flush_interval_s`` old, so a
-process killed hard (SIGKILL, power loss aside) loses at most the open chunk:
-the file then lacks its summary and footer, which ``bag_reader`` and the MCAP
-tools' recovery scan tolerate.  ``close_on_signals`` makes SIGINT/SIGTERM close
-the bag cleanly before the process goes on as it would have.
+Writing a message costs one CDR serialization plus an append to the open
+chunk.  A node that publishes what it records serializes once: ``data =
+serialize_message(msg)``, ``publisher.publish(data)`` and
+``recorder.write_serialized(topic, data, t)``.  A chunk is finished once it
+holds ``chunk_size`` bytes, or by the first write more than
+``flush_interval_s`` after the last one was, so a process killed hard
+(SIGKILL; power loss aside) loses at most the open chunk and what the file's
+buffer holds: the file then lacks its summary and footer, which ``bag_reader``
+(and the MCAP tools' recovery) read past.
+rosbags' own rosbag2 ``Writer`` is not used: it finishes a chunk only at 1 MiB
+(uncompressed) and names the file ``DIR.mcap``.  ``close_on_signals`` makes
+SIGINT/SIGTERM close the bag cleanly before the process goes on as it would
+have.
 """
 import functools
-import json
 import os
-import re
 import signal
 import threading
 import time
 from pathlib import Path
 
+import yaml
 from mcap.writer import CompressionType, LIBRARY_IDENTIFIER, Writer
 from rclpy.serialization import serialize_message
-
-from sim_bridge import msg_definitions
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+from rosbags.rosbag2.metadata import dump_qos_v9
+from rosbags.typesys import get_typestore, Stores
 
 METADATA_VERSION = 9
 COMPRESSION = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
-               'none': CompressionType.NONE, None: CompressionType.NONE}
-_PLAIN_SCALAR = re.compile(r'[A-Za-z0-9_/][A-Za-z0-9_./-]*')
-_YAML_WORDS = {'true', 'false', 'yes', 'no', 'on', 'off', 'y', 'n', 'null', '~'}
+               'none': CompressionType.NONE}
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 
 
-def qos_dict(profile):
-    """Return one QoS profile as rosbag2 (metadata version 9) serializes it."""
-    def duration(value):
-        sec, nsec = divmod(value.nanoseconds, 10 ** 9)
-        return {'sec': sec, 'nsec': nsec}
+def _rosbags_qos(profile):
+    """Return an rclpy ``QoSProfile`` as rosbags' ``Qos`` (their policy enums share values)."""
+    def qos_time(duration):
+        return QosTime(*divmod(duration.nanoseconds, 10 ** 9))
 
-    return {
-        'history': profile.history.name.lower(),
-        'depth': profile.depth,
-        'reliability': profile.reliability.name.lower(),
-        'durability': profile.durability.name.lower(),
-        'deadline': duration(profile.deadline),
-        'lifespan': duration(profile.lifespan),
-        'liveliness': profile.liveliness.name.lower(),
-        'liveliness_lease_duration': duration(profile.liveliness_lease_duration),
-        'avoid_ros_namespace_conventions': profile.avoid_ros_namespace_conventions,
-    }
+    return Qos(QosHistory(profile.history.value), profile.depth,
+               QosReliability(profile.reliability.value),
+               QosDurability(profile.durability.value), qos_time(profile.deadline),
+               qos_time(profile.lifespan), QosLiveliness(profile.liveliness.value),
+               qos_time(profile.liveliness_lease_duration),
+               profile.avoid_ros_namespace_conventions)
 
 
-def to_yaml(value):
-    """Return a dict/list tree as block YAML laid out the way yaml-cpp emits it."""
-    return '\n'.join(_yaml_lines(value, 0))
+def _yaml(value):
+    """Return ``value`` as block YAML, keys in insertion order."""
+    return yaml.safe_dump(value, default_flow_style=False, sort_keys=False)
 
 
-def _yaml_lines(value, indent):
-    pad = ' ' * indent
-    if isinstance(value, dict):
-        for key, item in value.items():
-            if isinstance(item, (dict, list)) and item:
-                yield f'{pad}{key}:'
-                yield from _yaml_lines(item, indent + 2)
-            else:
-                yield f'{pad}{key}: {_yaml_scalar(item)}'
-        return
-    for item in value:
-        if isinstance(item, (dict, list)) and item:
-            lines = list(_yaml_lines(item, indent + 2))
-            yield f'{pad}- {lines[0].lstrip()}'
-            yield from lines[1:]
-        else:
-            yield f'{pad}- {_yaml_scalar(item)}'
-
-
-def _yaml_scalar(value):
-    if value is None:
-        return '~'
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, (dict, list)):
-        return '{}' if isinstance(value, dict) else '[]'
-    if isinstance(value, int):
-        return str(value)
-    if _PLAIN_SCALAR.fullmatch(value) and value.lower() not in _YAML_WORDS:
-        try:
-            float(value)
-        except ValueError:
-            return value
-    return json.dumps(value)
+def _type_name(msg_type):
+    """Return ``'pkg/msg/Type'`` of a message class (a string is returned as it is)."""
+    if isinstance(msg_type, str):
+        return msg_type
+    return f'{msg_type.__module__.split(".")[0]}/msg/{msg_type.__name__}'
 
 
 class _ThreadState(threading.local):
@@ -133,9 +108,10 @@ class BagRecorder:
     def __init__(self, path, compression='zstd', chunk_size=1 << 20, flush_interval_s=1.0):
         """Create the bag directory ``path`` and start ``<path>/<name>_0.mcap``.
 
-        ``compression`` is ``'zstd'``, ``'lz4'`` or ``'none'``; a chunk is written
-        once it holds ``chunk_size`` bytes or is ``flush_interval_s`` seconds old.
-        Raises ``FileExistsError`` if the directory already holds this bag.
+        ``compression`` is ``'zstd'``, ``'lz4'`` or ``'none'``; a chunk is finished
+        once it holds ``chunk_size`` bytes, or by the first write more than
+        ``flush_interval_s`` seconds after the last one was.  Raises
+        ``FileExistsError`` if the directory already holds this bag.
         """
         if compression not in COMPRESSION:
             raise ValueError(f'compression must be one of zstd, lz4, none, not {compression!r}')
@@ -168,25 +144,22 @@ class BagRecorder:
         """Return the number of messages written so far per topic."""
         return {name: topic.count for name, topic in self._topics.items()}
 
-    def add_topic(self, topic, msg_type, qos, definition=None):
+    def add_topic(self, topic, msg_type, qos):
         """Register ``topic`` with its message type and the QoS it is offered with.
 
-        ``msg_type`` is a message class or ``'pkg/msg/Type'``; ``qos`` a
-        ``QoSProfile`` or a list of them (one per publisher).  ``definition`` is the
-        type's own ``.msg`` text, needed only when its package is not installed
-        (then only ``write_serialized`` works on the topic).  Registering a topic
-        again with the same type does nothing.
+        ``msg_type`` is an rclpy message class or ``'pkg/msg/Type'`` (then only
+        ``write_serialized`` works on the topic), a type of rosbags' Jazzy type
+        store; ``qos`` a ``QoSProfile`` or a list of them (one per publisher).
+        Registering a topic again with the same type does nothing.
         """
-        name = msg_definitions.type_name(msg_type)
-        profiles = list(qos) if isinstance(qos, (list, tuple)) else [qos]
-        schema = msg_definitions.full_definition(name, definition)
-        msg_class = msg_type if not isinstance(msg_type, str) else _class_or_none(name)
-        try:
-            type_hash = msg_definitions.type_hash(name)
-        except msg_definitions.DefinitionNotFoundError:
-            type_hash = ''
-        metadata = {'offered_qos_profiles': to_yaml([qos_dict(p) for p in profiles]),
-                    'topic_type_hash': type_hash}
+        name = _type_name(msg_type)
+        if name not in TYPESTORE.types:
+            raise ValueError(f'{name} is not a ROS 2 Jazzy message type known to rosbags')
+        profiles = dump_qos_v9([_rosbags_qos(p) for p in
+                                (qos if isinstance(qos, (list, tuple)) else [qos])])
+        msg_class = None if isinstance(msg_type, str) else msg_type
+        type_hash = TYPESTORE.hash_rihs01(name)
+        metadata = {'offered_qos_profiles': _yaml(profiles), 'topic_type_hash': type_hash}
         with self._locked():
             known = self._topics.get(topic)
             if known is not None:
@@ -196,6 +169,7 @@ class BagRecorder:
             if self._writer is None:
                 raise ValueError('recorder is closed')
             if name not in self._schema_ids:
+                schema, _ = TYPESTORE.generate_msgdef(name, ros_version=2)
                 self._schema_ids[name] = self._writer.register_schema(
                     name, 'ros2msg', schema.encode())
             channel_id = self._writer.register_channel(
@@ -229,13 +203,13 @@ class BagRecorder:
                 return
             try:
                 info = self._bag_info()
-                writer.add_metadata('rosbag2', {'serialized_metadata': to_yaml(info),
+                writer.add_metadata('rosbag2', {'serialized_metadata': _yaml(info),
                                                 'ROS_DISTRO': info['ros_distro']})
                 writer.finish()
             finally:
                 self._file.close()
             tmp = self.metadata_path.with_name('metadata.yaml.tmp')
-            tmp.write_text(to_yaml({'rosbag2_bagfile_information': info}) + '\n')
+            tmp.write_text(_yaml({'rosbag2_bagfile_information': info}))
             os.replace(tmp, self.metadata_path)
 
     def __enter__(self):
@@ -298,7 +272,7 @@ class BagRecorder:
                 'name': name,
                 'type': topic.type_name,
                 'serialization_format': 'cdr',
-                'offered_qos_profiles': [qos_dict(p) for p in topic.qos],
+                'offered_qos_profiles': topic.qos,
                 'type_description_hash': topic.type_hash,
             },
             'message_count': topic.count,
@@ -373,10 +347,3 @@ def _continue_signal(previous, signum, frame):
         previous(signum, frame)
     else:
         raise SystemExit(128 + signum)
-
-
-def _class_or_none(name):
-    try:
-        return msg_definitions.message_class(name)
-    except msg_definitions.DefinitionNotFoundError:
-        return None

@@ -3,9 +3,11 @@
 rosbags deserializes with nothing but the schemas stored in the bag (its
 AnyReader starts from an empty type store), so a message that comes back equal
 to the original proves the CDR bytes and the ``ros2msg`` schema independently;
-rosbags' own RIHS01 hash of the stored schema must equal rosidl's hash.
+rosbags' own RIHS01 hash of the stored schema must equal the hash rosidl
+generated for the installed type.
 """
 import array
+import json
 import os
 import select
 import signal
@@ -42,15 +44,13 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from sim_bridge import msg_definitions
 from sim_bridge.bag_reader import BagReader
-from sim_bridge.recorder import BagRecorder, close_on_signals, qos_dict, to_yaml
+from sim_bridge.recorder import BagRecorder, close_on_signals
 
 REPO = Path(__file__).resolve().parents[2]
 HELPER = Path(__file__).with_name('record_until_signal.py')
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
-TF_TYPE = 'tf2_msgs/msg/TFMessage'
-TF_DEFINITION = 'geometry_msgs/TransformStamped[] transforms\n'  # tf2_msgs is not installed here
+TF_TYPE = 'tf2_msgs/msg/TFMessage'  # tf2_msgs is not installed here: rosbags' types stand in
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -58,6 +58,19 @@ CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
                        durability=DurabilityPolicy.VOLATILE, deadline=Infinite,
                        liveliness=LivelinessPolicy.AUTOMATIC,
                        liveliness_lease_duration=Duration(seconds=1, nanoseconds=500_000_000))
+
+
+def type_name(msg_class):
+    """Return ``'pkg/msg/Type'`` of an rclpy message class."""
+    return f'{msg_class.__module__.split(".")[0]}/msg/{msg_class.__name__}'
+
+
+def rosidl_hash(name):
+    """Return the RIHS01 hash rosidl generated for an installed ``'pkg/msg/Type'``."""
+    package, _, short = name.split('/')
+    path = Path(sys.prefix) / 'share' / package / 'msg' / f'{short}.json'
+    hashes = json.loads(path.read_text())['type_hashes']
+    return next(entry['hash_string'] for entry in hashes if entry['type_name'] == name)
 
 
 def stamp(sec, nanosec=0):
@@ -198,7 +211,7 @@ def record_known_bag(path, compression='zstd'):
     with BagRecorder(path, compression=compression) as recorder:
         for topic, (msg_type, qos, _) in TOPICS.items():
             recorder.add_topic(topic, msg_type, qos)
-        recorder.add_topic('/tf', TF_TYPE, TF_QOS, definition=TF_DEFINITION)
+        recorder.add_topic('/tf', TF_TYPE, TF_QOS)
         t = 1_700_000_000_000_000_000
         for i in range(max(COUNTS.values())):
             for topic, count in COUNTS.items():
@@ -245,7 +258,7 @@ def test_bag_directory_layout_is_rosbag2s(known_bag):
     topics = {t['topic_metadata']['name']: t for t in info['topics_with_message_count']}
     assert {name: t['message_count'] for name, t in topics.items()} == COUNTS
     odom = topics['/robot0/odom']['topic_metadata']
-    assert odom['type_description_hash'] == msg_definitions.type_hash(Odometry)
+    assert odom['type_description_hash'] == rosidl_hash(type_name(Odometry))
     assert odom['offered_qos_profiles'][0]['reliability'] == 'reliable'
 
 
@@ -258,8 +271,7 @@ def test_rosbags_reads_topics_counts_types_qos_and_messages(known_bag, open_as):
         connections = {c.topic: c for c in reader.connections}
         assert {t: c.msgcount for t, c in connections.items()} == COUNTS
         for topic, connection in connections.items():
-            expected_type = TF_TYPE if topic == '/tf' else msg_definitions.type_name(
-                TOPICS[topic][0])
+            expected_type = TF_TYPE if topic == '/tf' else type_name(TOPICS[topic][0])
             assert connection.msgtype == expected_type
             assert connection.ext.serialization_format == 'cdr'
             assert connection.ext.offered_qos_profiles == [rosbags_qos(expected_qos(topic))]
@@ -273,12 +285,12 @@ def test_rosbags_reads_topics_counts_types_qos_and_messages(known_bag, open_as):
 
 
 def test_stored_schemas_hash_to_the_rosidl_type_hash(known_bag):
-    """The RIHS01 rosbags computes from each stored schema equals rosidl's (tf2: its own)."""
+    """The RIHS01 rosbags computes from each stored schema equals rosidl's (tf2: rosbags')."""
     path, _ = known_bag
     with AnyReader([path / 'known_0.mcap']) as reader:
         for topic, (msg_type, _, _) in TOPICS.items():
-            name = msg_definitions.type_name(msg_type)
-            assert reader.typestore.hash_rihs01(name) == msg_definitions.type_hash(name), topic
+            name = type_name(msg_type)
+            assert reader.typestore.hash_rihs01(name) == rosidl_hash(name), topic
         assert reader.typestore.hash_rihs01(TF_TYPE) == JAZZY.hash_rihs01(TF_TYPE)
 
 
@@ -295,10 +307,11 @@ def test_mcap_library_sees_ros2_profile_schemas_and_compressed_indexed_chunks(kn
         assert set(channels) == set(COUNTS)
         for topic, channel in channels.items():
             assert channel.message_encoding == 'cdr'
-            assert summary.schemas[channel.schema_id].name == (
-                TF_TYPE if topic == '/tf' else msg_definitions.type_name(TOPICS[topic][0]))
+            name = TF_TYPE if topic == '/tf' else type_name(TOPICS[topic][0])
+            assert summary.schemas[channel.schema_id].name == name
             assert set(channel.metadata) == {'offered_qos_profiles', 'topic_type_hash'}
-        assert channels['/tf'].metadata['topic_type_hash'] == ''
+            assert channel.metadata['topic_type_hash'] == (
+                JAZZY.hash_rihs01(TF_TYPE) if topic == '/tf' else rosidl_hash(name))
         assert summary.statistics.message_count == sum(COUNTS.values())
         assert summary.chunk_indexes
         for chunk in summary.chunk_indexes:
@@ -331,37 +344,18 @@ def test_other_chunk_compressions_read_back(tmp_path, compression):
     assert_same(odometry(7), ours[7])
 
 
-def test_qos_metadata_is_rosbag2s_yaml_text():
-    """The channel's offered_qos_profiles is yaml-cpp's dump of rosbag2's version-9 encoding."""
-    assert to_yaml([qos_dict(CLOCK_QOS)]) == '\n'.join([
-        '- history: keep_last',
-        '  depth: 1',
-        '  reliability: best_effort',
-        '  durability: volatile',
-        '  deadline:',
-        '    sec: 9223372036',
-        '    nsec: 854775807',
-        '  lifespan:',
-        '    sec: 0',
-        '    nsec: 0',
-        '  liveliness: automatic',
-        '  liveliness_lease_duration:',
-        '    sec: 1',
-        '    nsec: 500000000',
-        '  avoid_ros_namespace_conventions: false',
-    ])
-
-
-def test_schema_text_is_msg_then_dependencies_depth_first():
-    """Schema: own .msg, then each dependency once, depth first in sorted order, delimited."""
-    def section(name):
-        return '\n' + '=' * 80 + f'\nMSG: {name}\n' + msg_definitions.msg_text(name)
-
-    text = msg_definitions.full_definition('geometry_msgs/msg/PoseStamped')
-    assert text == (msg_definitions.msg_text('geometry_msgs/PoseStamped')
-                    + section('geometry_msgs/Pose') + section('geometry_msgs/Point')
-                    + section('geometry_msgs/Quaternion') + section('std_msgs/Header')
-                    + section('builtin_interfaces/Time'))
+def test_qos_metadata_is_rosbag2s_version_9_encoding(known_bag):
+    """A channel's offered_qos_profiles is YAML of rosbag2's version-9 QoS: names, sec/nsec."""
+    path, _ = known_bag
+    with open(path / 'known_0.mcap', 'rb') as stream:
+        channels = make_reader(stream).get_summary().channels.values()
+    (clock,) = [c for c in channels if c.topic == '/clock']
+    assert yaml.safe_load(clock.metadata['offered_qos_profiles']) == [{
+        'history': 'keep_last', 'depth': 1, 'reliability': 'best_effort',
+        'durability': 'volatile', 'deadline': {'sec': 9223372036, 'nsec': 854775807},
+        'lifespan': {'sec': 0, 'nsec': 0}, 'liveliness': 'automatic',
+        'liveliness_lease_duration': {'sec': 1, 'nsec': 500000000},
+        'avoid_ros_namespace_conventions': False}]
 
 
 def test_our_reader_reads_topics_qos_and_messages(known_bag):
@@ -373,12 +367,11 @@ def test_our_reader_reads_topics_qos_and_messages(known_bag):
         assert len(info.qos_profiles) == 1
         assert rosbags_qos(info.qos_profiles[0]) == rosbags_qos(expected_qos(topic))
     assert reader.topics['/diagnostics'].type_name == 'diagnostic_msgs/msg/DiagnosticArray'
-    assert reader.topics['/clock'].type_hash == msg_definitions.type_hash(Clock)
     rclpy_topics = [topic for topic in COUNTS if topic != '/tf']
     read = {topic: [] for topic in rclpy_topics}
     times = []
-    for topic, type_name, t, msg in reader.messages(topics=rclpy_topics):
-        assert type_name == msg_definitions.type_name(type(msg))
+    for topic, name, t, msg in reader.messages(topics=rclpy_topics):
+        assert name == type_name(type(msg))
         read[topic].append((t, msg))
         times.append(t)
     assert times == sorted(times)
@@ -415,10 +408,12 @@ def test_flush_puts_everything_written_so_far_on_disk(tmp_path):
 
 
 def test_misuse_is_refused_and_close_is_idempotent(tmp_path):
-    """Unknown topic, wrong type, negative time, retyped topic, existing bag; close twice."""
+    """Unknown topic or type, wrong type, negative time, retyped topic, bag exists; close twice."""
     recorder = BagRecorder(tmp_path / 'bag')
     recorder.add_topic('/cmd', Twist, RELIABLE)
     recorder.add_topic('/cmd', Twist, RELIABLE)  # same type again: no-op
+    with pytest.raises(ValueError, match='not a ROS 2 Jazzy message type'):
+        recorder.add_topic('/own', 'my_pkg/msg/Own', RELIABLE)
     with pytest.raises(ValueError, match='already recorded'):
         recorder.add_topic('/cmd', Odometry, RELIABLE)
     with pytest.raises(KeyError):
