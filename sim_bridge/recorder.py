@@ -24,16 +24,17 @@ chunk.  A node that publishes what it records serializes once: ``data =
 serialize_message(msg)``, ``publisher.publish(data)`` and
 ``recorder.write_serialized(topic, data, t)``.  A chunk is finished once it
 holds ``chunk_size`` bytes, or by the first write more than
-``flush_interval_s`` after the last one was, so a process killed hard
-(SIGKILL; power loss aside) loses at most the open chunk and what the file's
-buffer holds: the file then lacks its summary and footer, which ``bag_reader``
-(and the MCAP tools' recovery) read past.
+``flush_interval_s`` after the last one was, and reaches the OS at once, so a
+process killed hard (SIGKILL; power loss aside) loses only the open chunk: the
+file then lacks its summary and footer, which ``bag_reader`` (and the MCAP
+tools' recovery) read past.
 rosbags' own rosbag2 ``Writer`` is not used: it finishes a chunk only at 1 MiB
 (uncompressed) and names the file ``DIR.mcap``.  ``close_on_signals`` makes
 SIGINT/SIGTERM close the bag cleanly before the process goes on as it would
 have.
 """
 import functools
+import io
 import os
 import signal
 import threading
@@ -121,7 +122,9 @@ class BagRecorder:
         if self.metadata_path.exists():
             raise FileExistsError(f'{self.metadata_path} exists: not overwriting a bag')
         self.path.mkdir(parents=True, exist_ok=True)
-        self._file = open(self.mcap_path, 'xb')
+        # A 1-byte buffer: each batch of records the writer emits (a finished chunk, its
+        # message indexes) reaches the OS at once, so a SIGKILL cannot keep it back.
+        self._file = io.BufferedWriter(io.FileIO(self.mcap_path, 'x'), buffer_size=1)
         self._writer = Writer(self._file, chunk_size=chunk_size,
                               compression=COMPRESSION[compression])
         self._writer.start(profile='ros2', library=f'polyc2bf_ros {LIBRARY_IDENTIFIER}')

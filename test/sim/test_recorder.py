@@ -514,15 +514,22 @@ def test_ignored_signal_stays_ignored(tmp_path):
         signal.signal(signal.SIGUSR2, original)
 
 
-def run_helper(bag, *args, stop_with, after_s=1.0):
-    """Run record_until_signal.py, send ``stop_with`` ``after_s`` after it records; return it."""
+def run_helper(bag, *args, stop_with, after_s=1.0, ready='recording'):
+    """Run record_until_signal.py; send ``stop_with`` ``after_s`` after a line starts ``ready``.
+
+    Returns the finished process with its output lines in ``stdout_lines``.
+    """
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         filter(None, [str(REPO), os.environ.get('PYTHONPATH')])), PYTHONUNBUFFERED='1')
     proc = subprocess.Popen([sys.executable, str(HELPER), str(bag), *args], cwd=REPO, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines = []
     try:
-        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
-        assert ready and proc.stdout.readline() == 'recording\n', proc.stderr.read()
+        while not (lines and lines[-1].startswith(ready)):
+            readable, _, _ = select.select([proc.stdout], [], [], 30.0)
+            assert readable, f'no {ready!r} line from the helper'
+            lines.append(proc.stdout.readline())
+            assert lines[-1], proc.stderr.read()
         time.sleep(after_s)
         proc.send_signal(stop_with)
         out, err = proc.communicate(timeout=20.0)
@@ -530,6 +537,7 @@ def run_helper(bag, *args, stop_with, after_s=1.0):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+    proc.stdout_lines = lines + out.splitlines(keepends=True)
     proc.stderr_text = err
     return proc
 
@@ -550,15 +558,32 @@ def test_interrupted_recording_is_a_complete_bag(tmp_path, stop_with, args, exit
         assert sum(1 for _ in reader.messages()) == sum(counts.values())
 
 
-def test_hard_killed_recording_keeps_its_flushed_chunks(tmp_path):
-    """SIGKILL leaves no footer or metadata.yaml; bag_reader still recovers the flushed chunks."""
-    proc = run_helper(tmp_path / 'bag', stop_with=signal.SIGKILL)
+def test_hard_killed_recording_keeps_every_finished_chunk(tmp_path):
+    """SIGKILL mid-chunk: no footer or metadata.yaml, yet every chunk finished before is read.
+
+    Chunks end only at the helper's flushes, every 50 records, each reported once
+    done; the kill comes while the next chunk is open.  What comes back is exactly
+    the records up to some flush at or after the last one reported, each message
+    deserialized.
+    """
+    every = 50
+    proc = run_helper(tmp_path / 'bag', '--flush-every', str(every), stop_with=signal.SIGKILL,
+                      after_s=0.02, ready='flushed')
     assert proc.returncode == -signal.SIGKILL
     assert not (tmp_path / 'bag' / 'metadata.yaml').exists()
+    flushed = max(int(line.split()[1]) for line in proc.stdout_lines
+                  if line.startswith('flushed'))
     reader = BagReader(tmp_path / 'bag')
-    assert reader.topics['/cmd_vel'].message_count > 0
-    speeds = [m.message.linear.x for m in reader.messages(topics=['/cmd_vel'])]
-    assert speeds == [float(i) for i in range(len(speeds))]
+    counts = {name: topic.message_count for name, topic in reader.topics.items()}
+    assert counts['/cmd_vel'] == counts['/clock'] >= flushed > 0
+    assert counts['/cmd_vel'] % every == 0  # whole chunks, nothing of the open one
+    by_topic = {'/cmd_vel': [], '/clock': []}
+    for message in reader.messages():
+        by_topic[message.topic].append(message.message)
+    speeds = [m.linear.x for m in by_topic['/cmd_vel']]
+    assert speeds == [float(i) for i in range(counts['/cmd_vel'])]
+    assert len(by_topic['/clock']) == counts['/clock']
+    assert all(isinstance(m, Clock) for m in by_topic['/clock'])
 
 
 finite_or_not = st.floats(width=64)
