@@ -62,7 +62,8 @@ test-explore: $(PKG_STAMP)
 lint: $(PKG_STAMP)
 	$(PY) -m ruff check .
 
-# Benchmarks print a table and write JSON under bench/results/ (DESIGN.md section 8).
+# Benchmarks print a table and write JSON under bench/results/ (bench/README.md; record keys:
+# doc/design.md, result records).
 bench: $(PKG_STAMP)
 	$(PY) bench/bench_core.py
 	$(PY) bench/bench_clutter.py

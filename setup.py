@@ -6,7 +6,7 @@ from setuptools import find_packages, setup
 PACKAGE = 'polyc2bf_ros'
 
 # Console scripts, installed to lib/polyc2bf_ros so that `ros2 run` finds them.
-# Names follow DESIGN.md section 5; each is added only once it does real work.
+# Names are the stable ones README.md lists; each is added only once it does real work.
 CONSOLE_SCRIPTS = [
     'safety_filter = polyc2bf_ros.safety_filter_node:main',
     'sim_bridge = sim_bridge.bridge_node:main',

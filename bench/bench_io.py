@@ -1,6 +1,6 @@
 """Shared parts of the benchmarks: JSON records, and a check of what they measure.
 
-Records are flat JSON lists (DESIGN.md section 8).  A benchmark started as
+Records are flat JSON lists (keys: doc/design.md, result records).  A benchmark started as
 ``.venv/bin/python bench/<name>.py`` imports the packages installed in the
 virtualenv (Python puts the script's folder, not the repository, first on
 ``sys.path``), as do the console scripts it starts, while a node it starts with

@@ -33,7 +33,7 @@ plus the sender's lateness against its schedule, the load average and the CPU
 share stolen by the hypervisor.  With ``trigger:=timer`` at the command rate
 a command can be overtaken by the next before a tick answers it, so its
 ``answered`` is below 1 by design; its latency includes the wait for the tick.
-Results: a table on stdout, ``bench/results/node.json`` (DESIGN.md section 8;
+Results: a table on stdout, ``bench/results/node.json`` (doc/design.md, result records;
 each record keeps its latency distribution, ``latency_cdf_ms`` at the
 percentiles 0, 0.5, ..., 100) and beside it ``node.png``, those distributions
 against the targets.  DDS stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
