@@ -30,6 +30,7 @@ from mcap.reader import make_reader
 from nav_msgs.msg import Odometry
 from rclpy.duration import Duration, Infinite
 from rclpy.qos import DurabilityPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import (
     Qos,
@@ -405,6 +406,22 @@ def test_flush_puts_everything_written_so_far_on_disk(tmp_path):
         snapshot.write_bytes(recorder.mcap_path.read_bytes())
         recovered = [m.log_time_ns for m in BagReader(snapshot).messages()]
     assert recovered == list(range(1, 8))
+
+
+def test_finished_chunks_are_in_the_file_without_a_flush(tmp_path):
+    """A chunk finished by size is in the file at once: only the open chunk is missing."""
+    chunk_size = 2048
+    with BagRecorder(tmp_path / 'bag', chunk_size=chunk_size,
+                     flush_interval_s=3600.0) as recorder:
+        recorder.add_topic('/cmd_vel', Twist, RELIABLE)
+        for i in range(250):
+            recorder.write('/cmd_vel', Twist(linear=Vector3(x=float(i))), 1 + i)
+        snapshot = tmp_path / 'snapshot.mcap'
+        snapshot.write_bytes(recorder.mcap_path.read_bytes())
+    speeds = [m.message.linear.x for m in BagReader(snapshot).messages()]
+    assert speeds == [float(i) for i in range(len(speeds))]
+    open_chunk = 250 - len(speeds)  # each held at least its CDR bytes in the open chunk
+    assert 0 < open_chunk * len(serialize_message(Twist())) <= chunk_size
 
 
 def test_misuse_is_refused_and_close_is_idempotent(tmp_path):
