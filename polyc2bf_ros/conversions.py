@@ -111,11 +111,6 @@ def rotation(qx, qy, qz, qw):
             s * (qx * qz - qy * qw), s * (qy * qz + qx * qw), 1.0 - s * (qx * qx + qy * qy))
 
 
-def quaternion_matrix(q):
-    """Rotation matrix (3, 3) of Quaternion ``q``, normalised; all-zero reads as identity."""
-    return np.array(rotation(q.x, q.y, q.z, q.w)).reshape(3, 3)
-
-
 def state_from_odometry(model_name, pose, twist):
     """``(state tuple, yaw)`` of ``model_name`` from Odometry numbers; ``None`` if non-finite.
 

@@ -454,48 +454,6 @@ def silhouette_indices(viewpoint,
     return cw_most, ccw_most, np.logical_or.reduce(facing, axis=0)
 
 
-def silhouette_pair(viewpoint, polygon) -> tuple[int, int]:
-    """Return the tangent vertex indices (i, j) of a convex CCW polygon seen from outside.
-
-    i is the clockwise-most vertex (smallest signed angle from the ray to the vertex centroid),
-    j the counter-clockwise-most; ties (an edge on a tangent ray) go to the vertex nearer the
-    viewpoint. Raises ValueError when the viewpoint is inside or on the polygon.
-    """
-    i, j, outside = silhouette_indices(viewpoint, PolygonBatch.from_polygons([polygon]))
-    if not outside[0]:
-        raise ValueError('viewpoint is inside or on the polygon; it has no silhouette')
-    return int(i[0]), int(j[0])
-
-
-def inflate_polygon(polygon, radius, segments=16) -> np.ndarray:
-    """Return a convex polygon containing every point within ``radius`` of the polygon.
-
-    The Minkowski sum of the polygon's convex hull with the regular ``segments``-gon
-    circumscribing the disk of ``radius`` (vertex distance ``R = radius / cos(pi /
-    segments)``; ``batch_geometry.minkowski_regular``). It contains the exact offset set and
-    exceeds it by at most ``R - radius = radius * (1 / cos(pi / segments) - 1)`` (about
-    1.9 % of radius for 16 segments).
-
-    Every vertex turns left: where an edge of the hull is parallel to one of the
-    ``segments``-gon, the merge can leave a vertex on the straight line through its
-    neighbours (or a repeated one); those are dropped (``|cross(e_in, e_out)| <= 1e-12
-    |e_in| |e_out|``), which moves the boundary by at most 1e-12 of an edge length.
-    """
-    pts = _as_points(polygon, 'polygon')
-    if not (np.isfinite(radius) and radius >= 0):
-        raise ValueError(f'inflation radius must be finite and >= 0, got {radius}')
-    if segments < 3:
-        raise ValueError(f'segments must be >= 3, got {segments}')
-    if radius == 0:
-        return pts
-    hull = convex_hull(pts)
-    width = len(hull) + segments
-    x, y, count = np.empty((1, width)), np.empty((1, width)), np.empty(1, dtype=np.intp)
-    batch_geometry.minkowski_regular(hull[None], np.array([len(hull)]), float(radius),
-                                     int(segments), x, y, count)
-    return _drop_collinear(np.column_stack((x[0, :count[0]], y[0, :count[0]])))
-
-
 def minimum_enclosing_circle(points) -> tuple[np.ndarray, float]:
     """Return ``(centre, radius)`` of the smallest circle containing all points.
 

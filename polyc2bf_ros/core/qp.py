@@ -50,9 +50,6 @@ _POLISH_GAP = 1e-4  # constraints this close to active at proxsuite's answer may
 _POLISH_POOL = 12  # at most this many candidates (the closest to active) are tried
 _MULTIPLIER_TOL = 1e-9  # a certifying multiplier is >= -_MULTIPLIER_TOL (1 + max|w x_ref|)
 _INFEASIBILITY_TOL = 1e-8  # phase-1 minimax row violation above which a problem is infeasible
-# The reference solver's multipliers are exact up to rounding: far tighter than a solver's
-# certificate (``_MULTIPLIER_TOL`` lets a bound 1e-8 from x_ref pass at w ~ 0.1).
-_REFERENCE_MULTIPLIER_TOL = 1e-12
 _RANK_TOL = 1e-10  # smallest / largest eigenvalue of an admissible Gram matrix
 _CANDIDATE_TOL = 1e-12  # enumerated points are feasible if G x >= h - _CANDIDATE_TOL (1 + |h|)
 
@@ -616,42 +613,8 @@ def _phase1(x_ref, A, b, lower, upper, proximal):
     return result.info.status == proxqp.PROXQP_SOLVED, result.x[n], result.info.iter
 
 
-class ReferenceSolver(QPSolver):
-    """Exact active-set enumeration, for tests (cost grows like C(m + 2n, n)).
-
-    Every subset of at most n independent constraints (rows and finite bounds) gives a
-    candidate (``_projections``); the optimum is the feasible candidate with multipliers
-    >= 0 (of least cost, should rounding leave several), and no feasible candidate means
-    the problem is infeasible.
-    """
-
-    name = 'reference'
-    shortcut = False
-
-    def _solve(self, x_ref, weights, A, b, lower, upper):
-        """Enumerate; ``iterations`` is the number of candidates."""
-        G, h = _constraints(A, b, lower, upper)
-        pool = range(h.shape[0])
-        candidates = [_projections(x_ref, weights, G, h, pool, k)
-                      for k in range(min(x_ref.shape[0], h.shape[0]) + 1)]
-        X = np.concatenate([points for points, _ in candidates])
-        tolerance = -_REFERENCE_MULTIPLIER_TOL * (1.0 + np.abs(weights * x_ref).max())
-        certified = np.concatenate([(lam >= tolerance).all(axis=1) for _, lam in candidates])
-        feasible = _satisfies(X, G, h)
-        if not feasible.any():
-            return x_ref, QPStatus.INFEASIBLE, X.shape[0]
-        # The optimum is the feasible candidate whose multipliers are >= 0 (KKT; some
-        # independent active set certifies it even at a degenerate vertex).  Least cost
-        # alone cannot tell points ~1e-8 apart: near the optimum the cost is flat to
-        # below its rounding, and a candidate outside the box by rounding can undercut it.
-        optimal = feasible & certified
-        pick = optimal if optimal.any() else feasible
-        cost = ((X[pick] - x_ref) ** 2 * weights).sum(axis=1)
-        return X[pick][cost.argmin()].copy(), QPStatus.OPTIMAL, X.shape[0]
-
-
 SOLVERS: dict[str, type[QPSolver]] = {
-    solver.name: solver for solver in (DaqpSolver, ProxsuiteSolver, ReferenceSolver)}
+    solver.name: solver for solver in (DaqpSolver, ProxsuiteSolver)}
 
 
 def make_solver(name: str) -> QPSolver:

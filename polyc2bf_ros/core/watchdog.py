@@ -44,10 +44,6 @@ class Watchdog:
         """Record that ``name`` arrived at monotonic time ``now``."""
         self._last[name] = now
 
-    def reset(self, name):
-        """Forget ``name`` (it is stale until fed again)."""
-        self._last[name] = None
-
     def age(self, name, now):
         """Seconds since ``name`` last arrived; ``inf`` if it never did."""
         last = self._last[name]

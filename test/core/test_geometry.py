@@ -7,11 +7,11 @@ import pytest
 from hypothesis import assume, example, given, settings, strategies as st
 from scipy.spatial import ConvexHull
 
+from oracles import inflate_polygon, silhouette_pair
 from polyc2bf_ros.core.geometry import (
     clean_polygon,
     convex_hull,
     decompose_convex,
-    inflate_polygon,
     InvalidPolygonError,
     is_convex,
     minimum_enclosing_circle,
@@ -21,7 +21,6 @@ from polyc2bf_ros.core.geometry import (
     signed_distance,
     signed_distance_batch,
     silhouette_indices,
-    silhouette_pair,
     thin_axis,
     vertical_shadow,
 )

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from hypothesis import given, HealthCheck, settings, strategies as st
 
+from oracles import ReferenceSolver
 from polyc2bf_ros.core import crazyflie as cf, qp
 from polyc2bf_ros.core.barrier import barrier_terms
 from polyc2bf_ros.core.cones import CircleCone, InflatedCone, PaperCone
@@ -401,7 +402,7 @@ def test_single_active_shortcut_is_the_optimum_when_it_answers(seed, n, m, outsi
     x_ref = feasible + rng.normal(size=n) * (2.0 if outside else 0.7)
     x = np.empty(n)
     if qp._single_active(x_ref, weights, A, b, lower, upper, x):
-        expected = qp.ReferenceSolver().solve(x_ref, weights, A, b, lower, upper)
+        expected = ReferenceSolver().solve(x_ref, weights, A, b, lower, upper)
         assert expected.status is qp.QPStatus.OPTIMAL
         np.testing.assert_allclose(x, expected.x, rtol=0.0, atol=1e-9)
 
@@ -419,7 +420,7 @@ def test_single_active_shortcut_tries_every_pair_of_violated_rows():
     x_ref, x = np.array([50.0, 0.0]), np.empty(2)
     assert not qp._two_row_candidate(x_ref, weights, A, b, lower, upper, x)
     assert qp._single_active(x_ref, weights, A, b, lower, upper, x)
-    expected = qp.ReferenceSolver().solve(x_ref, weights, A, b, lower, upper)
+    expected = ReferenceSolver().solve(x_ref, weights, A, b, lower, upper)
     np.testing.assert_allclose(x, expected.x, rtol=0.0, atol=1e-12)
     np.testing.assert_allclose(x, [0.0, 0.0], atol=1e-12)
 

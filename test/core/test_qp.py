@@ -7,13 +7,13 @@ from hypothesis import example, given, HealthCheck, settings, strategies as st
 from hypothesis.extra.numpy import arrays
 from proxsuite import proxqp
 
+from oracles import ReferenceSolver
 from polyc2bf_ros.core import qp
 from polyc2bf_ros.core.qp import (
     DaqpSolver,
     make_solver,
     ProxsuiteSolver,
     QPStatus,
-    ReferenceSolver,
     solve_with_shared_slack,
     SOLVERS,
 )
@@ -308,11 +308,11 @@ def test_bad_shapes_and_weights_raise():
 
 def test_make_solver():
     """make_solver builds every backend by name and lists the names for an unknown one."""
-    assert sorted(SOLVERS) == ['daqp', 'proxsuite', 'reference']
+    assert sorted(SOLVERS) == ['daqp', 'proxsuite']
     for name, cls in SOLVERS.items():
         solver = make_solver(name)
         assert isinstance(solver, cls) and solver.name == name
-    with pytest.raises(ValueError, match='daqp, proxsuite, reference'):
+    with pytest.raises(ValueError, match='daqp, proxsuite'):
         make_solver('osqp')
 
 

@@ -11,6 +11,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray, UVCoordinate
 
 from node_harness import odometry, wall
+from oracles import quaternion_matrix
 from polyc2bf_ros import conversions
 from polyc2bf_ros.core.geometry import point_in_polygon, signed_area, signed_distance
 from polyc2bf_ros.core.models.quadrotor import rotation_matrix
@@ -451,7 +452,7 @@ def test_moved_markers_reuse_their_shape():
     assert [tracker.shape(key) for key in keys] == shapes
     obstacles = {o.key: o for o in tracker.snapshot('odom', 3)[0]}
     for key, marker in zip(keys, markers):
-        tilt = conversions.quaternion_matrix(marker.pose.orientation)
+        tilt = quaternion_matrix(marker.pose.orientation)
         fresh = conversions.marker_shape(marker, 0.05, 12, tilt)
         origin = conversions.marker_placement(marker)[0]
         for i, polygon in enumerate(fresh.polygons):

@@ -1,0 +1,95 @@
+"""Reference implementations the tests compare production code with (not shipped).
+
+``ReferenceSolver`` solves the QP exactly by enumeration; ``silhouette_pair`` and
+``inflate_polygon`` are the one-polygon forms of the batch geometry the filter runs;
+``quaternion_matrix`` reads a message quaternion as a rotation matrix.
+"""
+import numpy as np
+
+from polyc2bf_ros.conversions import rotation
+from polyc2bf_ros.core import batch_geometry, geometry, qp
+
+# Exact up to rounding: far tighter than a solver's certificate (``qp._MULTIPLIER_TOL``).
+_MULTIPLIER_TOL = 1e-12
+
+
+def silhouette_pair(viewpoint, polygon) -> tuple[int, int]:
+    """Return the tangent vertex indices (i, j) of a convex CCW polygon seen from outside.
+
+    i is the clockwise-most vertex (smallest signed angle from the ray to the vertex centroid),
+    j the counter-clockwise-most; ties (an edge on a tangent ray) go to the vertex nearer the
+    viewpoint. Raises ValueError when the viewpoint is inside or on the polygon.
+    """
+    batch = geometry.PolygonBatch.from_polygons([polygon])
+    i, j, outside = geometry.silhouette_indices(viewpoint, batch)
+    if not outside[0]:
+        raise ValueError('viewpoint is inside or on the polygon; it has no silhouette')
+    return int(i[0]), int(j[0])
+
+
+def inflate_polygon(polygon, radius, segments=16) -> np.ndarray:
+    """Return a convex polygon containing every point within ``radius`` of the polygon.
+
+    The Minkowski sum of the polygon's convex hull with the regular ``segments``-gon
+    circumscribing the disk of ``radius`` (vertex distance ``R = radius / cos(pi /
+    segments)``; ``batch_geometry.minkowski_regular``). It contains the exact offset set and
+    exceeds it by at most ``R - radius = radius * (1 / cos(pi / segments) - 1)`` (about
+    1.9 % of radius for 16 segments).
+
+    Every vertex turns left: where an edge of the hull is parallel to one of the
+    ``segments``-gon, the merge can leave a vertex on the straight line through its
+    neighbours (or a repeated one); those are dropped (``|cross(e_in, e_out)| <= 1e-12
+    |e_in| |e_out|``), which moves the boundary by at most 1e-12 of an edge length.
+    """
+    pts = geometry._as_points(polygon, 'polygon')
+    if not (np.isfinite(radius) and radius >= 0):
+        raise ValueError(f'inflation radius must be finite and >= 0, got {radius}')
+    if segments < 3:
+        raise ValueError(f'segments must be >= 3, got {segments}')
+    if radius == 0:
+        return pts
+    hull = geometry.convex_hull(pts)
+    width = len(hull) + segments
+    x, y, count = np.empty((1, width)), np.empty((1, width)), np.empty(1, dtype=np.intp)
+    batch_geometry.minkowski_regular(hull[None], np.array([len(hull)]), float(radius),
+                                     int(segments), x, y, count)
+    return geometry._drop_collinear(np.column_stack((x[0, :count[0]], y[0, :count[0]])))
+
+
+class ReferenceSolver(qp.QPSolver):
+    """Exact active-set enumeration, for tests (cost grows like C(m + 2n, n)).
+
+    Every subset of at most n independent constraints (rows and finite bounds) gives a
+    candidate (``_projections``); the optimum is the feasible candidate with multipliers
+    >= 0 (of least cost, should rounding leave several), and no feasible candidate means
+    the problem is infeasible.
+    """
+
+    name = 'reference'
+    shortcut = False
+
+    def _solve(self, x_ref, weights, A, b, lower, upper):
+        """Enumerate; ``iterations`` is the number of candidates."""
+        G, h = qp._constraints(A, b, lower, upper)
+        pool = range(h.shape[0])
+        candidates = [qp._projections(x_ref, weights, G, h, pool, k)
+                      for k in range(min(x_ref.shape[0], h.shape[0]) + 1)]
+        X = np.concatenate([points for points, _ in candidates])
+        tolerance = -_MULTIPLIER_TOL * (1.0 + np.abs(weights * x_ref).max())
+        certified = np.concatenate([(lam >= tolerance).all(axis=1) for _, lam in candidates])
+        feasible = qp._satisfies(X, G, h)
+        if not feasible.any():
+            return x_ref, qp.QPStatus.INFEASIBLE, X.shape[0]
+        # The optimum is the feasible candidate whose multipliers are >= 0 (KKT; some
+        # independent active set certifies it even at a degenerate vertex).  Least cost
+        # alone cannot tell points ~1e-8 apart: near the optimum the cost is flat to
+        # below its rounding, and a candidate outside the box by rounding can undercut it.
+        optimal = feasible & certified
+        pick = optimal if optimal.any() else feasible
+        cost = ((X[pick] - x_ref) ** 2 * weights).sum(axis=1)
+        return X[pick][cost.argmin()].copy(), qp.QPStatus.OPTIMAL, X.shape[0]
+
+
+def quaternion_matrix(q):
+    """Return the rotation matrix (3, 3) of Quaternion ``q``, normalised (zero: identity)."""
+    return np.array(rotation(q.x, q.y, q.z, q.w)).reshape(3, 3)
