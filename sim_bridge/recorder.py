@@ -27,7 +27,7 @@ holds ``chunk_size`` bytes, or by the first write more than
 ``flush_interval_s`` after the last one was, and reaches the OS at once, so a
 process killed hard (SIGKILL; power loss aside) loses only the open chunk: the
 file then lacks its summary and footer, which ``bag_reader`` (and the MCAP
-tools' recovery) read past.
+tools' recovery) read past; bench/bench_bag_kill.py measures what is kept.
 rosbags' own rosbag2 ``Writer`` is not used: it finishes a chunk only at 1 MiB
 (uncompressed) and names the file ``DIR.mcap``.  ``close_on_signals`` makes
 SIGINT/SIGTERM close the bag cleanly before the process goes on as it would
