@@ -22,7 +22,8 @@ Per pass (``ObstaclePipeline.run``):
 Why a process, not a thread (measured, ``bench/bench_obstacle_flood.py``): CPython runs one
 thread at a time, and a worker thread descheduled by the OS while it holds the interpreter
 lock keeps the control thread waiting for a whole time slice on a loaded machine.  The node
-process now does only queueing, one unpickle per pass and its control steps.
+process now does only queueing, one unpickle per pass and its control steps, and the
+worker runs at niceness ``WORKER_NICENESS``, so the control thread wins the CPU.
 
 If the worker process dies, the obstacles it held are lost: the snapshot stays unusable
 (the node brakes, with the reason in its diagnostics) until the node is restarted.
@@ -30,6 +31,7 @@ If the worker process dies, the obstacles it held are lost: the snapshot stays u
 has been processed (tests, tools); without ``start`` it runs the pipeline in the caller.
 """
 import math
+import os
 import pickle
 import subprocess
 import sys
@@ -311,8 +313,13 @@ def _read_exactly(stream, size):
     return data
 
 
+# Scheduling niceness of the worker process: the node's control thread goes first.
+WORKER_NICENESS = 10
+
+
 def main():
-    """Worker process entry: serve jobs on stdin/stdout until stdin closes."""
+    """Worker process entry: serve jobs on stdin/stdout until stdin closes, at low priority."""
+    os.nice(WORKER_NICENESS)
     return serve(sys.stdin.buffer, sys.stdout.buffer)
 
 
