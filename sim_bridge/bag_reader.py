@@ -178,13 +178,14 @@ def _overview(path):
         if not stats.message_count:
             return channels, None, None
         return channels, stats.message_start_time, stats.message_end_time
-    found, counts, times = {}, {}, []
+    found, counts, first, last = {}, {}, None, None
     for schema, channel, record in _file_messages(path):
         found[channel.id] = (channel, schema)
         counts[channel.id] = counts.get(channel.id, 0) + 1
-        times.append(record.log_time)
+        first = record.log_time if first is None else min(first, record.log_time)
+        last = record.log_time if last is None else max(last, record.log_time)
     channels = [(channel, schema, counts[key]) for key, (channel, schema) in found.items()]
-    return channels, min(times, default=None), max(times, default=None)
+    return channels, first, last
 
 
 def _file_messages(path, topics=None, start_ns=None, end_ns=None):
