@@ -1,12 +1,13 @@
 # polyc2bf_ros: two commands on a fresh machine, `make demo` and `make test`.
-# Every target builds its own virtualenv (.venv) from requirements.lock (pinned)
-# and installs this package into it; a second run reinstalls nothing unless the
-# lock file or the package sources changed.
+# Every target builds its own virtualenv (.venv) from requirements.lock (runtime pins;
+# test, lint and bench add requirements-dev.lock) and installs this package into it; a
+# second run reinstalls nothing unless a lock file or the package sources changed.
 SHELL := /bin/bash
 PYTHON ?= python3.11
 VENV := .venv
 PY := $(VENV)/bin/python
 DEPS_STAMP := $(VENV)/.deps-installed
+DEV_STAMP := $(VENV)/.dev-deps-installed
 PKG_STAMP := $(VENV)/.pkg-installed
 # The filter's kernels are compiled ahead of time into polyc2bf_ros/core/_kernels*.so
 # (polyc2bf_ros/core/jit.py): nodes then start in ~0.2 s without numba/LLVM in memory.
@@ -38,6 +39,12 @@ $(DEPS_STAMP): requirements.lock | $(PY)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.lock
 	@touch $@
 
+$(DEV_STAMP): requirements-dev.lock $(DEPS_STAMP)
+	@echo "== installing the pinned development tools into $(VENV) (first run only)"
+	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.lock \
+	  -r requirements-dev.lock
+	@touch $@
+
 $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
 	@echo "== compiling the filter's kernels ahead of time (numba pycc, about a minute)"
 	@$(BUILD_KERNELS) || { rm -f polyc2bf_ros/core/_kernels*.so polyc2bf_ros/core/_kernels.digest; \
@@ -47,7 +54,7 @@ $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation .
 	@touch $@
 
-test: $(PKG_STAMP)
+test: $(PKG_STAMP) $(DEV_STAMP)
 	$(PY) -m pytest -n $(PYTEST_WORKERS) $(PYTEST_ARGS) test
 
 # `make test` (and anything run with CI set) uses hypothesis's fixed, derandomized profile:
@@ -55,16 +62,16 @@ test: $(PKG_STAMP)
 # on any pytest command) runs the property tests with 10x the examples on a fresh random seed;
 # pin every counterexample it finds with @example next to its fix (test/conftest.py).
 .PHONY: test-explore
-test-explore: $(PKG_STAMP)
+test-explore: $(PKG_STAMP) $(DEV_STAMP)
 	HYPOTHESIS_PROFILE=explore $(PY) -m pytest -n $(PYTEST_WORKERS) $(PYTEST_ARGS) \
 	  test/core test/node/test_node_conversions.py test/sim/test_recorder.py
 
-lint: $(PKG_STAMP)
+lint: $(PKG_STAMP) $(DEV_STAMP)
 	$(PY) -m ruff check .
 
 # Benchmarks print a table and write JSON under bench/results/ (bench/README.md; record keys:
 # doc/design.md, result records).
-bench: $(PKG_STAMP)
+bench: $(PKG_STAMP) $(DEV_STAMP)
 	$(PY) bench/bench_core.py
 	$(PY) bench/bench_clutter.py
 	$(PY) bench/bench_node.py

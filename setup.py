@@ -33,7 +33,11 @@ setup(
         # BARN worlds with their licence and citation: evaluate --suite barn's default.
         (f'share/{PACKAGE}/bench/data/barn', glob('bench/data/barn/*')),
     ],
-    install_requires=['setuptools'],
+    # The filter alone; ROS 2 (rclpy and the message packages) comes from the ROS install.
+    # The simulator, bag tools and plots need the `sim` extra (pip install .[sim]);
+    # requirements.lock pins everything for the project's own venv.
+    install_requires=['setuptools', 'numpy', 'numba', 'daqp', 'proxsuite', 'PyYAML'],
+    extras_require={'sim': ['pybullet', 'matplotlib', 'mcap', 'rosbags']},
     zip_safe=True,
     maintainer='polyc2bf_ros maintainers',
     maintainer_email='maintainers@polyc2bf-ros.invalid',
