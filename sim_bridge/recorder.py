@@ -33,6 +33,7 @@ rosbags' own rosbag2 ``Writer`` is not used: it finishes a chunk only at 1 MiB
 SIGINT/SIGTERM close the bag cleanly before the process goes on as it would
 have.
 """
+import dataclasses
 import functools
 import io
 import os
@@ -91,16 +92,14 @@ class _ThreadState(threading.local):
     deferred = None    # (previous handler, signum, frame) of a signal that arrived meanwhile
 
 
+@dataclasses.dataclass(slots=True)
 class _Topic:
-    __slots__ = ('channel_id', 'msg_class', 'type_name', 'qos', 'type_hash', 'count')
-
-    def __init__(self, channel_id, msg_class, type_name, qos, type_hash):
-        self.channel_id = channel_id
-        self.msg_class = msg_class
-        self.type_name = type_name
-        self.qos = qos
-        self.type_hash = type_hash
-        self.count = 0
+    channel_id: int
+    msg_class: type
+    type_name: str
+    qos: list
+    type_hash: str
+    count: int = 0
 
 
 class BagRecorder:

@@ -22,15 +22,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from visualization_msgs.msg import MarkerArray
 
+from sim_bridge.bag_player import merge_qos, PlaybackClock, ReplayError, select_topics
 from sim_bridge.bag_reader import BagReader
-from sim_bridge.bag_replay import (
-    merge_qos,
-    parse_remaps,
-    PlaybackClock,
-    ReplayError,
-    select_topics,
-    split_ros_args,
-)
+from sim_bridge.bag_replay import parse_remaps, split_ros_args
 
 REPO = Path(__file__).resolve().parents[2]
 BAG = REPO / 'test' / 'data' / 'popup_obstacle'

@@ -37,7 +37,8 @@ import rclpy
 import scoring
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters
-from sim_bridge import bag_replay, launcher
+from sim_bridge import bag_player, bag_replay, launcher
+from sim_bridge.bag_reader import BagReader
 from sim_bridge.launcher import child_environment, ProcessSpec
 from sim_bridge.scenario import load_scenario
 
@@ -87,7 +88,7 @@ def replay_live(name, tmp_path):
     bag, info = recording(name)
     robot = info['robot']
     log = tmp_path / 'safety_filter.log'
-    options = bag_replay.PlayOptions(
+    options = bag_player.PlayOptions(
         rate=REPLAY_RATE, topics=tuple(f'/{robot}/{t}' for t in ('odom', 'obstacles',
                                                                   'cmd_vel_in')),
         wait_for_subscribers=60.0, lockstep=(f'/{robot}/cmd_vel_in', f'/{robot}/cmd_vel_out'),
@@ -96,7 +97,7 @@ def replay_live(name, tmp_path):
     rclpy.init(context=context)
     try:
         with safety_filter(info, log) as proc:
-            player = bag_replay.BagPlayer(bag, options, context=context)
+            player = bag_player.BagPlayer(bag, options, context=context)
             try:
                 stats = player.run()
             finally:
@@ -252,7 +253,7 @@ def test_offline_check_reproduces_recorded_commands(tmp_path, name, capsys):
         args += ['-p', f'{key}:={json.dumps(value)}']
     assert bag_replay.main(args) == 0, capsys.readouterr().out
     report = json.loads((tmp_path / 'report.json').read_text())
-    commands = bag_replay.BagReader(bag).topics[report['topics']['safe']]
+    commands = BagReader(bag).topics[report['topics']['safe']]
     # Unpaired: the filter's watchdog stops, stamped with its own clock (a few at start-up).
     assert report['passed'] and report['unpaired'] <= 3
     assert report['paired'] + report['unpaired'] == commands.message_count
