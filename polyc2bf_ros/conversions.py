@@ -1,4 +1,4 @@
-"""ROS messages <-> numpy for the safety filter node.
+"""ROS messages <-> numpy for the safety filter node: odometry, commands, obstacle markers.
 
 Odometry -> model state.  ``nav_msgs/Odometry`` gives the pose in
 ``header.frame_id`` (the world/odometry frame) and the twist in
@@ -22,10 +22,10 @@ carries them in its six numbers ``(linear|force xyz, angular|torque xyz)``::
     point_mass_3d  [vx, vy, vz]     = linear.x, .y, .z          (angular.z passed through)
     quadrotor      [T, tx, ty, tz]  = force.z, torque.x, .y, .z
 
-On the node's hot path odometry, commands and obstacle MarkerArrays stay
-serialized (CDR): see ``read_odometry``, ``SerializedCommand`` and
-``read_marker_array`` below (the marker functions take a typed ``Marker`` or a
-``MarkerView`` alike).
+On the node's hot path odometry and commands stay serialized (CDR): see
+``read_odometry`` and ``SerializedCommand`` below.  Obstacle MarkerArrays do too
+(``cdr_reader.read_marker_array``): the marker functions take a typed ``Marker``
+or a ``cdr_reader.MarkerView`` alike.
 
 Markers -> obstacles (``apply_markers``).  Each marker becomes one or more
 polygons in its header frame plus a z range, after applying the marker pose
@@ -62,11 +62,9 @@ import struct
 from typing import NamedTuple
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, Vector3
-from std_msgs.msg import ColorRGBA
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import Marker
 
+from polyc2bf_ros.cdr_reader import aligned, layout_of, read_header, read_string
 from polyc2bf_ros.core.geometry import convex_hull
 from polyc2bf_ros.core.obstacle_tracker import (
     outline_polygon,
@@ -212,64 +210,13 @@ def fill_twist(out, model_name, command, yaw_rate=0.0):
     out.linear.x, out.linear.y, out.linear.z, out.angular.x, out.angular.y, out.angular.z = values
 
 
-# -- serialized messages (CDR) on the node's hot path -----------------------------------------
+# -- serialized odometry and commands on the node's hot path ----------------------------------
 #
 # rclpy turns every received message into Python objects field by field; for an Odometry
 # (two 36-double covariances) that costs more than the safety filter step.  The node takes
 # odometry and commands serialized and reads only the numbers it uses, and answers a command
 # by replacing the six numbers in a copy of its bytes, which copies the header for free.
-#
-# Layout (XCDR1, what ROS 2 rmw implementations publish): a 4-byte encapsulation header
-# (00 01 little endian, 00 00 big endian), then the fields, each aligned to its size counted
-# from the end of the encapsulation header.  std_msgs/Header = int32 sec, uint32 nanosec,
-# string frame_id (uint32 length including the NUL, bytes).
-
-class _Layout:
-    """Precompiled structs for one byte order."""
-
-    def __init__(self, order):
-        self.stamp = struct.Struct(order + 'iI')
-        self.length = struct.Struct(order + 'I')
-        self.pose = struct.Struct(order + '7d')
-        self.six = struct.Struct(order + '6d')
-        self.marker_ids = struct.Struct(order + '3i')
-        self.pose_scale = struct.Struct(order + '10d')
-        self.double = np.dtype(order + 'f8')
-        # A Marker's fields from colors to mesh_file.data when all are empty (zero padding).
-        empty, nothing = self.length.pack(1) + bytes(4), self.length.pack(0)
-        self.empty_marker_tail = (nothing + empty + self.stamp.pack(0, 0) + empty * 2
-                                  + nothing * 2 + empty * 3 + nothing)
-
-
-# By the second byte of the encapsulation header 00 01 (little endian) or 00 00 (big).
-_LAYOUTS = (_Layout('>'), _Layout('<'))
-
-
-def _layout(data):
-    """Return the layout of a plain-CDR message (reads two bytes: no slice, no hash)."""
-    if len(data) < 2 or data[0] != 0 or data[1] > 1:
-        raise ValueError(f'unsupported CDR encapsulation {data[:2].hex()} (expected plain CDR)')
-    return _LAYOUTS[data[1]]
-
-
-def _aligned(offset, size):
-    """Absolute ``offset`` rounded up to ``size`` counted from the end of the 4-byte header."""
-    return offset + (-(offset - 4)) % size
-
-
-def _string(data, layout, offset):
-    """``(bytes without NUL, offset after)`` of the CDR string with its length at ``offset``."""
-    offset = _aligned(offset, 4)
-    end = offset + 4 + layout.length.unpack_from(data, offset)[0]
-    return data[offset + 4:end - 1], end
-
-
-def _header(data, layout):
-    """``(sec, nanosec, frame_id bytes, offset after the header)`` of a serialized Header."""
-    sec, nanosec = layout.stamp.unpack_from(data, 4)
-    frame, end = _string(data, layout, 12)
-    return sec, nanosec, frame, end
-
+# The CDR layout is in ``cdr_reader``.
 
 class OdometryView(NamedTuple):
     """The numbers of a serialized Odometry that are read (see ``read_odometry``)."""
@@ -292,165 +239,16 @@ def read_odometry(data):
 
     The covariances are skipped, not read.  Raises ``ValueError`` for a malformed message.
     """
-    layout = _layout(data)
+    layout = layout_of(data)
     try:
-        sec, nanosec, frame, end = _header(data, layout)
-        child_frame, end = _string(data, layout, end)
-        pose_at = _aligned(end, 8)
+        sec, nanosec, frame, end = read_header(data, layout)
+        child_frame, end = read_string(data, layout, end)
+        pose_at = aligned(end, 8)
         pose = layout.pose.unpack_from(data, pose_at)
         twist = layout.six.unpack_from(data, pose_at + 8 * (7 + 36))
     except struct.error as exc:
         raise ValueError(f'truncated Odometry: {exc}') from None
     return OdometryView(sec, nanosec, frame, child_frame, pose, twist)
-
-
-class Time(NamedTuple):
-    """``builtin_interfaces/Time`` as read from CDR."""
-
-    sec: int
-    nanosec: int
-
-
-class Header(NamedTuple):
-    """``std_msgs/Header`` as read from CDR."""
-
-    stamp: Time
-    frame_id: str
-
-
-class XYZ(NamedTuple):
-    """A Point or Vector3."""
-
-    x: float
-    y: float
-    z: float
-
-
-class Quaternion(NamedTuple):
-    """A geometry_msgs/Quaternion."""
-
-    x: float
-    y: float
-    z: float
-    w: float
-
-
-class Pose(NamedTuple):
-    """A geometry_msgs/Pose."""
-
-    position: XYZ
-    orientation: Quaternion
-
-
-class MarkerView(NamedTuple):
-    """The fields of a serialized ``visualization_msgs/Marker`` that obstacles use.
-
-    Same names as the message, so the marker functions below take either;
-    ``points`` is an (N, 3) array.
-    """
-
-    header: Header
-    ns: str
-    id: int
-    type: int
-    action: int
-    pose: Pose
-    scale: XYZ
-    points: np.ndarray
-
-
-class MarkerArrayView(NamedTuple):
-    """A serialized ``visualization_msgs/MarkerArray``: its markers as ``MarkerView``."""
-
-    markers: tuple
-
-
-def _skip_sequence(data, layout, offset, item_size, item_align):
-    """Offset after a CDR sequence (length at ``offset``) of fixed-size items."""
-    offset = _aligned(offset, 4)
-    count = layout.length.unpack_from(data, offset)[0]
-    offset += 4
-    if count:
-        offset = _aligned(offset, item_align) + count * item_size
-    if offset > len(data):
-        raise ValueError(f'sequence of {count} items runs past the end of the message')
-    return offset
-
-
-def _skip_marker_tail(data, layout, offset):
-    """Offset after a Marker's fields from colors to mesh_use_embedded_materials (unused)."""
-    offset = _aligned(offset, 4)
-    if data.startswith(layout.empty_marker_tail, offset):  # all empty: one comparison
-        return offset + len(layout.empty_marker_tail) + 1
-    offset = _skip_sequence(data, layout, offset, 16, 4)  # colors
-    _, offset = _string(data, layout, offset)  # texture_resource
-    offset = _aligned(offset, 4) + 8  # texture.header.stamp
-    for _ in range(2):  # texture.header.frame_id, texture.format
-        _, offset = _string(data, layout, offset)
-    offset = _skip_sequence(data, layout, offset, 1, 1)  # texture.data
-    offset = _skip_sequence(data, layout, offset, 8, 4)  # uv_coordinates
-    for _ in range(3):  # text, mesh_resource, mesh_file.filename
-        _, offset = _string(data, layout, offset)
-    return _skip_sequence(data, layout, offset, 1, 1) + 1  # mesh_file.data, use_materials
-
-
-def _read_marker(data, layout, offset):
-    """``(MarkerView, offset after)`` of the Marker serialized at ``offset``.
-
-    Field order of Jazzy's Marker.msg: header, ns, id, type, action, pose, scale,
-    color, lifetime, frame_locked, points, colors, texture_resource, texture
-    (CompressedImage: header, format, data), uv_coordinates, text, mesh_resource,
-    mesh_file (filename, data), mesh_use_embedded_materials.
-    """
-    offset = _aligned(offset, 4)
-    sec, nanosec = layout.stamp.unpack_from(data, offset)
-    frame, offset = _string(data, layout, offset + 8)
-    ns, offset = _string(data, layout, offset)
-    offset = _aligned(offset, 4)
-    marker_id, kind, action = layout.marker_ids.unpack_from(data, offset)
-    offset = _aligned(offset + 12, 8)
-    px, py, pz, qx, qy, qz, qw, sx, sy, sz = layout.pose_scale.unpack_from(data, offset)
-    offset += 80 + 16 + 8 + 1  # pose and scale, color (4 float32), lifetime, frame_locked
-    offset = _aligned(offset, 4)
-    count = layout.length.unpack_from(data, offset)[0]
-    offset += 4
-    points = np.empty((0, 3))
-    if count:
-        offset = _aligned(offset, 8)
-        if offset + 24 * count > len(data):
-            raise ValueError(f'{count} points run past the end of the message')
-        points = np.frombuffer(data, layout.double, 3 * count, offset).astype(
-            np.float64).reshape(count, 3)  # a native, writable copy
-        offset += 24 * count
-    offset = _skip_marker_tail(data, layout, offset)
-    view = MarkerView(Header(Time(sec, nanosec), frame.decode(errors='replace')),
-                      ns.decode(errors='replace'), marker_id, kind, action,
-                      Pose(XYZ(px, py, pz), Quaternion(qx, qy, qz, qw)), XYZ(sx, sy, sz),
-                      points)
-    return view, offset
-
-
-def read_marker_array(data):
-    """``MarkerArrayView`` of a serialized MarkerArray; ``ValueError`` if malformed.
-
-    Reads only what obstacles need (``MarkerView``) and skips colours, text,
-    textures and meshes: 6-8x faster than rclpy's deserialization, which builds
-    every field as a Python object (12 markers: 0.16 ms against 1.3 ms here).
-    """
-    layout = _layout(data)
-    try:
-        count = layout.length.unpack_from(data, 4)[0]
-        if count > len(data):
-            raise ValueError(f'{count} markers in {len(data)} bytes')
-        markers, offset = [], 8
-        for _ in range(count):
-            marker, offset = _read_marker(data, layout, offset)
-            markers.append(marker)
-    except struct.error as exc:
-        raise ValueError(f'truncated MarkerArray: {exc}') from None
-    if offset > len(data):
-        raise ValueError('truncated MarkerArray')
-    return MarkerArrayView(tuple(markers))
 
 
 class SerializedCommand:
@@ -464,13 +262,13 @@ class SerializedCommand:
     def __init__(self, data, stamped):
         """Parse ``data``; ``stamped``: it starts with a Header.  ``ValueError`` if malformed."""
         self.data = data
-        self.layout = _layout(data)
+        self.layout = layout_of(data)
         self.stamp, self.stamp_ns, self.at = 0.0, 0, 4
         try:
             if stamped:
-                sec, nanosec, _, end = _header(data, self.layout)
+                sec, nanosec, _, end = read_header(data, self.layout)
                 self.stamp, self.stamp_ns = sec + 1e-9 * nanosec, sec * 1_000_000_000 + nanosec
-                self.at = _aligned(end, 8)
+                self.at = aligned(end, 8)
             self.values = self.layout.six.unpack_from(data, self.at)
         except struct.error as exc:
             raise ValueError(f'truncated command: {exc}') from None
@@ -482,6 +280,9 @@ class SerializedCommand:
         head = self.data[:at] if stamp is None else (
             self.data[:4] + layout.stamp.pack(*stamp) + self.data[12:at])
         return head + layout.six.pack(*values) + self.data[at + 48:]
+
+
+# -- markers -> obstacles ---------------------------------------------------------------------
 
 _SOLIDS = (Marker.CUBE, Marker.CYLINDER, Marker.SPHERE)
 
@@ -668,56 +469,3 @@ def apply_markers(tracker, msg, now_stamp, wall_thickness, cylinder_sides,
             continue
         tracker.update(key, frame, stamp, _reference(marker, shape, placement), shape,
                        placement)
-
-
-def _color(r, g, b, a):
-    return ColorRGBA(r=r, g=g, b=b, a=a)
-
-
-_INACTIVE, _ACTIVE = _color(0.1, 0.8, 0.2, 0.8), _color(0.9, 0.1, 0.1, 1.0)
-
-
-def filter_markers(frame, stamp, footprints, active, apex=None, cones=None):
-    """``MarkerArray`` for RViz/Foxglove: obstacle parts (red = active constraint) and cones.
-
-    ``footprints`` is the filter's ``PolygonBatch`` (at the obstacles' stamp),
-    ``active`` the indices of the active rows.  Cones are drawn when
-    ``cones`` (axis ``p`` and boundary ray ``k`` as (2, N) planar vectors) and the
-    ``apex`` are given: the rays ``k`` and its mirror ``2 <k, p_hat> p_hat - k``.
-    The first marker is a DELETEALL, so parts that disappeared vanish.
-    """
-    is_active = np.zeros(len(footprints), dtype=bool)
-    is_active[np.asarray(active, dtype=int)] = True
-    markers = [Marker(action=Marker.DELETEALL)]
-    for i in range(len(footprints)):
-        ring = footprints.vertices[i, :footprints.counts[i]]
-        markers.append(Marker(
-            ns='obstacles', id=i, type=Marker.LINE_STRIP, action=Marker.ADD,
-            scale=Vector3(x=0.03), color=_ACTIVE if is_active[i] else _INACTIVE,
-            points=[Point(x=float(x), y=float(y)) for x, y in np.vstack([ring, ring[:1]])]))
-    if cones is not None and apex is not None and cones.k.shape[1] == len(footprints):
-        axis, ray = cones.p.T, cones.k.T
-        p_hat = axis / np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
-        mirror = 2.0 * np.sum(ray * p_hat, axis=1, keepdims=True) * p_hat - ray
-        apex_point = Point(x=float(apex[0]), y=float(apex[1]))
-        for i, (k, m) in enumerate(zip(ray, mirror)):
-            markers.append(Marker(
-                ns='cones', id=i, type=Marker.LINE_LIST, action=Marker.ADD,
-                scale=Vector3(x=0.01), color=_ACTIVE if is_active[i] else _INACTIVE,
-                points=[apex_point, Point(x=float(apex[0] + k[0]), y=float(apex[1] + k[1])),
-                        apex_point, Point(x=float(apex[0] + m[0]), y=float(apex[1] + m[1]))]))
-    for marker in markers[1:]:
-        marker.header.frame_id = frame
-        marker.header.stamp = stamp
-        marker.pose.orientation.w = 1.0
-    return MarkerArray(markers=markers)
-
-
-def diagnostic_array(stamp, name, hardware_id, level, message, values):
-    """``DiagnosticArray`` with one status; ``values`` is ``{key: value}`` (str() each)."""
-    status = DiagnosticStatus(
-        level=level, name=name, message=message, hardware_id=hardware_id,
-        values=[KeyValue(key=str(k), value=str(v)) for k, v in values.items()])
-    array = DiagnosticArray(status=[status])
-    array.header.stamp = stamp
-    return array

@@ -6,7 +6,7 @@ event, microseconds).  All obstacle work runs in a **worker process**
 node that takes everything queued at once, so a flood is conflated rather than replayed.
 Per pass (``ObstaclePipeline.run``):
 
-1. every queued message is read (``conversions.read_marker_array``); an unreadable one
+1. every queued message is read (``cdr_reader.read_marker_array``); an unreadable one
    marks the input unreadable until a readable one follows it;
 2. their markers are merged, newest per ``ns/id`` (``conversions.conflate_markers``), and
    applied to the ``ObstacleTracker``: only the newest shape of each key is built, each
@@ -38,7 +38,7 @@ import sys
 import threading
 from typing import NamedTuple
 
-from polyc2bf_ros import conversions
+from polyc2bf_ros import cdr_reader, conversions
 from polyc2bf_ros.core.decision import ObstacleSnapshot
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
@@ -88,7 +88,7 @@ class ObstaclePipeline:
         markers = []
         for data, received in job.messages:
             try:
-                markers += (conversions.read_marker_array(data) if isinstance(data, bytes)
+                markers += (cdr_reader.read_marker_array(data) if isinstance(data, bytes)
                             else data).markers
             except ValueError as exc:
                 self._unreadable = f'malformed obstacle message: {exc}'
@@ -96,7 +96,7 @@ class ObstaclePipeline:
             self._unreadable, self._received = '', received
         settings, tracker = job.settings, self._tracker
         conversions.apply_markers(
-            tracker, conversions.MarkerArrayView(tuple(conversions.conflate_markers(markers))),
+            tracker, cdr_reader.MarkerArrayView(tuple(conversions.conflate_markers(markers))),
             job.now, settings.wall_thickness, settings.cylinder_sides,
             (settings.max_vertices, settings.max_parts))
         obstacles, t_ref, wrong_frame, error = ObstacleSet.empty(), math.nan, {}, ''

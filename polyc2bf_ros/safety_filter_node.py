@@ -63,7 +63,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import SetBool
 from visualization_msgs.msg import MarkerArray
 
-from polyc2bf_ros import conversions
+from polyc2bf_ros import conversions, diagnostics, rviz_markers
 from polyc2bf_ros.core.command_interface import VELOCITY_MODELS
 from polyc2bf_ros.core.decision import ControlDecision
 from polyc2bf_ros.core.models import MODEL_NAMES, MODELS
@@ -358,7 +358,7 @@ class SafetyFilterNode(Node):
             self._publish_stop(cmd, self._decision.stop())
         values = {**self._status_values, 'stalls': self._stall_guard.stalls,
                   'stall_s': f'{silence:.3f}'}
-        self._diagnostics_pub.publish(conversions.diagnostic_array(
+        self._diagnostics_pub.publish(diagnostics.diagnostic_array(
             self.get_clock().now().to_msg(), self._status_name, self._model_name,
             DiagnosticStatus.ERROR, message, values))
 
@@ -473,7 +473,7 @@ class SafetyFilterNode(Node):
         message = '; '.join(errors + warnings) or (
             'ok' if self._cmd is not None else 'waiting for the first nominal command')
         self._status_values = values
-        self._diagnostics_pub.publish(conversions.diagnostic_array(
+        self._diagnostics_pub.publish(diagnostics.diagnostic_array(
             self.get_clock().now().to_msg(), self._status_name, self._model_name, level,
             message, values))
 
@@ -493,7 +493,7 @@ class SafetyFilterNode(Node):
         if info is not None and self._model.position_dim == 2:
             apex = self._model.reference(np.asarray(self._decision.state)).position
             cones = info.cones
-        self._markers_pub.publish(conversions.filter_markers(
+        self._markers_pub.publish(rviz_markers.filter_markers(
             self._odom_frame, self.get_clock().now().to_msg(),
             self._decision.snapshot.obstacles.footprints,
             active, apex, cones))

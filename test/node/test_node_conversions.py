@@ -12,7 +12,7 @@ from visualization_msgs.msg import Marker, MarkerArray, UVCoordinate
 
 from node_harness import odometry, wall
 from oracles import quaternion_matrix
-from polyc2bf_ros import conversions
+from polyc2bf_ros import cdr_reader, conversions, diagnostics, rviz_markers
 from polyc2bf_ros.core.geometry import point_in_polygon, signed_area, signed_distance
 from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
@@ -217,14 +217,14 @@ def _same_marker(view, marker):
 def test_serialized_marker_arrays_agree_with_rclpy(markers):
     """``read_marker_array`` finds every used field behind any strings, colours and meshes."""
     data = serialize_message(MarkerArray(markers=markers))
-    views = conversions.read_marker_array(data).markers
+    views = cdr_reader.read_marker_array(data).markers
     assert len(views) == len(markers)
     for view, marker in zip(views, markers):
         _same_marker(view, marker)
     for cut in sorted({len(data) - 1, len(data) // 2, 5}):
         if markers:
             with pytest.raises(ValueError, match='truncated|past the end|markers in'):
-                conversions.read_marker_array(data[:cut])
+                cdr_reader.read_marker_array(data[:cut])
 
 
 def test_marker_views_give_the_obstacles_messages_give():
@@ -235,7 +235,7 @@ def test_marker_views_give_the_obstacles_messages_give():
     msg = MarkerArray(markers=[wall([(2.0, -1.0), (2.0, 1.0)], marker_id=i) for i in range(3)]
                       + [_solid(Marker.CYLINDER, scale=(0.6, 0.6, 1.0)), tilted])
     sets = []
-    for given_msg in (msg, conversions.read_marker_array(serialize_message(msg))):
+    for given_msg in (msg, cdr_reader.read_marker_array(serialize_message(msg))):
         tracker = ObstacleTracker()
         conversions.apply_markers(tracker, given_msg, 1.0, 0.05, 12)
         sets.append(tracker.obstacle_set('odom', 3)[0])
@@ -248,8 +248,8 @@ def test_marker_views_give_the_obstacles_messages_give():
 def test_big_endian_marker_arrays_read_the_same():
     """CDR in big-endian byte order (encapsulation 0x0000) gives the same views."""
     msg = MarkerArray(markers=[wall([(2.0, -1.0), (2.0, 1.0), (3.0, 0.5)])])
-    little = conversions.read_marker_array(serialize_message(msg)).markers[0]
-    big = conversions.read_marker_array(_big_endian_marker_array(msg)).markers[0]
+    little = cdr_reader.read_marker_array(serialize_message(msg)).markers[0]
+    big = cdr_reader.read_marker_array(_big_endian_marker_array(msg)).markers[0]
     assert big[:7] == little[:7]
     np.testing.assert_array_equal(big.points, little.points)
     assert big.points.dtype == np.float64 and big.points.flags.writeable
@@ -491,7 +491,7 @@ def test_changed_shapes_and_settings_are_rebuilt_and_bad_poses_still_refused():
 def test_filter_markers_and_diagnostics():
     """Markers: DELETEALL, one outline per part (active in red), cones only when given."""
     obstacles = ObstacleSet.from_obstacles([])
-    plain = conversions.filter_markers('odom', odometry().header.stamp,
+    plain = rviz_markers.filter_markers('odom', odometry().header.stamp,
                                        obstacles.footprints, active=())
     assert [m.action for m in plain.markers] == [Marker.DELETEALL]
     obstacles = ObstacleSet.from_obstacles([
@@ -501,12 +501,12 @@ def test_filter_markers_and_diagnostics():
         p = np.array([[1.5], [0.0]])  # (2, N) planar vectors, as the core's Cones
         k = np.array([[1.0], [1.0]])
 
-    drawn = conversions.filter_markers('odom', odometry().header.stamp, obstacles.footprints,
+    drawn = rviz_markers.filter_markers('odom', odometry().header.stamp, obstacles.footprints,
                                        active=[0], apex=(0.0, 0.0), cones=Cones())
     outline, cone = drawn.markers[1:]
     assert outline.color.r > 0.5 and len(outline.points) == 5
     assert [(p.x, p.y) for p in cone.points] == [(0, 0), (1, 1), (0, 0), (1, -1)]
-    array = conversions.diagnostic_array(odometry().header.stamp, 'f', 'unicycle', b'\x01',
+    array = diagnostics.diagnostic_array(odometry().header.stamp, 'f', 'unicycle', b'\x01',
                                          'msg', {'a': 1, 'b': 'x'})
     [status] = array.status
     assert [(kv.key, kv.value) for kv in status.values] == [('a', '1'), ('b', 'x')]
