@@ -8,6 +8,7 @@ from node_harness import diagnostic_values, Harness, REPO, running_filter
 
 CONFIGS = {
     'quadruped': ('unicycle', '100'),
+    'diff_drive': ('unicycle', '100'),
     'holonomic_base': ('point_mass_2d', '100'),
     'drone_velocity': ('point_mass_3d', '100'),
     'crazyflie_thrust': ('quadrotor', '500'),
