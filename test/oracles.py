@@ -2,14 +2,16 @@
 
 ``ReferenceSolver`` solves the QP exactly by enumeration; ``silhouette_pair`` and
 ``inflate_polygon`` are the one-polygon forms of the batch geometry the filter runs;
+``barrier_terms`` evaluates the barrier of every cone by the filter's per-cone function;
 ``quaternion_matrix`` reads a message quaternion as a rotation matrix.
 """
 import numpy as np
 
 from polyc2bf_ros.conversions import rotation
-from polyc2bf_ros.core import batch_geometry, geometry, qp
+from polyc2bf_ros.core import batch_geometry, geometry, qp, qp_proxsuite
+from polyc2bf_ros.core.barrier import barrier_column, BarrierTerms
 
-# Exact up to rounding: far tighter than a solver's certificate (``qp._MULTIPLIER_TOL``).
+# Exact up to rounding: far tighter than a solver's certificate (``qp_proxsuite._MULTIPLIER_TOL``).
 _MULTIPLIER_TOL = 1e-12
 
 
@@ -70,14 +72,14 @@ class ReferenceSolver(qp.QPSolver):
 
     def _solve(self, x_ref, weights, A, b, lower, upper):
         """Enumerate; ``iterations`` is the number of candidates."""
-        G, h = qp._constraints(A, b, lower, upper)
+        G, h = qp_proxsuite._constraints(A, b, lower, upper)
         pool = range(h.shape[0])
-        candidates = [qp._projections(x_ref, weights, G, h, pool, k)
+        candidates = [qp_proxsuite._projections(x_ref, weights, G, h, pool, k)
                       for k in range(min(x_ref.shape[0], h.shape[0]) + 1)]
         X = np.concatenate([points for points, _ in candidates])
         tolerance = -_MULTIPLIER_TOL * (1.0 + np.abs(weights * x_ref).max())
         certified = np.concatenate([(lam >= tolerance).all(axis=1) for _, lam in candidates])
-        feasible = qp._satisfies(X, G, h)
+        feasible = qp_proxsuite._satisfies(X, G, h)
         if not feasible.any():
             return x_ref, qp.QPStatus.INFEASIBLE, X.shape[0]
         # The optimum is the feasible candidate whose multipliers are >= 0 (KKT; some
@@ -88,6 +90,22 @@ class ReferenceSolver(qp.QPSolver):
         pick = optimal if optimal.any() else feasible
         cost = ((X[pick] - x_ref) ** 2 * weights).sum(axis=1)
         return X[pick][cost.argmin()].copy(), qp.QPStatus.OPTIMAL, X.shape[0]
+
+
+def barrier_terms(cones, projections, velocities, reference, velocity_epsilon) -> BarrierTerms:
+    """Evaluate h, Lf h, Lg h for N cones seen through per-obstacle projections.
+
+    ``projections`` (N, 2, d) are the P_n, ``velocities`` (N, d) the obstacles' c_dot and
+    ``reference`` the robot's ``ReferenceKinematics`` (d-dimensional); one
+    ``barrier.barrier_column`` call per cone, as the filter's fused plane kernel makes.
+    """
+    block = np.empty((2 + reference.input_matrix.shape[1], cones.s.shape[0]))
+    for n in range(cones.s.shape[0]):
+        barrier_column(cones.p[0, n], cones.p[1, n], cones.s[n], cones.ds_dp[0, n],
+                       cones.ds_dp[1, n], projections, velocities, reference.velocity,
+                       reference.drift, reference.input_matrix, velocity_epsilon ** 2, block,
+                       0, n)
+    return BarrierTerms.from_block(block)
 
 
 def quaternion_matrix(q):

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polyc2bf_ros.core.jit import F1, F2, F3, kernel, signature
+from polyc2bf_ros.core.jit import kernel
 
 
 @dataclass(slots=True)
@@ -74,28 +74,3 @@ def barrier_column(px, py, shape, ds_dpx, ds_dpy, projections, velocities, posit
             bx += projections[n, 0, d] * input_matrix[d, j]
             by += projections[n, 1, d] * input_matrix[d, j]
         out[first + 2 + j, n] = -(bx * dh_dvx + by * dh_dvy)
-
-
-@kernel(signature('void', F2, F1, F2, F3, F2, F1, F1, F2, 'f8', F2))
-def _barrier_terms(p, s, ds_dp, projections, velocities, position_rate, drift, input_matrix,
-                   velocity_epsilon, out):
-    """Write h, Lf h, Lg h of every obstacle into the rows of ``out`` (``barrier_column``)."""
-    eps_sq = velocity_epsilon * velocity_epsilon
-    for n in range(s.shape[0]):
-        barrier_column(p[0, n], p[1, n], s[n], ds_dp[0, n], ds_dp[1, n], projections,
-                       velocities, position_rate, drift, input_matrix, eps_sq, out, 0, n)
-
-
-def barrier_terms(cones, projections, velocities, reference, velocity_epsilon,
-                  block=None) -> BarrierTerms:
-    """Evaluate h, Lf h, Lg h for N cones seen through per-obstacle projections.
-
-    ``projections`` (N, 2, d) are the P_n, ``velocities`` (N, d) the obstacles' c_dot
-    and ``reference`` the robot's ``ReferenceKinematics`` (d-dimensional); the terms are
-    written into ``block`` (2 + m, N) if given.
-    """
-    if block is None:
-        block = np.empty((2 + reference.input_matrix.shape[1], cones.s.shape[0]))
-    _barrier_terms(cones.p, cones.s, cones.ds_dp, projections, velocities, reference.velocity,
-                   reference.drift, reference.input_matrix, velocity_epsilon, block)
-    return BarrierTerms.from_block(block)

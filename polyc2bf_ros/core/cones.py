@@ -34,9 +34,8 @@ nearest boundary point from inside lies on that edge).
 
 On the filter's hot path ``plane`` runs, per obstacle, the viewpoint, the cone
 and the barrier terms in one compiled pass; it is built from the same
-per-obstacle functions as ``fill`` and ``barrier.barrier_terms``
-(``polygon_cone``, ``circle_cone``, ``barrier_column``), so both give the same
-numbers.
+per-obstacle functions as ``fill`` (``polygon_cone``, ``circle_cone``) and
+``barrier.barrier_column``, so both give the same numbers.
 """
 import abc
 import math

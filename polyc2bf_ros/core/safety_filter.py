@@ -87,14 +87,8 @@ from polyc2bf_ros.core.cones import (
 from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.qp import (
-    front_end_answers,
-    make_solver,
-    QPStatus,
-    row_residual,
-    solve_with_shared_slack,
-    SOLVERS,
-)
+from polyc2bf_ros.core.qp import front_end_answers, QPStatus, row_residual, solve_with_shared_slack
+from polyc2bf_ros.core.qp_backends import make_solver, SOLVERS
 from polyc2bf_ros.core.views import choose_planes, prepare_views
 
 ACTIVE_TOLERANCE = 1e-7

@@ -11,9 +11,8 @@ import numpy as np
 import pytest
 from hypothesis import given, HealthCheck, settings, strategies as st
 
-from oracles import ReferenceSolver
+from oracles import barrier_terms, ReferenceSolver
 from polyc2bf_ros.core import crazyflie as cf, qp
-from polyc2bf_ros.core.barrier import barrier_terms
 from polyc2bf_ros.core.cones import CircleCone, InflatedCone, PaperCone
 from polyc2bf_ros.core.geometry import PolygonBatch, signed_distance_batch
 from polyc2bf_ros.core.models import make_model, ReferenceKinematics

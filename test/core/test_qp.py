@@ -9,14 +9,9 @@ from proxsuite import proxqp
 
 from oracles import ReferenceSolver
 from polyc2bf_ros.core import qp
-from polyc2bf_ros.core.qp import (
-    DaqpSolver,
-    make_solver,
-    ProxsuiteSolver,
-    QPStatus,
-    solve_with_shared_slack,
-    SOLVERS,
-)
+from polyc2bf_ros.core.qp import DaqpSolver, QPStatus, solve_with_shared_slack
+from polyc2bf_ros.core.qp_backends import make_solver, SOLVERS
+from polyc2bf_ros.core.qp_proxsuite import ProxsuiteSolver
 from strategies import examples
 
 # One instance per backend for the whole module, so that DAQP's per-size models are reused
