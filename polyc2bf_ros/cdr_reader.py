@@ -104,7 +104,7 @@ class Pose(NamedTuple):
 class MarkerView(NamedTuple):
     """The fields of a serialized ``visualization_msgs/Marker`` that obstacles use.
 
-    Same names as the message, so the marker functions below take either;
+    Same names as the message, so the marker functions of ``conversions`` take either;
     ``points`` is an (N, 3) array.
     """
 
