@@ -8,6 +8,16 @@ from rclpy.executors import ExternalShutdownException
 
 from polyc2bf_ros.lean_executor import LeanExecutor
 
+# What a node's constructor raises for a bad configuration (rclpy's: out of range, wrong
+# type, read-only).
+CONFIGURATION_ERRORS = (ValueError, TypeError, ParameterException)
+
+
+def log_configuration_error(name, exc):
+    """Log ``exc`` as one fatal line under logger ``name`` (no traceback)."""
+    reason = ' '.join(str(exc).split()) or type(exc).__name__
+    rclpy.logging.get_logger(name).fatal(f'invalid configuration: {reason}')
+
 
 def run_node(node_class, name, args=None):
     """Spin ``node_class()`` on a ``LeanExecutor`` until shutdown; return 1 on a bad configuration.
@@ -41,9 +51,8 @@ def run_node(node_class, name, args=None):
     rclpy.init(args=args)
     try:
         node = node_class()
-    except (ValueError, TypeError, ParameterException) as exc:
-        reason = ' '.join(str(exc).split()) or type(exc).__name__
-        rclpy.logging.get_logger(name).fatal(f'invalid configuration: {reason}')
+    except CONFIGURATION_ERRORS as exc:
+        log_configuration_error(name, exc)
         rclpy.try_shutdown()
         return 1
     except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C while starting up

@@ -109,6 +109,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from polyc2bf_ros.conversions import SerializedCommand
 from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.node_main import CONFIGURATION_ERRORS, log_configuration_error
 from sim_bridge.bag_reader import message_class
 from sim_bridge.cdr import OdometryCdr, tf_message_cdr, TF_MESSAGE_TYPE
 from sim_bridge.metrics import RunMetrics
@@ -646,8 +647,8 @@ def main(args=None):
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = BridgeNode()
-    except (ValueError, OSError) as exc:
-        rclpy.logging.get_logger('sim_bridge').fatal(f'invalid configuration: {exc}')
+    except (*CONFIGURATION_ERRORS, OSError) as exc:
+        log_configuration_error('sim_bridge', exc)
         rclpy.try_shutdown()
         return 1
     gc.freeze()  # start-up objects leave the collector: shorter full collections in the loop

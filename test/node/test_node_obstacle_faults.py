@@ -111,23 +111,26 @@ def test_a_10000_point_polygon_is_simplified_and_the_node_keeps_answering():
         assert proc.poll() is None
 
 
+FILTER = 'polyc2bf_ros.safety_filter_node'
 BAD_STARTS = [
-    ('rate:=0.0', 'rate out of range'),
-    ('filter.robot_radius:=.nan', 'filter.robot_radius out of range'),
-    ('rate:=fast', "expecting type 'DOUBLE'"),
-    ('model:=bogus', "'model' must be one of"),
-    ('trigger:=sometimes', "'trigger' must be 'timer' or 'command'"),
-    ('stall_timeout:=0.011', 'stall_timeout'),
-    ('max_vertices:=2', 'max_vertices out of range'),
-    ('odom_timeout:=0.005', 'must exceed the control period'),
+    (FILTER, 'rate:=0.0', 'rate out of range'),
+    (FILTER, 'filter.robot_radius:=.nan', 'filter.robot_radius out of range'),
+    (FILTER, 'rate:=fast', "expecting type 'DOUBLE'"),
+    (FILTER, 'model:=bogus', "'model' must be one of"),
+    (FILTER, 'trigger:=sometimes', "'trigger' must be 'timer' or 'command'"),
+    (FILTER, 'stall_timeout:=0.011', 'stall_timeout'),
+    (FILTER, 'max_vertices:=2', 'max_vertices out of range'),
+    (FILTER, 'odom_timeout:=0.005', 'must exceed the control period'),
+    ('sim_bridge.bridge_node', 'duration:=abc', "expecting type 'DOUBLE'"),
+    ('sim_bridge.nominal_controller_node', 'robot_type:=tank', "'robot_type' must be one of"),
 ]
 
 
-@pytest.mark.parametrize('argument, reason', BAD_STARTS)
-def test_an_invalid_start_up_parameter_is_one_fatal_line_and_exit_1(argument, reason):
-    """No traceback: one ``[FATAL]`` line naming the reason, exit status 1."""
+@pytest.mark.parametrize('module, argument, reason', BAD_STARTS)
+def test_an_invalid_start_up_parameter_is_one_fatal_line_and_exit_1(module, argument, reason):
+    """No traceback: one ``[FATAL]`` line naming the reason, exit status 1 (every node)."""
     result = subprocess.run(
-        [sys.executable, '-m', 'polyc2bf_ros.safety_filter_node', '--ros-args', '-p', argument],
+        [sys.executable, '-m', module, '--ros-args', '-p', argument],
         cwd=REPO, capture_output=True, text=True, timeout=120)
     output = result.stdout + result.stderr
     assert result.returncode == 1, output
