@@ -8,7 +8,7 @@ Per pass (``ObstaclePipeline.run``):
 
 1. every queued message is read (``cdr_reader.read_marker_array``); an unreadable one
    marks the input unreadable until a readable one follows it;
-2. their markers are merged, newest per ``ns/id`` (``conversions.conflate_markers``), and
+2. their markers are merged, newest per ``ns/id`` (``marker_obstacles.conflate_markers``), and
    applied to the ``ObstacleTracker``: only the newest shape of each key is built, each
    outline capped at ``max_vertices`` points (``core.polygon_limits``);
 3. the set in the odometry frame is built (``ObstacleTracker.obstacle_set``, at most
@@ -38,7 +38,7 @@ import sys
 import threading
 from typing import NamedTuple
 
-from polyc2bf_ros import cdr_reader, conversions
+from polyc2bf_ros import cdr_reader, marker_obstacles
 from polyc2bf_ros.core.decision import ObstacleSnapshot
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
@@ -95,8 +95,8 @@ class ObstaclePipeline:
                 continue
             self._unreadable, self._received = '', received
         settings, tracker = job.settings, self._tracker
-        conversions.apply_markers(
-            tracker, cdr_reader.MarkerArrayView(tuple(conversions.conflate_markers(markers))),
+        marker_obstacles.apply_markers(
+            tracker, cdr_reader.MarkerArrayView(tuple(marker_obstacles.conflate_markers(markers))),
             job.now, settings.wall_thickness, settings.cylinder_sides,
             (settings.max_vertices, settings.max_parts))
         obstacles, t_ref, wrong_frame, error = ObstacleSet.empty(), math.nan, {}, ''

@@ -24,7 +24,7 @@ end there.
 Obstacles are what the bridge publishes, built as the node builds them:
 static and moving prisms from their footprint polygons and z ranges; other
 robots as the node's polygon for the bridge's CYLINDER marker
-(``conversions.marker_geometry``: ``cylinder_sides`` = 12, circumscribing the
+(``marker_obstacles.marker_geometry``: ``cylinder_sides`` = 12, circumscribing the
 robot's footprint radius).  Differences from the DDS path, all on the side of
 the exact information:
 
@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 from visualization_msgs.msg import Marker
 
-from polyc2bf_ros import conversions
+from polyc2bf_ros import marker_obstacles
 from polyc2bf_ros.core import crazyflie
 from polyc2bf_ros.core.nominal import (
     QuadrotorGoalController,
@@ -87,7 +87,7 @@ def _cylinder_polygon(radius):
     marker.scale.x = marker.scale.y = 2.0 * radius
     marker.scale.z = 1.0
     marker.pose.orientation.w = 1.0
-    polygons, *_ = conversions.marker_geometry(marker, WALL_THICKNESS, CYLINDER_SIDES)
+    polygons, *_ = marker_obstacles.marker_geometry(marker, WALL_THICKNESS, CYLINDER_SIDES)
     return polygons[0]
 
 

@@ -12,7 +12,7 @@ from visualization_msgs.msg import Marker, MarkerArray, UVCoordinate
 
 from node_harness import odometry, wall
 from oracles import quaternion_matrix
-from polyc2bf_ros import cdr_reader, conversions, diagnostics, rviz_markers
+from polyc2bf_ros import cdr_reader, conversions, diagnostics, marker_obstacles, rviz_markers
 from polyc2bf_ros.core.geometry import point_in_polygon, signed_area, signed_distance
 from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
@@ -237,7 +237,7 @@ def test_marker_views_give_the_obstacles_messages_give():
     sets = []
     for given_msg in (msg, cdr_reader.read_marker_array(serialize_message(msg))):
         tracker = ObstacleTracker()
-        conversions.apply_markers(tracker, given_msg, 1.0, 0.05, 12)
+        marker_obstacles.apply_markers(tracker, given_msg, 1.0, 0.05, 12)
         sets.append(tracker.obstacle_set('odom', 3)[0])
     typed, viewed = sets
     assert len(typed) == len(viewed) == 5
@@ -318,7 +318,7 @@ def _solid(kind, position=(1.0, 2.0, 0.5), scale=(2.0, 1.0, 1.0), yaw=0.0):
 
 def test_cube_pose_and_scale():
     """A yawed CUBE: its rotated rectangle, z range from the pose and height, pose position."""
-    polygons, z_min, z_max, position = conversions.marker_geometry(
+    polygons, z_min, z_max, position = marker_obstacles.marker_geometry(
         _solid(Marker.CUBE, yaw=math.pi / 2), 0.05, 12)
     [polygon] = polygons
     assert signed_area(polygon) == pytest.approx(2.0)
@@ -330,8 +330,8 @@ def test_cube_pose_and_scale():
 @pytest.mark.parametrize('sides', [3, 8, 12])
 def test_cylinder_polygon_circumscribes_the_circle(sides):
     """Every point of the cylinder's circle lies inside its polygon."""
-    [polygon], *_ = conversions.marker_geometry(_solid(Marker.CYLINDER, scale=(1.0, 1.0, 2.0)),
-                                                0.05, sides)
+    cylinder = _solid(Marker.CYLINDER, scale=(1.0, 1.0, 2.0))
+    [polygon], *_ = marker_obstacles.marker_geometry(cylinder, 0.05, sides)
     assert len(polygon) == sides
     circle = np.column_stack([np.cos(np.linspace(0, 2 * np.pi, 200)),
                               np.sin(np.linspace(0, 2 * np.pi, 200))]) * 0.5 + (1.0, 2.0)
@@ -340,14 +340,14 @@ def test_cylinder_polygon_circumscribes_the_circle(sides):
 
 def test_line_markers():
     """2-point strip: rectangle of the line width; LINE_LIST: one wall per pair; flat z: inf."""
-    [polygon], z_min, z_max, position = conversions.marker_geometry(
+    [polygon], z_min, z_max, position = marker_obstacles.marker_geometry(
         wall([(0.0, 0.0), (2.0, 0.0)], width=0.2), 0.05, 12)
     assert signed_area(polygon) == pytest.approx(2.2 * 0.2)
     assert (z_min, z_max) == (-math.inf, math.inf)
     np.testing.assert_allclose(position, [1.0, 0.0, 0.0])
     marker = wall([(0, 0), (1, 0), (0, 1), (1, 1)], width=0.0)
     marker.type = Marker.LINE_LIST
-    polygons, *_ = conversions.marker_geometry(marker, 0.05, 12)
+    polygons, *_ = marker_obstacles.marker_geometry(marker, 0.05, 12)
     assert [signed_area(p) for p in polygons] == pytest.approx([1.05 * 0.05] * 2)
 
 
@@ -357,7 +357,7 @@ def test_flat_line_strip_with_scale_z_is_a_prism():
     for point in marker.points:
         point.z = 0.5
     marker.scale.z = 2.0
-    [polygon], z_min, z_max, _ = conversions.marker_geometry(marker, 0.05, 12)
+    [polygon], z_min, z_max, _ = marker_obstacles.marker_geometry(marker, 0.05, 12)
     assert (z_min, z_max) == (0.5, 2.5)
     assert signed_area(polygon) == pytest.approx(0.5)
 
@@ -367,7 +367,7 @@ def test_triangle_list_applies_pose_and_scale():
     marker = _solid(Marker.TRIANGLE_LIST, position=(10.0, 0.0, 0.0), scale=(2.0, 2.0, 1.0))
     marker.points = [Point(x=0.0, y=0.0, z=0.0), Point(x=1.0, y=0.0, z=0.0),
                      Point(x=0.0, y=1.0, z=1.0)]
-    [polygon], z_min, z_max, _ = conversions.marker_geometry(marker, 0.05, 12)
+    [polygon], z_min, z_max, _ = marker_obstacles.marker_geometry(marker, 0.05, 12)
     assert signed_area(polygon) == pytest.approx(2.0)
     assert point_in_polygon((10.5, 0.5), polygon)
     assert (z_min, z_max) == (0.0, 1.0)
@@ -384,7 +384,7 @@ def test_bad_markers_raise_a_reason(edit, reason):
     marker = wall([(0, 0), (1, 0), (1, 1)])
     edit(marker)
     with pytest.raises(ValueError, match=reason):
-        conversions.marker_geometry(marker, 0.05, 12)
+        marker_obstacles.marker_geometry(marker, 0.05, 12)
 
 
 def test_apply_markers_actions_frames_and_stamps():
@@ -395,16 +395,16 @@ def test_apply_markers_actions_frames_and_stamps():
     label = Marker(ns='walls', id=5, type=Marker.TEXT_VIEW_FACING)
     msg = MarkerArray(markers=[wall([(0, 0), (1, 0)], marker_id=1),
                                wall([(0, 2), (1, 2)], marker_id=2), nan_wall, no_frame, label])
-    conversions.apply_markers(tracker, msg, 42.0, 0.05, 12)
+    marker_obstacles.apply_markers(tracker, msg, 42.0, 0.05, 12)
     assert len(tracker) == 2 and tracker.has_invalid
     assert set(tracker.rejected) == {'walls/3', 'walls/4'}
     assert 'frame' in tracker.rejected['walls/4']
     assert tracker.snapshot('odom', 2)[1] == 42.0
-    conversions.apply_markers(tracker, MarkerArray(markers=[
+    marker_obstacles.apply_markers(tracker, MarkerArray(markers=[
         Marker(ns='walls', id=1, action=Marker.DELETE),
         Marker(ns='walls', id=3, action=Marker.DELETE)]), 43.0, 0.05, 12)
     assert len(tracker) == 1 and not tracker.has_invalid
-    conversions.apply_markers(tracker, MarkerArray(markers=[
+    marker_obstacles.apply_markers(tracker, MarkerArray(markers=[
         Marker(action=Marker.DELETEALL)]), 44.0, 0.05, 12)
     assert len(tracker) == 0 and tracker.rejected == {}
 
@@ -439,7 +439,7 @@ def test_moved_markers_reuse_their_shape():
     """
     tracker = ObstacleTracker()
     markers = _moving_markers()
-    conversions.apply_markers(tracker, MarkerArray(markers=markers), 1.0, 0.05, 12)
+    marker_obstacles.apply_markers(tracker, MarkerArray(markers=markers), 1.0, 0.05, 12)
     keys = [f'{m.ns}/{m.id}' for m in markers]
     shapes = [tracker.shape(key) for key in keys]
     for i, marker in enumerate(markers):
@@ -448,13 +448,13 @@ def test_moved_markers_reuse_their_shape():
         q = marker.pose.orientation
         if q.x == 0.0:   # turn the yawed ones further; the tilted one keeps its tilt
             q.z, q.w = _quaternion(0.0, 0.0, 2.0 * math.atan2(q.z, q.w) + 0.7)[2:]
-    conversions.apply_markers(tracker, MarkerArray(markers=markers), 1.1, 0.05, 12)
+    marker_obstacles.apply_markers(tracker, MarkerArray(markers=markers), 1.1, 0.05, 12)
     assert [tracker.shape(key) for key in keys] == shapes
     obstacles = {o.key: o for o in tracker.snapshot('odom', 3)[0]}
     for key, marker in zip(keys, markers):
         tilt = quaternion_matrix(marker.pose.orientation)
-        fresh = conversions.marker_shape(marker, 0.05, 12, tilt)
-        origin = conversions.marker_placement(marker)[0]
+        fresh = marker_obstacles.marker_shape(marker, 0.05, 12, tilt)
+        origin = marker_obstacles.marker_placement(marker)[0]
         for i, polygon in enumerate(fresh.polygons):
             obstacle = obstacles[key if len(fresh.polygons) == 1 else f'{key}#{i}']
             np.testing.assert_array_equal(_vertex_set(obstacle.polygon),
@@ -468,21 +468,21 @@ def test_changed_shapes_and_settings_are_rebuilt_and_bad_poses_still_refused():
     tracker = ObstacleTracker()
     outline = wall([(0.0, 0.0), (2.0, 0.0)], width=0.0)
     robot = _solid(Marker.CYLINDER)
-    conversions.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.0, 0.05, 12)
+    marker_obstacles.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.0, 0.05, 12)
     first_wall, first_robot = tracker.shape('walls/0'), tracker.shape('s/1')
-    conversions.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.1, 0.1, 12)
+    marker_obstacles.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.1, 0.1, 12)
     assert tracker.shape('walls/0') is not first_wall          # wall_thickness changed
     assert signed_area(tracker.shape('walls/0').polygons[0]) == pytest.approx(2.1 * 0.1)
     robot.scale.x = robot.scale.y = 2.0
     outline.points[1].x = 4.0
-    conversions.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.2, 0.1, 12)
+    marker_obstacles.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.2, 0.1, 12)
     assert tracker.shape('s/1') is not first_robot
     assert signed_area(tracker.shape('walls/0').polygons[0]) == pytest.approx(4.1 * 0.1)
     [polygon] = tracker.shape('s/1').polygons
     assert np.linalg.norm(polygon, axis=1).max() == pytest.approx(1.0 / math.cos(math.pi / 12))
     robot.pose.orientation.w = math.nan
     outline.pose.position.y = math.inf
-    conversions.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.3, 0.1, 12)
+    marker_obstacles.apply_markers(tracker, MarkerArray(markers=[outline, robot]), 1.3, 0.1, 12)
     assert tracker.has_invalid and len(tracker) == 0
     assert tracker.rejected == {'s/1': 'non-finite pose or scale',
                                 'walls/0': 'non-finite pose, scale or points'}

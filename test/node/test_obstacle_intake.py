@@ -5,7 +5,7 @@ from rclpy.serialization import serialize_message
 from visualization_msgs.msg import Marker
 
 from node_harness import markers, wall
-from polyc2bf_ros import cdr_reader, conversions
+from polyc2bf_ros import cdr_reader, marker_obstacles
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_intake import IntakeSettings, ObstacleIntake
@@ -51,9 +51,9 @@ def test_conflated_markers_leave_the_same_obstacles(steps):
                                     Marker.ADD if action == 'add' else Marker.DELETE))
     every, conflated = ObstacleTracker(), ObstacleTracker()
     for marker in sequence:
-        conversions.apply_markers(every, cdr_reader.MarkerArrayView((marker,)), 1.0, 0.05, 12)
-    merged = conversions.conflate_markers(sequence)
-    conversions.apply_markers(conflated, cdr_reader.MarkerArrayView(tuple(merged)), 1.0, 0.05,
+        marker_obstacles.apply_markers(every, cdr_reader.MarkerArrayView((marker,)), 1.0, 0.05, 12)
+    merged = marker_obstacles.conflate_markers(sequence)
+    marker_obstacles.apply_markers(conflated, cdr_reader.MarkerArrayView(tuple(merged)), 1.0, 0.05,
                               12)
     assert len(merged) <= len(sequence)
     a, _, _ = every.snapshot('odom', 2)
