@@ -29,11 +29,11 @@ YAML schema (units: m, s, rad, Hz)::
       spacing: 0.0             # optional: min gap between obstacles (circumcircles)
 
 ``radius`` (optional) is the robot's footprint circle as other robots see it,
-and a ``diff_drive`` base's body (a disc); defaults per type in ``ROBOT_RADIUS``.
-``quadruped`` and ``diff_drive`` are unicycles (``UNICYCLE_TYPES``): start
-``[x, y, yaw]``, goal ``[x, y]``.  A cylinder obstacle is a true cylinder in
-the simulator and is published (and seen by the filter) as the
-``CYLINDER_SIDES``-gon circumscribing it, as the node turns a CYLINDER marker.
+and a ``diff_drive`` base's body (a disc); the types, their default radii and
+start and goal layouts are ``sim_bridge.robots.ROBOT_TYPES``.  A cylinder
+obstacle is a true cylinder in the simulator and is published (and seen by the
+filter) as the ``CYLINDER_SIDES``-gon circumscribing it, as the node turns a
+CYLINDER marker.
 An obstacle with ``appear_at`` = t_a > 0 is a pop-up: before sim time t_a it
 does not exist (no body, no clearance or collision, no marker); ``polygon`` is
 its footprint at t_a, from which it then moves with ``velocity``.  Starts are
@@ -51,26 +51,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from polyc2bf_ros.core import crazyflie as cf
 from polyc2bf_ros.core.geometry import (
     clean_polygon,
     convex_hull,
     InvalidPolygonError,
     signed_distance,
 )
+from sim_bridge.robots import robot_type
 
 PACKAGE = 'polyc2bf_ros'
-ROBOT_TYPES = ('quadruped', 'diff_drive', 'crazyflie')
-UNICYCLE_TYPES = ('quadruped', 'diff_drive')
-# Footprint circle radius [m] around the base: the standing A1 reaches 0.378 m (its rear
-# knees stick out 0.354 m behind the base), a diff-drive base is a disc of this radius
-# (BARN's reference paths keep >= 0.225 m from every cylinder in 99 % of its worlds), the
-# Crazyflie its rotor tips.
-ROBOT_RADIUS = {'quadruped': 0.4, 'diff_drive': 0.2, 'crazyflie': cf.BODY_RADIUS}
-# Layouts of start and goal per robot type.
-START_FIELDS = {'quadruped': '[x, y, yaw]', 'diff_drive': '[x, y, yaw]',
-                'crazyflie': '[x, y, z, yaw]'}
-GOAL_FIELDS = {'quadruped': '[x, y]', 'diff_drive': '[x, y]', 'crazyflie': '[x, y, z]'}
 DEFAULT_Z = (0.0, 1.0)
 # Sides of the polygon circumscribing a cylinder obstacle: the node's ``cylinder_sides``.
 CYLINDER_SIDES = 12
@@ -326,13 +315,15 @@ def _robot(reader, data, path):
     reader.mapping(data, path, ('name', 'type', 'start', 'goal'), ('radius', 'path'))
     name = reader.name(data['name'], f'{path}.name')
     kind = data['type']
-    if kind not in ROBOT_TYPES:
-        reader.fail(f'{path}.type', f'expected one of {", ".join(ROBOT_TYPES)}, got {kind!r}')
-    size = 2 if kind in UNICYCLE_TYPES else 3
+    try:
+        robot = robot_type(kind)
+    except ValueError as exc:
+        reader.fail(f'{path}.type', str(exc))
+    size = robot.goal_size
     start = reader.numbers(data['start'], f'{path}.start', size + 1,
-                           f'{START_FIELDS[kind]} for a {kind}')
-    goal = reader.numbers(data['goal'], f'{path}.goal', size, f'{GOAL_FIELDS[kind]} for a {kind}')
-    radius = ROBOT_RADIUS[kind]
+                           f'{robot.start_fields} for a {kind}')
+    goal = reader.numbers(data['goal'], f'{path}.goal', size, f'{robot.goal_fields} for a {kind}')
+    radius = robot.radius
     if 'radius' in data:
         radius = reader.number(data['radius'], f'{path}.radius', positive=True)
     waypoints = None

@@ -5,9 +5,9 @@ import yaml
 
 from polyc2bf_ros.core import crazyflie as cf
 from polyc2bf_ros.core.geometry import minimum_enclosing_circle, signed_distance
+from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.scenario import (
     load_scenario,
-    ROBOT_RADIUS,
     SCENARIO_DIR,
     scenario_from_dict,
     scenario_names,
@@ -68,7 +68,7 @@ def test_defaults_are_filled_in():
     assert (scenario.physics_rate, scenario.control_rate, scenario.seed) == (240, 100, 0)
     obstacle = scenario.obstacles[0]
     assert obstacle.z == (0.0, 1.0) and not obstacle.moving and obstacle.name == 'obstacle_0'
-    assert scenario.robots[0].radius == ROBOT_RADIUS['quadruped'] == 0.4
+    assert scenario.robots[0].radius == ROBOT_TYPES['quadruped'].radius == 0.4
     data = _minimal()
     data['robots'][0] = {'name': 'cf', 'type': 'crazyflie', 'start': [0, 0, 1, 0],
                          'goal': [4, 0, 1]}

@@ -1,0 +1,82 @@
+"""The simulated robot types: one ``RobotType`` each, in ``ROBOT_TYPES``.
+
+The scenario loader, launcher, bridge, world, in-process loop and nominal
+controller read their per-type facts here; a new type is one entry plus its
+plant in ``sim_bridge.world.PLANTS``.
+"""
+import dataclasses
+from types import MappingProxyType
+
+from polyc2bf_ros.core import crazyflie as cf
+from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotType:
+    """What one robot type is to the simulation, its filter and its nominal controller.
+
+    ``model``: the filter's (and odometry state's) model name; ``params_file``: the
+    filter parameters under ``config/``; ``command_kind``: what the world is sent
+    ('velocity' [v, omega] or 'wrench' [T, tau]) as ``command_type`` on the filter's
+    ``nominal_topic`` (in) and ``safe_topic`` (out), with ``filter_parameters`` added;
+    ``radius``: default footprint radius [m]; ``start_fields`` / ``goal_fields``: the
+    scenario layouts; ``yaw_index``: the yaw's place in the state; ``radius_from_offset``:
+    the body is a disc guarded ``model_params.offset_l`` ahead of its centre.
+    """
+
+    name: str
+    model: str
+    params_file: str
+    command_kind: str
+    command_type: str
+    safe_topic: str
+    nominal_topic: str
+    radius: float
+    start_fields: str
+    goal_fields: str
+    goal_controller: type
+    state_size: int
+    yaw_index: int
+    filter_parameters: MappingProxyType = dataclasses.field(
+        default_factory=lambda: MappingProxyType({}))
+    radius_from_offset: bool = False
+
+    @property
+    def unicycle(self):
+        """Return True for a ground robot with the unicycle state [x, y, theta, v, omega]."""
+        return self.model == 'unicycle'
+
+    @property
+    def goal_size(self):
+        """Return the number of goal coordinates (the start adds the yaw)."""
+        return len(self.goal_fields.split(','))
+
+
+_TWIST = dict(model='unicycle', command_kind='velocity',
+              command_type='geometry_msgs/msg/TwistStamped', safe_topic='cmd_vel_out',
+              nominal_topic='cmd_vel_in', start_fields='[x, y, yaw]', goal_fields='[x, y]',
+              goal_controller=UnicycleGoalController, state_size=5, yaw_index=2,
+              filter_parameters=MappingProxyType({'stamped': True}))
+
+# Footprint circle radius [m] around the base: the standing A1 reaches 0.378 m (its rear
+# knees stick out 0.354 m behind the base), a diff-drive base is a disc of this radius
+# (BARN's reference paths keep >= 0.225 m from every cylinder in 99 % of its worlds), the
+# Crazyflie its rotor tips.
+ROBOT_TYPES = MappingProxyType({robot.name: robot for robot in (
+    RobotType('quadruped', params_file='quadruped.yaml', radius=0.4, **_TWIST),
+    RobotType('diff_drive', params_file='diff_drive.yaml', radius=0.2,
+              radius_from_offset=True, **_TWIST),
+    RobotType('crazyflie', model='quadrotor', params_file='crazyflie_thrust.yaml',
+              command_kind='wrench', command_type='geometry_msgs/msg/WrenchStamped',
+              safe_topic='wrench_out', nominal_topic='wrench_in', radius=cf.BODY_RADIUS,
+              start_fields='[x, y, z, yaw]', goal_fields='[x, y, z]',
+              goal_controller=QuadrotorGoalController, state_size=12, yaw_index=8),
+)})
+
+
+def robot_type(name):
+    """Return the RobotType called ``name``; ValueError naming the valid types."""
+    try:
+        return ROBOT_TYPES[name]
+    except (KeyError, TypeError):
+        raise ValueError(f'expected one of {", ".join(ROBOT_TYPES)}, got {name!r}') from None
