@@ -92,8 +92,6 @@ SEARCH_STEP = 0.1
 # the list is kept until the robot has moved as far [m] (``SimWorld._near_obstacles``).
 NEAR_MARGIN = 0.25
 FOOTPRINT_SEGMENTS = 16               # vertices of a robot's footprint circle
-COMMAND_KINDS = {'quadruped': ('velocity', 'acceleration'),
-                 'diff_drive': ('velocity', 'acceleration'), 'crazyflie': ('thrusts', 'wrench')}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -206,7 +204,14 @@ class _Obstacle:
 
 
 class _Robot:
-    """Shared parts of the two plants: the body, its footprint circle, reach and height."""
+    """Shared parts of the plants: the body, its footprint circle, reach and height.
+
+    ``COMMAND_KINDS``: the kinds ``set_command`` takes, the default first;
+    ``BULLET_STEPS``: Bullet integrates the body (else the plant places it).
+    """
+
+    COMMAND_KINDS = ()
+    BULLET_STEPS = False
 
     def __init__(self, spec, body, client):
         """Measure the body: ``reach`` [m] bounds its horizontal extent from the base."""
@@ -252,6 +257,8 @@ class _Unicycle(_Robot):
 
     The body is kept asleep and out of contact solving; its base sits at ``height``.
     """
+
+    COMMAND_KINDS = ('velocity', 'acceleration')
 
     def __init__(self, spec, body, client, height):
         """Put ``body`` to sleep for good, drop it from contacts, start from the spec's pose."""
@@ -338,7 +345,7 @@ class _Quadruped(_Unicycle):
 class _DiffDrive(_Unicycle):
     """Diff-drive base: the unicycle plant carrying an upright cylinder of the spec's radius."""
 
-    def __init__(self, spec, client):
+    def __init__(self, spec, client, ground):
         """Create the disc (collision margin 0) standing on the ground at the start pose."""
         shape = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=spec.radius,
                                         height=DIFF_DRIVE_HEIGHT, physicsClientId=client)
@@ -350,7 +357,10 @@ class _DiffDrive(_Unicycle):
 class _Crazyflie(_Robot):
     """Crazyflie 2.1 rigid body driven by four rotor thrusts (see the module docstring)."""
 
-    def __init__(self, spec, client):
+    COMMAND_KINDS = ('thrusts', 'wrench')
+    BULLET_STEPS = True
+
+    def __init__(self, spec, client, ground):
         """Load the URDF at the start pose with its own inertia and zero damping."""
         x, y, z, yaw = spec.start
         body = pb.loadURDF(str(CRAZYFLIE_URDF), (x, y, z), _yaw_quaternion(yaw),
@@ -403,6 +413,12 @@ class _Crazyflie(_Robot):
                 position[2] + CRAZYFLIE_HALF_HEIGHT)
 
 
+
+# Robot type (``sim_bridge.robots.ROBOT_TYPES``): its plant, built as ``plant(spec, client,
+# ground)`` with the ground plane's body id.
+PLANTS = {'quadruped': _Quadruped, 'diff_drive': _DiffDrive, 'crazyflie': _Crazyflie}
+
+
 class SimWorld:
     """A scenario's PyBullet world; call ``close()`` (or use ``with``) when done."""
 
@@ -428,14 +444,12 @@ class SimWorld:
                               key=lambda o: o.spec.appear_at)
         self.obstacle_version = 0
         self._moving = [o for o in self._obstacles if o.moving and o.present]
-        plants = {'quadruped': lambda spec: _Quadruped(spec, client, ground),
-                  'diff_drive': lambda spec: _DiffDrive(spec, client),
-                  'crazyflie': lambda spec: _Crazyflie(spec, client)}
-        self._robots = {spec.name: plants[spec.type](spec) for spec in scenario.robots}
+        self._robots = {spec.name: PLANTS[spec.type](spec, client, ground)
+                        for spec in scenario.robots}
         self._plants = list(self._robots.values())
-        # Only a Crazyflie is integrated by Bullet; unicycle plants and obstacles are placed
-        # by resets, so a world without one skips stepSimulation (see step()).
-        self._bullet_steps = any(isinstance(p, _Crazyflie) for p in self._plants)
+        # Unicycle plants and obstacles are placed by resets, so a world without a
+        # Bullet-integrated plant skips stepSimulation (see step()).
+        self._bullet_steps = any(p.BULLET_STEPS for p in self._plants)
         for index, plant in enumerate(self._plants):
             plant.index = index
         self._lower = np.array([o.lower for o in self._obstacles]).reshape(-1, 2)
@@ -469,7 +483,7 @@ class SimWorld:
         Raises ValueError for an unknown kind or a wrongly sized or non-finite command.
         """
         plant = self._robots[robot]
-        kinds = COMMAND_KINDS[plant.spec.type]
+        kinds = plant.COMMAND_KINDS
         kind = kind or kinds[0]
         if kind not in kinds:
             raise ValueError(f'{robot} ({plant.spec.type}) takes commands of kind '
