@@ -90,7 +90,7 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, TwistStamped, WrenchStamped
+from geometry_msgs.msg import Point
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -114,7 +114,8 @@ from sim_bridge.bag_reader import message_class
 from sim_bridge.cdr import OdometryCdr, tf_message_cdr, TF_MESSAGE_TYPE
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.recorder import BagRecorder, close_on_signals
-from sim_bridge.scenario import load_scenario, UNICYCLE_TYPES
+from sim_bridge.robots import ROBOT_TYPES
+from sim_bridge.scenario import load_scenario
 from sim_bridge.world import SimWorld
 
 try:
@@ -153,12 +154,6 @@ DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 RECEIVE_DEPTH = 100  # reader history of the bridge's subscriptions (recorded as offered above)
 STARTUP_RESEND = 0.25  # wall s between re-sends of the t = 0 topics while waiting
 SERVICE_PERIOD = 0.1  # wall s between turns of the executor for services; longest wait
-# robot type: (command type, safe topic, nominal topic, plant command kind).
-COMMANDS = {
-    'quadruped': (TwistStamped, 'cmd_vel_out', 'cmd_vel_in', 'velocity'),
-    'diff_drive': (TwistStamped, 'cmd_vel_out', 'cmd_vel_in', 'velocity'),
-    'crazyflie': (WrenchStamped, 'wrench_out', 'wrench_in', 'wrench'),
-}
 LINE_WIDTH = 0.02
 COLORS = {'static': ColorRGBA(r=0.6, g=0.6, b=0.6, a=0.9),
           'moving': ColorRGBA(r=1.0, g=0.5, b=0.0, a=0.9),
@@ -343,16 +338,17 @@ class BridgeNode(Node):
     def _add_robot(self, name):
         """Create one robot's publishers and subscriptions."""
         spec = self.world.robot_spec(name)
-        command_type, safe, nominal, kind = COMMANDS[spec.type]
+        robot_type = ROBOT_TYPES[spec.type]
+        safe, nominal = robot_type.safe_topic, robot_type.nominal_topic
         child_frame = f'{name}/base_link'
         odom_pub = self._publisher(Odometry, f'{name}/odom', PUBLISHED_QOS)
         obstacles_pub = self._publisher(MarkerArray, f'{name}/obstacles', LATCHED_QOS)
-        robot = _Robot(name=name, type=spec.type, kind=kind, odom_topic=odom_pub.topic_name,
-                       obstacles_topic=obstacles_pub.topic_name,
+        robot = _Robot(name=name, type=spec.type, kind=robot_type.command_kind,
+                       odom_topic=odom_pub.topic_name, obstacles_topic=obstacles_pub.topic_name,
                        command_topic=f'{name}/{safe}', odom_pub=odom_pub,
                        obstacles_pub=obstacles_pub, child_frame=child_frame,
                        odom_cdr=OdometryCdr(self.frame, child_frame))
-        type_name = f'geometry_msgs/msg/{command_type.__name__}'
+        type_name = robot_type.command_type
         self._record_only(COMMAND_QOS, type_name, f'{name}/{safe}',
                           lambda data: self._on_command(robot, data))
         self._record_only(COMMAND_QOS, type_name, f'{name}/{nominal}')
@@ -435,7 +431,7 @@ class BridgeNode(Node):
             self.get_logger().error(f'{robot.command_topic}: {exc}', throttle_duration_sec=1.0)
             return
         stamp_ns, (x, _, z, rx, ry, rz) = command.stamp_ns, command.values
-        values = (x, rz) if robot.type in UNICYCLE_TYPES else (z, rx, ry, rz)
+        values = (x, rz) if robot.kind == 'velocity' else (z, rx, ry, rz)
         if self.lockstep and (stamp_ns != self._now_ns or robot.answered_ns == stamp_ns):
             robot.stray += 1
             return
@@ -509,7 +505,7 @@ class BridgeNode(Node):
         for robot in self.robots:
             if robot.command is not None and self.world.time - robot.command_time <= timeout:
                 self.world.set_command(robot.name, robot.command, robot.kind)
-            elif robot.type in UNICYCLE_TYPES:
+            elif robot.kind == 'velocity':
                 self.world.set_command(robot.name, (0.0, 0.0), 'velocity')
             else:
                 state = self.world.robot_state(robot.name)

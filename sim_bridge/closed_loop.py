@@ -9,12 +9,12 @@ round(physics_rate / control_rate)`` physics steps), for every robot at once::
     world.set_command(robot, safe); n x world.step()        (zero-order hold)
 
 Nominal laws (``NOMINALS``): ``goal``, the go-to-goal controller of the robot's
-type; ``path``, pure pursuit along the robot's scenario ``path``
-(``UnicyclePathController``, unicycle types only).  The filter is configured
-from the same parameter file the node gets (``config/quadruped.yaml``,
-``config/diff_drive.yaml``, ``config/crazyflie_thrust.yaml``), read and built as
-the node does (``polyc2bf_ros.filter_parameters``), with the lockstep run's
-``rate`` = 1/T, the chosen ``filter.barrier`` and what the body implies
+type (``sim_bridge.robots``); ``path``, pure pursuit along the robot's scenario
+``path`` (``UnicyclePathController``, unicycle types only).  The filter is
+configured from the same parameter file the node gets (the type's
+``params_file``), read and built as the node does
+(``polyc2bf_ros.filter_parameters``), with the lockstep run's ``rate`` = 1/T,
+the chosen ``filter.barrier`` and what the body implies
 (``launcher.body_parameters``); with ``barrier='none'`` the nominal command goes
 straight to the robot.  Metrics come from the bridge's own ``RunMetrics``
 (sampled once per period).  ``until``, if given, is asked after every period
@@ -49,29 +49,16 @@ from visualization_msgs.msg import Marker
 
 from polyc2bf_ros import marker_obstacles
 from polyc2bf_ros.core import crazyflie
-from polyc2bf_ros.core.nominal import (
-    QuadrotorGoalController,
-    ReferencePath,
-    UnicycleGoalController,
-    UnicyclePathController,
-)
+from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig
-from polyc2bf_ros.filter_parameters import build_filter, load_parameters
+from polyc2bf_ros.filter_parameters import build_filter, load_parameters, NODE_PARAMETERS
 from sim_bridge.launcher import body_parameters, control_rate, FILTER_CHOICES, params_file
 from sim_bridge.metrics import RunMetrics
-from sim_bridge.scenario import load_scenario, UNICYCLE_TYPES
+from sim_bridge.robots import ROBOT_TYPES
+from sim_bridge.scenario import load_scenario
 from sim_bridge.world import SimWorld
 
-# The node's defaults for markers without their own parameters (safety_filter_node).
-CYLINDER_SIDES = 12
-WALL_THICKNESS = 0.05
-# robot type: (nominal controller, world command kind, state index of the yaw)
-ROBOT_TYPES = {
-    'quadruped': (UnicycleGoalController, 'velocity', 2),
-    'diff_drive': (UnicycleGoalController, 'velocity', 2),
-    'crazyflie': (QuadrotorGoalController, 'wrench', 8),
-}
 NOMINALS = ('goal', 'path')
 
 
@@ -82,12 +69,13 @@ def default_barrier(robot_type):
 
 
 def _cylinder_polygon(radius):
-    """Return the node's polygon (k, 2) for the bridge's robot CYLINDER marker, at the origin."""
+    """Return the polygon (k, 2) the node's defaults make of a robot CYLINDER marker, at 0."""
     marker = Marker(type=Marker.CYLINDER)
     marker.scale.x = marker.scale.y = 2.0 * radius
     marker.scale.z = 1.0
     marker.pose.orientation.w = 1.0
-    polygons, *_ = marker_obstacles.marker_geometry(marker, WALL_THICKNESS, CYLINDER_SIDES)
+    polygons, *_ = marker_obstacles.marker_geometry(
+        marker, NODE_PARAMETERS['wall_thickness'][0], NODE_PARAMETERS['cylinder_sides'][0])
     return polygons[0]
 
 
@@ -113,13 +101,13 @@ class RobotTrace:
 
     def speeds(self):
         """Return the speed [m/s] at every recorded state (|v| or |velocity|)."""
-        if self.type in UNICYCLE_TYPES:
+        if ROBOT_TYPES[self.type].unicycle:
             return np.abs(self.states[:, 3])
         return np.linalg.norm(self.states[:, 3:6], axis=1)
 
     def positions(self):
         """Return the positions (K + 1, 2 or 3): [x, y] or [x, y, z]."""
-        return self.states[:, :2] if self.type in UNICYCLE_TYPES else self.states[:, :3]
+        return self.states[:, :2] if ROBOT_TYPES[self.type].unicycle else self.states[:, :3]
 
 
 @dataclasses.dataclass
@@ -146,11 +134,12 @@ class _Robot:
 
     def __init__(self, spec, barrier, nominal, period, steps, world):
         """Build the nominal law and (unless ``barrier`` is 'none') the node's CommandFilter."""
-        controller_class, self.kind, self.yaw_index = ROBOT_TYPES[spec.type]
+        robot = ROBOT_TYPES[spec.type]
+        self.kind, self.yaw_index = robot.command_kind, robot.yaw_index
         self.spec = spec
-        self.controller, self.target = controller_class(), spec.goal
+        self.controller, self.target = robot.goal_controller(), spec.goal
         if nominal == 'path':
-            if spec.type not in UNICYCLE_TYPES or spec.path is None:
+            if not robot.unicycle or spec.path is None:
                 raise ValueError(f'robot {spec.name!r}: the path nominal needs a unicycle '
                                  f'robot with a path, not a {spec.type} with path {spec.path}')
             self.controller, self.target = UnicyclePathController(), ReferencePath(spec.path)
@@ -163,7 +152,7 @@ class _Robot:
             self.filter = build_filter({**parameters, 'filter.barrier': barrier}).command_filter
         self.robot_radius = self.reference.safety_filter.config.robot_radius
         state = world.robot_state(spec.name)
-        dim = 2 if spec.type in UNICYCLE_TYPES else 4
+        dim = 2 if robot.unicycle else 4
         inputs = self.reference.model.input_dim
         self.times = np.arange(steps) * period
         self.states = np.zeros((steps + 1, state.size))
