@@ -14,7 +14,9 @@ Per run (one record in ``results.json``; DESIGN.md section 8 keys first):
 a success), ``barn_metric`` (``barn.barn_metric``), ``min_clearance_m`` (null:
 nothing came within 0.5 m), ``mean_intervention`` and ``fallback_rate`` as in
 the scenario suite (``evaluate.filter_statistics``; null for ``none``); extras:
-``optimal_time_s``, ``final_distance_m`` (to the goal), ``path_length_m``,
+``optimal_time_s``, ``final_position`` [x, y], ``final_distance_m`` (to the
+goal), ``final_gap_m`` (from the disc to the nearest cylinder's surface at the
+end, exact for cylinders: |p - c| - r_cylinder - r_disc), ``path_length_m``,
 latency, fallback steps, ``steps`` and ``wall_time_s``.
 
 ``results.md``: one row per filter x nominal (rates over worlds, mean metric
@@ -66,6 +68,9 @@ def barn_record(world, run):
     """Return the result record of one BARN run (module docstring)."""
     outcome = run.ended or 'timeout'
     trace = run.robots[ROBOT_NAME]
+    final = trace.positions()[-1]
+    radius = run.scenario.robot(ROBOT_NAME).radius
+    gaps = np.hypot(*(world.centers - final).T) - world.cylinder_radius - radius
     metrics = run.metrics[ROBOT_NAME]
     time_s = len(trace.times) * run.period
     success = outcome == 'success'
@@ -80,7 +85,9 @@ def barn_record(world, run):
         'mean_intervention': stats['mean_intervention'],
         'fallback_rate': stats['fallback_rate'],
         'outcome': outcome, 'optimal_time_s': _round(world.optimal_time, 3),
-        'final_distance_m': _round(math.dist(trace.positions()[-1], world.goal)),
+        'final_position': [_round(value, 3) for value in final],
+        'final_distance_m': _round(math.dist(final, world.goal)),
+        'final_gap_m': _round(gaps.min()) if len(gaps) else None,
         'path_length_m': metrics['path_length_m'],
         'latency_p50_us': stats['latency_p50_us'], 'latency_p99_us': stats['latency_p99_us'],
         'fallback_steps': stats['fallback_steps'], 'steps': stats['steps'],
@@ -201,8 +208,12 @@ def barn_table(rows):
 
 
 def write_barn_outputs(out, records, trajectories, worlds, command, wall_time_s, jobs,
-                       plots_too=True):
-    """Write results.json, results.md and (unless ``plots_too`` is False) the PNGs."""
+                       plots_too=True, worlds_label=None):
+    """Write results.json, results.md and (unless ``plots_too`` is False) the PNGs.
+
+    ``worlds_label`` names the world file in results.md (default: the path it was read from).
+    """
+    worlds_label = worlds_label or worlds[0].source
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / 'results.json').write_text(json.dumps(records, indent=1) + '\n')
@@ -213,7 +224,7 @@ def write_barn_outputs(out, records, trajectories, worlds, command, wall_time_s,
             f'Date: {datetime.now().isoformat(timespec="seconds")}; wall time '
             f'{wall_time_s:.0f} s over {jobs} process(es); load average after the run: '
             f'{load}.  ',
-            f'{len(records)} runs over {len(worlds)} worlds (from `{worlds[0].source}`); '
+            f'{len(records)} runs over {len(worlds)} worlds (from `{worlds_label}`); '
             'per run JSON in `results.json`.  Definitions: `sim_bridge/barn.py` and '
             '`sim_bridge/barn_suite.py` docstrings.  Rates are shares of the worlds; the '
             "metric is BARN's (failures count 0, at most 0.5); DWA is BARN's published "
@@ -239,6 +250,7 @@ def main_barn(parser, args, command):
     for option in ('jobs', 'limit'):
         if getattr(args, option) is not None and getattr(args, option) < 1:
             parser.error(f'--{option} must be >= 1')
+    label = args.worlds or 'bench/data/barn/barn_worlds.json (shipped)'
     try:
         worlds = load_worlds(args.worlds or WORLDS_FILE)[:args.limit]
     except BarnError as exc:
@@ -254,7 +266,7 @@ def main_barn(parser, args, command):
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130
     rows = write_barn_outputs(out, records, trajectories, worlds, command,
-                              time.monotonic() - start, jobs, not args.no_plots)
+                              time.monotonic() - start, jobs, not args.no_plots, label)
     print(barn_table(rows))
     print(f'\nwrote {out / "results.json"}, results.md'
           + ('' if args.no_plots else ', outcomes.png, trajectories.png, metric_histogram.png'))

@@ -192,10 +192,10 @@ def _units(run):
 # -- progress ------------------------------------------------------------------------------
 
 class Progress:
-    """A progress bar with ETA on stderr, counted in simulated robot-seconds."""
+    """A progress bar with ETA on stderr (scenario suite: simulated robot-seconds; BARN: runs)."""
 
     def __init__(self, total, stream=None, width=30):
-        """Expect ``total`` robot-seconds of simulation; write to ``stream`` (stderr)."""
+        """Expect ``total`` units of work; write to ``stream`` (stderr)."""
         self.total = max(total, 1e-9)
         self.done = 0.0
         self.stream = stream or sys.stderr
@@ -205,7 +205,7 @@ class Progress:
         self._last = 0.0
 
     def update(self, done, label, force=False):
-        """Show ``done`` robot-seconds finished, working on ``label``."""
+        """Show ``done`` units finished, working on ``label``."""
         self.done = done
         now = time.monotonic()
         if not force and now - self._last < (0.2 if self.tty else 10.0):

@@ -165,13 +165,15 @@ def test_path_nominal_follows_the_detour_and_goal_nominal_hits_the_row(blocked):
         assert sum(outcomes) == 1
         if record['nominal'] == 'path':
             assert record['success'] and record['min_clearance_m'] > 0.0
-            assert record['final_distance_m'] <= 1.0
+            assert record['final_distance_m'] <= 1.0 and record['final_gap_m'] > 0.0
             assert record['barn_metric'] == pytest.approx(
                 record['optimal_time_s'] / max(record['time_s'], 2 * record['optimal_time_s']),
                 abs=1e-4)
         else:
             assert record['collision'] and record['barn_metric'] == 0.0
             assert record['min_clearance_m'] < 0.0 and record['time_s'] < 5.0
+            assert record['final_gap_m'] == pytest.approx(record['min_clearance_m'], abs=2e-3)
+            assert record['final_position'][1] < 6.0
 
 
 def test_results_md_plots_and_progress(blocked):
