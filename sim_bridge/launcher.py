@@ -3,10 +3,9 @@
 ``closed_loop_plan(scenario, barrier)`` says which processes a run needs:
 ``sim_bridge``, and per robot namespace ``<ns>`` a ``nominal_controller`` and,
 unless ``barrier`` is ``'none'``, a ``safety_filter`` with the robot type's
-parameter file (``config/quadruped.yaml``, ``config/diff_drive.yaml``,
-``config/crazyflie_thrust.yaml``), the lockstep overrides below and what the
-robot's body implies (``body_parameters``: a diff-drive disc of radius r guarded
-l ahead of its axle needs ``filter.robot_radius`` = r + l).  Without a filter the
+parameter file and topics (``sim_bridge.robots``), the lockstep overrides below
+and what the robot's body implies (``body_parameters``: a diff-drive disc of
+radius r guarded l ahead of its axle needs ``filter.robot_radius`` = r + l).  Without a filter the
 nominal command is remapped straight onto the robot's safe-command topic.
 ``launch/demo.launch.py`` turns the same plan into ``launch_ros`` Node actions.
 
@@ -41,6 +40,7 @@ import threading
 import time
 from pathlib import Path
 
+from sim_bridge import robots
 from sim_bridge.scenario import load_scenario, SCENARIO_DIR
 
 CONFIG_DIR = SCENARIO_DIR.parent
@@ -48,12 +48,6 @@ CONFIG_DIR = SCENARIO_DIR.parent
 SOURCE_ROOT = Path(__file__).resolve().parents[1]
 BARRIERS = ('polyc2bf_paper', 'polyc2bf_inflated', 'c3bf')
 FILTER_CHOICES = BARRIERS + ('none',)
-# robot type: (filter parameter file, safe-command topic, nominal-command topic, stamped param).
-ROBOT_IO = {
-    'quadruped': ('quadruped.yaml', 'cmd_vel_out', 'cmd_vel_in', {'stamped': True}),
-    'diff_drive': ('diff_drive.yaml', 'cmd_vel_out', 'cmd_vel_in', {'stamped': True}),
-    'crazyflie': ('crazyflie_thrust.yaml', 'wrench_out', 'wrench_in', {}),
-}
 LOCKSTEP_FILTER = {'trigger': 'command', 'match_stamps': True, 'odom_timeout': 10.0,
                    'cmd_timeout': 10.0, 'obstacles_timeout': 0.0}
 # Wall seconds the bridge waits for first answers and per period: generous for a loaded
@@ -140,18 +134,18 @@ def control_rate(scenario):
 
 
 def params_file(robot_type):
-    """Return the filter parameter file shipped for ``robot_type``."""
-    return CONFIG_DIR / ROBOT_IO[robot_type][0]
+    """Return the filter parameter file shipped for ``robot_type`` (ValueError if unknown)."""
+    return CONFIG_DIR / robots.robot_type(robot_type).params_file
 
 
 def body_parameters(spec):
-    """Return the filter overrides ``spec``'s body implies (none but for a diff drive).
+    """Return the filter overrides ``spec``'s body implies (none but for a disc body).
 
     The barrier guards the point ``model_params.offset_l`` ahead of the axle (from the
     type's parameter file), so ``filter.robot_radius`` = disc radius + offset_l covers the
     disc from there.
     """
-    if spec.type != 'diff_drive':
+    if not robots.ROBOT_TYPES[spec.type].radius_from_offset:
         return {}
     # Imported here: it brings rclpy, which planning a run does not otherwise need.
     from polyc2bf_ros.filter_parameters import load_parameters
@@ -191,7 +185,8 @@ def closed_loop_plan(scenario, barrier='polyc2bf_inflated', bridge_parameters=No
     plan = [ProcessSpec('bridge', 'sim_bridge', 'sim_bridge.bridge_node', parameters=bridge)]
     rate = control_rate(scenario)
     for robot in scenario.robots:
-        config, safe, nominal, extra = ROBOT_IO[robot.type]
+        robot_type = robots.ROBOT_TYPES[robot.type]
+        safe, nominal = robot_type.safe_topic, robot_type.nominal_topic
         goal = [float(g) for g in robot.goal]
         controller = {'robot_type': robot.type, 'goal': goal}
         if barrier == 'none':
@@ -201,11 +196,12 @@ def closed_loop_plan(scenario, barrier='polyc2bf_inflated', bridge_parameters=No
             continue
         plan.append(ProcessSpec(f'{robot.name}_nominal', 'nominal_controller',
                                 'sim_bridge.nominal_controller_node', robot.name, controller))
-        parameters = {**extra, **LOCKSTEP_FILTER, 'rate': rate, 'filter.barrier': barrier,
-                      **body_parameters(robot), **(filter_parameters or {})}
+        parameters = {**robot_type.filter_parameters, **LOCKSTEP_FILTER, 'rate': rate,
+                      'filter.barrier': barrier, **body_parameters(robot),
+                      **(filter_parameters or {})}
         plan.append(ProcessSpec(f'{robot.name}_filter', 'safety_filter',
                                 'polyc2bf_ros.safety_filter_node', robot.name, parameters,
-                                params_file=CONFIG_DIR / config))
+                                params_file=CONFIG_DIR / robot_type.params_file))
     return plan
 
 
