@@ -26,27 +26,17 @@ import dataclasses
 import sys
 
 import numpy as np
-from geometry_msgs.msg import TwistStamped, WrenchStamped
 from nav_msgs.msg import Odometry, Path
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from polyc2bf_ros import conversions
-from polyc2bf_ros.core.nominal import (
-    QuadrotorGoalController,
-    ReferencePath,
-    UnicycleGoalController,
-    UnicyclePathController,
-)
+from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
 from polyc2bf_ros.node_main import run_node
+from sim_bridge.bag_reader import message_class
+from sim_bridge.robots import ROBOT_TYPES
 
-# robot_type: (controller class, core model name for the odometry state, goal size).
-ROBOT_TYPES = {
-    'quadruped': (UnicycleGoalController, 'unicycle', 2),
-    'diff_drive': (UnicycleGoalController, 'unicycle', 2),
-    'crazyflie': (QuadrotorGoalController, 'quadrotor', 3),
-}
 CONTROLLERS = ('goal', 'path')
 COMMAND_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
 ODOM_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -61,18 +51,20 @@ class NominalControllerNode(Node):
         """Declare ``robot_type``, ``controller``, ``goal`` and ``gains.*``; wire the topics."""
         super().__init__('nominal_controller', **kwargs)
         robot_type = self.declare_parameter('robot_type', 'quadruped', ParameterDescriptor(
-            description='quadruped or diff_drive (TwistStamped on cmd_vel_in) or crazyflie '
-            '(WrenchStamped on wrench_in)', read_only=True)).value
+            description='a sim_bridge.robots type: quadruped or diff_drive (TwistStamped on '
+            'cmd_vel_in) or crazyflie (WrenchStamped on wrench_in)', read_only=True)).value
         if robot_type not in ROBOT_TYPES:
             raise ValueError(f"parameter 'robot_type' must be one of {', '.join(ROBOT_TYPES)}, "
                              f'got {robot_type!r}')
+        robot = ROBOT_TYPES[robot_type]
         kind = self.declare_parameter('controller', 'goal', ParameterDescriptor(
             description="'goal': go to the goal parameter; 'path': pure pursuit along the "
             'nav_msgs/Path on plan (unicycle robot types)', read_only=True)).value
-        if kind not in CONTROLLERS or (kind == 'path' and robot_type == 'crazyflie'):
+        if kind not in CONTROLLERS or (kind == 'path' and not robot.unicycle):
             raise ValueError(f"parameter 'controller' must be 'goal', or 'path' for a "
                              f'unicycle robot type, got {kind!r} for a {robot_type}')
-        controller_class, self._model, goal_size = ROBOT_TYPES[robot_type]
+        controller_class, self._model, goal_size = (robot.goal_controller, robot.model,
+                                                    robot.goal_size)
         if kind == 'path':
             controller_class = UnicyclePathController
         goal = self.declare_parameter('goal', [0.0] * goal_size, ParameterDescriptor(
@@ -90,18 +82,14 @@ class NominalControllerNode(Node):
                                                              to_value=1000.0)])).value
         self._controller = controller_class(**gains)
         self._target = self._goal
-        self._state = np.zeros(12 if robot_type == 'crazyflie' else 5)
+        self._state = np.zeros(robot.state_size)
         if kind == 'path':
             self._target = None  # no plan yet: stand still
             self.create_subscription(Path, 'plan', self._on_plan, PLAN_QOS)
-        if robot_type != 'crazyflie':
-            self._out = TwistStamped()
-            self._publisher = self.create_publisher(TwistStamped, 'cmd_vel_in', COMMAND_QOS)
-            self._fill = self._fill_twist
-        else:
-            self._out = WrenchStamped()
-            self._publisher = self.create_publisher(WrenchStamped, 'wrench_in', COMMAND_QOS)
-            self._fill = self._fill_wrench
+        command_type = message_class(robot.command_type)
+        self._out = command_type()
+        self._publisher = self.create_publisher(command_type, robot.nominal_topic, COMMAND_QOS)
+        self._fill = self._fill_twist if robot.command_kind == 'velocity' else self._fill_wrench
         self.create_subscription(Odometry, 'odom', self._on_odom, ODOM_QOS, raw=True)
         self.get_logger().info(f'{robot_type} following the plan' if kind == 'path'
                                else f'{robot_type} to goal {self._goal.tolist()}')

@@ -25,6 +25,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, FancyArrowPatch, Polygon, Rectangle
 
 from polyc2bf_ros.core.geometry import minimum_enclosing_circle
+from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.world import CLEARANCE_RANGE
 
 C3BF_STYLE = {'fill': False, 'edgecolor': 'tab:red', 'linestyle': ':', 'linewidth': 1.2}
@@ -39,7 +40,7 @@ MARGIN = 1.0
 
 def is_aerial(scenario):
     """Return True when some robot of the scenario flies (a side view is useful)."""
-    return any(robot.type == 'crazyflie' for robot in scenario.robots)
+    return any(ROBOT_TYPES[robot.type].aerial for robot in scenario.robots)
 
 
 def c3bf_circles(scenario, robot_radius):

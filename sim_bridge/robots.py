@@ -47,6 +47,11 @@ class RobotType:
         return self.model == 'unicycle'
 
     @property
+    def aerial(self):
+        """Return True for a flying robot (positions [x, y, z])."""
+        return self.goal_size == 3
+
+    @property
     def goal_size(self):
         """Return the number of goal coordinates (the start adds the yaw)."""
         return len(self.goal_fields.split(','))
