@@ -95,6 +95,7 @@ class ObstaclePipeline:
                 continue
             self._unreadable, self._received = '', received
         settings, tracker = job.settings, self._tracker
+        dim = self._filter_for(job.filter_spec).model.position_dim
         marker_obstacles.apply_markers(
             tracker, cdr_reader.MarkerArrayView(tuple(marker_obstacles.conflate_markers(markers))),
             job.now, settings.wall_thickness, settings.cylinder_sides,
@@ -103,8 +104,7 @@ class ObstaclePipeline:
         if job.frame is not None:
             try:
                 obstacles, t_ref, wrong_frame = tracker.obstacle_set(
-                    job.frame, self._filter_for(job.filter_spec).model.position_dim,
-                    settings.max_parts, settings.max_obstacles)
+                    job.frame, dim, settings.max_parts, settings.max_obstacles)
                 self._filter.prepare(obstacles)
             except ValueError as exc:
                 obstacles, error = ObstacleSet.empty(), f'obstacle set could not be built: {exc}'
@@ -201,7 +201,14 @@ class ObstacleIntake:
         self._wake.set()
 
     def start(self):
-        """Start the feeder thread (a daemon); it starts the worker process on first use."""
+        """Start the worker process, wait until it is ready, then the feeder thread (a daemon).
+
+        Ready means one empty pass answered (imports done, the filter built), so the first
+        obstacle message is not held up by the worker's start-up (about a second).
+        """
+        with self._lock:
+            warm_up = ObstacleJob([], None, self._settings, self._filter_spec, 0.0)
+        self._run_in_worker(warm_up)
         self._feeder = threading.Thread(target=self._feed, name='obstacle_intake', daemon=True)
         self._feeder.start()
 
