@@ -1,7 +1,7 @@
 """Wall time of ``evaluate --suite barn`` for one filter x one nominal, and its geometry choices.
 
 Usage: python bench/bench_barn.py [--filter default] [--nominal path] [--jobs 2]
-       [--limit K] [--geometry-worlds 10] [--out bench/results/barn.json]
+       [--limit K] [--geometry-worlds 10] [--stalls 8] [--out bench/results/barn.json]
 
 ``wall``: ``barn_suite.run_barn`` over the shipped worlds exactly as ``evaluate``
 runs them (``--jobs`` processes, default the CPU count), against the issue's
@@ -18,9 +18,17 @@ the choices in ``sim_bridge/barn.py`` cost and save.
 - a distance cut-off of the filter's obstacles is not exact: along the
   recorded runs (every ``STRIDE``-th period), the filter's answer with every
   cylinder against only those whose centre is within D of the robot, and the
-  step time of both.
+  step time of both (the cut set is built anew each step, which a real cut-off
+  would also have to do as the robot moves).
+
+``stall``: the first ``--stalls`` deadlocked runs of ``wall``, run again; at
+their last period the filter's status, speed, nominal and safe speed, its active
+rows and their cylinders' gaps to the disc, the smallest h against margin / gamma
+(where h_dot + gamma h >= margin holds at rest), and the statuses of the last
+STOP_TIME s.
 """
 import argparse
+import collections
 import os
 import resource
 import time
@@ -31,7 +39,7 @@ from bench_io import require_installed_checkout, write_records
 
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters
-from sim_bridge.barn import BarnReferee, load_worlds, ROBOT_NAME, WORLDS_FILE
+from sim_bridge.barn import BarnReferee, load_worlds, ROBOT_NAME, STOP_TIME, WORLDS_FILE
 from sim_bridge.barn_suite import run_barn
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluate import resolve_filters
@@ -51,7 +59,7 @@ def _cpu_seconds():
 
 
 def wall(worlds, barrier, nominal, jobs):
-    """Time run_barn over ``worlds``; return the record."""
+    """Time run_barn over ``worlds``; return the bench record and the runs' records."""
     load_before = os.getloadavg()[0]
     cpu, start = _cpu_seconds(), time.perf_counter()
     records, _ = run_barn(worlds, [(barrier, nominal)], jobs, progress=False)
@@ -69,7 +77,7 @@ def wall(worlds, barrier, nominal, jobs):
             'success': sum(r['success'] for r in records),
             'collision': sum(r['collision'] for r in records),
             'deadlock': sum(r['deadlock'] for r in records),
-            'timeout': sum(r['timeout'] for r in records)}
+            'timeout': sum(r['timeout'] for r in records)}, records
 
 
 def _filter(scenario, barrier, period):
@@ -78,6 +86,13 @@ def _filter(scenario, barrier, period):
     parameters = {**load_parameters([params_file(spec.type)], (), spec.name),
                   'rate': 1.0 / period, **body_parameters(spec), 'filter.barrier': barrier}
     return build_filter(parameters).command_filter
+
+
+def _obstacles(scenario):
+    """Return the cylinders as the loop gives them to the filter: Obstacles and their centres."""
+    obstacles = [Obstacle(polygon=o.polygon, z_min=o.z[0], z_max=o.z[1])
+                 for o in scenario.obstacles]
+    return obstacles, np.array([o.polygon.mean(axis=0) for o in scenario.obstacles])
 
 
 def _step_us(command_filter, state, obstacles, nominal):
@@ -101,9 +116,7 @@ def geometry(worlds, barrier, nominal):
         trace = run.robots[ROBOT_NAME]
         cylinders.append(len(scenario.obstacles))
         made.append(_bodies_reached(scenario, trace))
-        obstacles = [Obstacle(polygon=o.polygon, z_min=o.z[0], z_max=o.z[1])
-                     for o in scenario.obstacles]
-        centres = np.array([o.polygon.mean(axis=0) for o in scenario.obstacles])
+        obstacles, centres = _obstacles(scenario)
         every = ObstacleSet.from_obstacles(obstacles)
         full, cut = _filter(scenario, barrier, run.period), _filter(scenario, barrier,
                                                                       run.period)
@@ -166,6 +179,37 @@ def body_ms(count=200):
         pb.disconnect(physicsClientId=client)
 
 
+def stalls(worlds, records, barrier, nominal, count):
+    """Return a record per deadlocked run (the first ``count``): the filter at its end."""
+    by_id = {world.world: world for world in worlds}
+    results = []
+    for record in [r for r in records if r['deadlock']][:count]:
+        world = by_id[record['world']]
+        scenario = world.scenario()
+        run = run_in_process(scenario, barrier, nominal=nominal, until=BarnReferee())
+        trace = run.robots[ROBOT_NAME]
+        command_filter = _filter(scenario, barrier, run.period)
+        obstacles, centres = _obstacles(scenario)
+        state, nominal_command = trace.states[-1], trace.nominal[-1]
+        command, info = command_filter.filter(state, float(state[2]), nominal_command,
+                                              ObstacleSet.from_obstacles(obstacles))
+        gaps = (np.hypot(*(centres - state[:2]).T) - world.cylinder_radius
+                - scenario.robot(ROBOT_NAME).radius)
+        config = command_filter.safety_filter.config
+        recent = collections.Counter(trace.statuses[-round(STOP_TIME / run.period):])
+        results.append({
+            'bench': 'barn', 'case': 'stall', 'filter': barrier, 'nominal': nominal,
+            'world': world.world, 'time_s': record['time_s'], 'status': info.status.value,
+            'speed': round(float(state[3]), 4),
+            'nominal_speed': round(float(nominal_command[0]), 3),
+            'safe_speed': round(float(command[0]), 4), 'active_rows': len(info.active),
+            'active_gaps_m': [round(float(gaps[i]), 3) for i in info.active],
+            'nearest_gap_m': round(float(gaps.min()), 3), 'min_h': round(float(info.min_h), 5),
+            'margin_over_gamma': round(config.margin / config.gamma, 5),
+            'recent_statuses': dict(recent)})
+    return results
+
+
 def main(argv=None):
     """Run both measurements, print them and write the JSON records."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -174,12 +218,13 @@ def main(argv=None):
     parser.add_argument('--jobs', type=int, default=os.cpu_count())
     parser.add_argument('--limit', type=int, default=None, help='only the first K worlds')
     parser.add_argument('--geometry-worlds', type=int, default=10)
+    parser.add_argument('--stalls', type=int, default=8)
     parser.add_argument('--out', default='bench/results/barn.json')
     args = parser.parse_args(argv)
     require_installed_checkout()
     worlds = load_worlds(WORLDS_FILE)[:args.limit]
     (barrier,) = resolve_filters([args.filter], 'diff_drive')
-    record = wall(worlds, barrier, args.nominal, args.jobs)
+    record, runs = wall(worlds, barrier, args.nominal, args.jobs)
     print(f'{"filter":<18} {"nominal":<8} {"worlds":>6} {"jobs":>4} {"wall s":>7} '
           f'{"budget s":>8} {"CPU s":>6} {"sim s":>7} {"load":>9} {"success":>7}')
     print(f'{barrier:<18} {args.nominal:<8} {record["worlds"]:>6} {args.jobs:>4} '
@@ -203,6 +248,17 @@ def main(argv=None):
                   f'{cut["steps_changed_frac"]:>8.1%} {cut["max_command_change"]:>9.3f} '
                   f'{cut["step_p50_us_all"]:>12.0f} {cut["step_p50_us_cut"]:>12.0f}')
         records += extra
+    if args.stalls:
+        found = stalls(worlds, runs, barrier, args.nominal, args.stalls)
+        print(f'\n{"world":>5} {"t s":>6} {"status":>7} {"v":>7} {"v nom":>6} {"v safe":>7} '
+              f'{"active gaps m":>14} {"nearest m":>9} {"min h":>8} {"m/gamma":>8}')
+        for stall in found:
+            gaps = ' '.join(f'{g:.3f}' for g in stall['active_gaps_m']) or '-'
+            print(f'{stall["world"]:>5} {stall["time_s"]:>6.1f} {stall["status"]:>7} '
+                  f'{stall["speed"]:>7.4f} {stall["nominal_speed"]:>6.2f} '
+                  f'{stall["safe_speed"]:>7.4f} {gaps:>14} {stall["nearest_gap_m"]:>9.3f} '
+                  f'{stall["min_h"]:>8.5f} {stall["margin_over_gamma"]:>8.5f}')
+        records += found
     write_records(records, args.out)
     return records
 
