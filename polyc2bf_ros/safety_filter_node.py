@@ -259,6 +259,8 @@ class SafetyFilterNode(Node):
             self._odom_frame = frame.decode(errors='replace').lstrip('/')
             self._intake.set_frame(self._odom_frame)
         if self._waiting:
+            # The answer uses this odometry: and the obstacles as of it (a new frame).
+            self._obstacles_needed = self._intake.generation
             self._answer_if_ready()
 
     def _on_command(self, data):
@@ -290,9 +292,10 @@ class SafetyFilterNode(Node):
     def _answer_if_ready(self):
         """``match_stamps``: answer the waiting command once its inputs are in.
 
-        Its odometry (stamped no earlier than the command) and every obstacle message
-        received before it, processed by the worker: a lockstep simulation then gets the
-        same answers however long the worker takes.
+        Its odometry (stamped no earlier than the command) and every obstacle input
+        received before it or before that odometry (messages, a new odometry frame),
+        processed by the worker: a lockstep simulation then gets the same answers however
+        long the worker takes.
         """
         if (self._waiting and self._decision.odom_stamp >= self._cmd_stamp
                 and self._intake.covers(self._obstacles_needed)):
