@@ -33,6 +33,7 @@ has been processed (tests, tools); without ``start`` it runs the pipeline in the
 import math
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import threading
@@ -137,7 +138,10 @@ def _replace(snapshot, obstacles):
 
 
 def serve(inbox, outbox):
-    """Worker process loop: pickled ``ObstacleJob``s from ``inbox``, snapshots to ``outbox``."""
+    """Worker process loop: pickled ``ObstacleJob``s from ``inbox``, snapshots to ``outbox``.
+
+    Returns 0 when the node closes either pipe (it exited, or stopped the worker).
+    """
     pipeline, last_base = ObstaclePipeline(), None
     while True:
         try:
@@ -148,8 +152,11 @@ def serve(inbox, outbox):
         payload = _encode(snapshot, last_base)
         obstacles = snapshot.obstacles
         last_base = obstacles.base if obstacles.base is not None else obstacles
-        outbox.write(len(payload).to_bytes(8, 'little') + payload)
-        outbox.flush()
+        try:
+            outbox.write(len(payload).to_bytes(8, 'little') + payload)
+            outbox.flush()
+        except BrokenPipeError:
+            return 0
 
 
 class ObstacleIntake:
@@ -325,7 +332,11 @@ WORKER_NICENESS = 10
 
 
 def main():
-    """Worker process entry: serve jobs on stdin/stdout until stdin closes, at low priority."""
+    """Worker process entry: serve jobs on stdin/stdout until the node goes, at low priority.
+
+    Ctrl-C reaches the whole process group; the worker ignores it and ends with the node.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.nice(WORKER_NICENESS)
     return serve(sys.stdin.buffer, sys.stdout.buffer)
 
