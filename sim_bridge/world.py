@@ -227,6 +227,11 @@ class _Robot:
         far = np.max(np.abs(boxes[:, :, :2] - base[:2]), axis=1)
         self.reach = float(np.max(np.hypot(far[:, 0], far[:, 1])))
         self.top = float(boxes[:, 1, 2].max() - base[2])
+        self.links = len(boxes)
+
+    def centre(self):
+        """Return the base's [x, y] (2,)."""
+        return self.extent()[0][:2]
 
     def before_physics(self):
         """Apply this step's forces (none by default)."""
@@ -310,6 +315,10 @@ class _Unicycle(_Robot):
     def body_twist(self):
         """Return the body-frame twist (vx, vy, vz, wx, wy, wz) = (v, 0, 0, 0, 0, omega)."""
         return (float(self.state[3]), 0.0, 0.0, 0.0, 0.0, float(self.state[4]))
+
+    def centre(self):
+        """Return the plant's [x, y] (2,)."""
+        return self.state[:2].copy()
 
     def extent(self):
         """Return position (3,), world velocity (3,) and z range of the body."""
@@ -455,7 +464,8 @@ class SimWorld:
         self._lower = np.array([o.lower for o in self._obstacles]).reshape(-1, 2)
         self._upper = np.array([o.upper for o in self._obstacles]).reshape(-1, 2)
         self._offsets = np.zeros_like(self._lower)
-        self._snapshot_step, self._footprints, self._centres, self._pairs = -1, {}, {}, {}
+        self._centres_step, self._footprints_step = -1, -1
+        self._centres, self._footprints, self._pairs = {}, {}, {}
         self._near = {}  # (robot, search distance) -> listed obstacles (_near_obstacles)
         self._velocities = np.array([o.spec.velocity for o in self._obstacles]).reshape(-1, 2)
         self._appear_at = np.array([o.spec.appear_at for o in self._obstacles]).reshape(-1, 1)
@@ -556,17 +566,24 @@ class SimWorld:
             self._robots[robot].body, physicsClientId=self._client)
         return np.array(position), np.array(quaternion)
 
-    def _robot_snapshot(self):
-        """Return each robot's footprint circle and [x, y], computed once per physics step."""
-        if self._snapshot_step != self.steps:
-            self._snapshot_step = self.steps
+    def _robot_centres(self):
+        """Return each robot's base [x, y], computed once per physics step."""
+        if self._centres_step != self.steps:
+            self._centres_step = self.steps
             self._pairs.clear()
+            self._centres = {name: plant.centre() for name, plant in self._robots.items()}
+        return self._centres
+
+    def _robot_footprints(self):
+        """Return each robot's footprint circle, computed once per physics step."""
+        if self._footprints_step != self.steps:
+            self._footprints_step = self.steps
+            self._footprints = {}
             for name, plant in self._robots.items():
                 position, velocity, z_min, z_max = plant.extent()
-                self._centres[name] = position[:2]
                 self._footprints[name] = Footprint(name, position[:2] + plant.circle, z_min,
                                                    z_max, velocity, plant.index, robot=True)
-        return self._footprints, self._centres
+        return self._footprints
 
     def joint_positions(self, robot):
         """Return {joint name: angle [rad]} of the robot's joints (none for a Crazyflie)."""
@@ -585,7 +602,7 @@ class SimWorld:
         its scenario ``radius`` around its base.
         """
         time = self.time
-        footprints = self._robot_snapshot()[0]
+        footprints = self._robot_footprints()
         obstacles = self._moving if moving_only else (o for o in self._obstacles if o.present)
         return ([o.footprint_at(time) for o in obstacles]
                 + [f for name, f in footprints.items() if name != robot])
@@ -630,7 +647,7 @@ class SimWorld:
         until the robot's base has moved NEAR_MARGIN: a bound falls by at most the distance
         moved, so no obstacle outside the list can have come within range.
         """
-        position = self._robot_snapshot()[1][robot]
+        position = self._robot_centres()[robot]
         x, y = position.tolist()
         reach = self._robots[robot].reach
         key = (robot, max_distance)
@@ -655,7 +672,7 @@ class SimWorld:
 
     def _obstacle_distance(self, plant, index, lower_bound, max_distance):
         """Return the distance from ``plant``'s body to obstacle ``index`` (``_distance``)."""
-        return min(self._distance(plant.body, body, lower_bound, max_distance)
+        return min(self._distance(plant.body, body, lower_bound, max_distance, plant.links == 1)
                    for body in self._obstacles[index].bodies_at(self.time))
 
     def _robot_distances(self, robot, max_distance):
@@ -664,7 +681,7 @@ class SimWorld:
         A pair is queried once per physics step and search distance.
         """
         plant = self._robots[robot]
-        centres = self._robot_snapshot()[1]
+        centres = self._robot_centres()
         x, y = centres[robot]
         distances = []
         for name, other in self._robots.items():
@@ -677,12 +694,13 @@ class SimWorld:
                 key = (min(plant.body, other.body), max(plant.body, other.body), max_distance)
                 if key not in self._pairs:
                     self._pairs[key] = self._distance(plant.body, other.body, bound,
-                                                      max_distance)
+                                                      max_distance,
+                                                      plant.links == other.links == 1)
                 distance = self._pairs[key]
             distances.append(distance)
         return distances
 
-    def _distance(self, body_a, body_b, lower_bound, max_distance):
+    def _distance(self, body_a, body_b, lower_bound, max_distance, single_links=False):
         """Return the smallest getClosestPoints distance between two bodies, inf if none.
 
         Bullet returns every link pair within the search distance, and its cost
@@ -690,9 +708,14 @@ class SimWorld:
         distance 0, ~0.26 ms; 480 within 0.5 m, ~1.5 ms), so the search starts
         at 0 (contact) when the pair's lower bound allows contact, else
         SEARCH_STEP beyond the bound, and doubles until some pair is found; the
-        minimum over a non-empty answer is exact.
+        minimum over a non-empty answer is exact.  Two ``single_links`` bodies
+        (a disc and an obstacle) are one pair: one query at the search distance.
         """
         self._sync_bodies()
+        if single_links:
+            points = pb.getClosestPoints(body_a, body_b, max(max_distance, 0.0),
+                                         physicsClientId=self._client)
+            return min((point[8] for point in points), default=np.inf)
         threshold = min(lower_bound + SEARCH_STEP, max_distance) if lower_bound > 0.0 else 0.0
         while True:
             points = pb.getClosestPoints(body_a, body_b, threshold, physicsClientId=self._client)
