@@ -7,7 +7,7 @@ it.  A world's Scenario is built once and runs all its filter x nominal
 combinations in one task; tasks go out over ``jobs`` processes (one progress
 bar, counted in runs).
 
-Per run (one record in ``results.json``; DESIGN.md section 8 keys first):
+Per run (one record in ``results.json``; the keys of doc/design.md, result records, first):
 ``suite`` ('barn'), ``world`` (its id), ``filter``, ``nominal``, ``success``,
 ``collision``, ``timeout``, ``deadlock`` (exactly one of the last four is true:
 ``outcome`` names it), ``time_s`` (sim time when the run ended: at the goal for

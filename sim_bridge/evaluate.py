@@ -23,7 +23,7 @@ run once per seed (``--seeds``, default the scenario's seed and the next
 obstacles and without a filter, for its own duration (not ``--duration``): the
 nominal time to goal.
 
-Per run (one record in ``results.json``; DESIGN.md section 8 keys first):
+Per run (one record in ``results.json``; the keys of doc/design.md, result records, first):
 
 - ``collision``: a robot's PyBullet closest-point distance fell below -1 mm
   (``sim_bridge.metrics``); ``min_clearance_m``: the smallest such distance
@@ -145,7 +145,7 @@ def filter_statistics(run):
 
 
 def summarise(run, reference_times):
-    """Return the result record of one ClosedLoopRun (DESIGN.md section 8 keys + extras)."""
+    """Return the result record of one ClosedLoopRun (doc/design.md result keys + extras)."""
     robots = {}
     for name, trace in run.robots.items():
         robots[name] = _robot_record(trace, run.metrics[name], reference_times.get(name),

@@ -1,4 +1,4 @@
-"""Per-robot run metrics sampled from a SimWorld (DESIGN.md section 8 keys).
+"""Per-robot run metrics sampled from a SimWorld (doc/design.md, result records).
 
 Call ``RunMetrics.update()`` once per control period (it runs
 ``SimWorld.min_clearance`` per robot, ``getClosestPoints`` queries too costly

@@ -32,7 +32,7 @@ def tiny(tmp_path_factory):
 
 
 def test_results_json_has_the_design_keys(tiny):
-    """One record per run with DESIGN.md section 8 keys; values from the run."""
+    """One record per run with the result-record keys of doc/design.md; values from the run."""
     out, _ = tiny
     records = json.loads((out / 'results.json').read_text())
     assert [r['filter'] for r in records] == ['c3bf', 'polyc2bf_inflated']

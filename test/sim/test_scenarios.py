@@ -29,7 +29,7 @@ def _minimal():
 
 
 def test_every_named_scenario_ships():
-    """The scenario suite of DESIGN.md section 7 is in config/scenarios."""
+    """The scenario suite (README, bench/README.md: scenario evaluation) is in config/scenarios."""
     assert set(SHIPPED) <= set(scenario_names()), SCENARIO_DIR
 
 
