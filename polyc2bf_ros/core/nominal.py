@@ -36,11 +36,10 @@ def _clip_norm(vector, limit):
 
 
 @dataclass
-class UnicycleGoalController:
-    """Drive at v* = min(k_d dist, v_max) towards the goal, steer on the heading error.
+class _UnicycleLaw:
+    """What the unicycle nominals share: gains, limits and u = [(v* - v), (omega* - omega)] / tau.
 
-    v* = min(k_d |e|, v_max),  omega* = k_theta wrap(atan2(e_y, e_x) - theta),
-    u = [(v* - v) / tau, (omega* - omega) / tau]; the robot stops within ``goal_tolerance``.
+    A subclass gives ``velocity_command(state, target)`` -> [v*, omega*].
     """
 
     max_speed: float = 1.0
@@ -49,6 +48,23 @@ class UnicycleGoalController:
     max_turn_rate: float = 1.5
     time_constant: float = 0.3
     goal_tolerance: float = 0.1
+
+    def turn_rate(self, angle):
+        """Return omega* = clip(k_theta angle, +-omega_max)."""
+        return min(max(self.heading_gain * angle, -self.max_turn_rate), self.max_turn_rate)
+
+    def __call__(self, state, target):
+        """Return the acceleration input [a, alpha] toward ``target`` (goal or path)."""
+        return (self.velocity_command(state, target) - state[3:5]) / self.time_constant
+
+
+@dataclass
+class UnicycleGoalController(_UnicycleLaw):
+    """Drive at v* = min(k_d dist, v_max) towards the goal, steer on the heading error.
+
+    v* = min(k_d |e|, v_max),  omega* = k_theta wrap(atan2(e_y, e_x) - theta),
+    u = [(v* - v) / tau, (omega* - omega) / tau]; the robot stops within ``goal_tolerance``.
+    """
 
     def velocity_command(self, state, goal):
         """Return the desired [v, omega]."""
@@ -59,12 +75,7 @@ class UnicycleGoalController:
         heading = np.arctan2(error[1], error[0]) - state[2]
         heading = (heading + np.pi) % (2 * np.pi) - np.pi
         speed = min(self.distance_gain * distance, self.max_speed) * max(np.cos(heading), 0.0)
-        turn = min(max(self.heading_gain * heading, -self.max_turn_rate), self.max_turn_rate)
-        return np.array([speed, turn])
-
-    def __call__(self, state, goal):
-        """Return the acceleration input [a, alpha]."""
-        return (self.velocity_command(state, goal) - state[3:5]) / self.time_constant
+        return np.array([speed, self.turn_rate(heading)])
 
 
 class ReferencePath:
@@ -133,7 +144,7 @@ class ReferencePath:
 
 
 @dataclass
-class UnicyclePathController:
+class UnicyclePathController(_UnicycleLaw):
     """Pure pursuit along a ``ReferencePath``: steer on the arc through a point ahead.
 
     Progress s (``ReferencePath.advance`` within ``search`` m ahead); carrot c = path(s + L)
@@ -155,14 +166,8 @@ class UnicyclePathController:
     min_lookahead: float = 0.15
     max_lookahead: float = 0.5
     search: float = 1.0
-    max_speed: float = 1.0
-    distance_gain: float = 1.0
     max_lateral_accel: float = 0.5
-    heading_gain: float = 2.0
-    max_turn_rate: float = 1.5
     turn_in_place: float = 1.0
-    time_constant: float = 0.3
-    goal_tolerance: float = 0.1
 
     def velocity_command(self, state, path):
         """Return the desired [v, omega] and advance ``path.progress``."""
@@ -183,8 +188,7 @@ class UnicyclePathController:
             return np.zeros(2)
         alpha = math.atan2(dy, dx)
         if abs(alpha) > self.turn_in_place:
-            turn = min(max(self.heading_gain * alpha, -self.max_turn_rate), self.max_turn_rate)
-            return np.array([0.0, turn])
+            return np.array([0.0, self.turn_rate(alpha)])
         left = distance + max(path.length - progress - lookahead, 0.0)
         curvature = 2.0 * dy / distance ** 2
         speed = min(self.max_speed, self.distance_gain * left)
@@ -192,10 +196,6 @@ class UnicyclePathController:
             speed = min(speed, math.sqrt(self.max_lateral_accel / abs(curvature)),
                         self.max_turn_rate / abs(curvature))
         return np.array([speed, speed * curvature])
-
-    def __call__(self, state, path):
-        """Return the acceleration input [a, alpha]."""
-        return (self.velocity_command(state, path) - state[3:5]) / self.time_constant
 
 
 @dataclass
