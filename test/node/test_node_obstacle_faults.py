@@ -100,7 +100,9 @@ def test_a_10000_point_polygon_is_simplified_and_the_node_keeps_answering():
 
         def simplified():
             values = latest_status(io.diagnostics)[1]
-            return values.get('obstacles_simplified') == '1' and len(io.out) > 50
+            # In use once odometry has given the frame (a loaded machine may report first).
+            return (values.get('obstacles_simplified') == '1'
+                    and values.get('obstacles_in_use') == '1' and len(io.out) > 50)
 
         assert _drive(h, io, star, 30.0, simplified), (latest_status(io.diagnostics),
                                                         node_log(proc))
