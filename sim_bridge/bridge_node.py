@@ -448,9 +448,18 @@ class BridgeNode(Node):
         """Publish obstacles (moving only unless ``full``), odometry, clock and tf at sim time.
 
         What the controllers wait for goes out first; recording follows
-        (``record=False``: not at all, for the startup re-sends of t = 0).  A full
-        set also goes out whenever an obstacle has popped up since the last one.
+        (``record=False``: not at all, for the startup re-sends of t = 0), in one section
+        that holds SIGINT/SIGTERM back, so the bag has every message that went out.  A
+        full set also goes out whenever an obstacle has popped up since the last one.
         """
+        if self.recorder is None:
+            self._publish_and_record(full, record)
+        else:
+            with self.recorder.holding_signals():
+                self._publish_and_record(full, record)
+
+    def _publish_and_record(self, full, record):
+        """Publish the period's topics, then record what went out (see ``_publish_period``)."""
         time_msg = stamp(self._now_ns)
         if self.world.obstacle_version != self._obstacle_version:
             self._obstacle_version = self.world.obstacle_version

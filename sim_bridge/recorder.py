@@ -88,7 +88,7 @@ def _type_name(msg_type):
 
 
 class _ThreadState(threading.local):
-    busy = False       # this thread is inside a locked recorder method
+    depth = 0          # how many recorder sections (locked methods, held signals) this thread is in
     deferred = None    # (previous handler, signum, frame) of a signal that arrived meanwhile
 
 
@@ -234,7 +234,7 @@ class BagRecorder:
         if not (0 <= log_time_ns < 1 << 64 and 0 <= publish_time_ns < 1 << 64):
             raise ValueError('MCAP times are unsigned 64-bit nanoseconds')
         state = self._state
-        state.busy = True
+        state.depth += 1
         try:
             with self._lock:
                 writer = self._writer
@@ -251,12 +251,25 @@ class BagRecorder:
                     writer.flush()
                     self._last_flush = now
         finally:
-            state.busy = False
-            if state.deferred is not None:
-                self._handle_deferred_signal()
+            self._leave()
 
     def _locked(self):
-        return _LockedSection(self)
+        return _LockedSection(self, locked=True)
+
+    def holding_signals(self):
+        """Return a context in which SIGINT/SIGTERM (``close_on_signals``) wait for its end.
+
+        For a caller whose messages go out before they are recorded: publishing, then
+        recording, inside one such section, a signal cannot close the bag between the two,
+        so every message that went out is in the bag.
+        """
+        return _LockedSection(self, locked=False)
+
+    def _leave(self):
+        state = self._state
+        state.depth -= 1
+        if state.depth == 0 and state.deferred is not None:
+            self._handle_deferred_signal()
 
     def _handle_deferred_signal(self):
         state = self._state
@@ -300,23 +313,23 @@ class BagRecorder:
 
 
 class _LockedSection:
-    """Hold the recorder lock, marking the thread busy so a signal waits for the exit."""
+    """Mark the thread busy (and hold the lock if ``locked``): a signal waits for the exit."""
 
-    __slots__ = ('recorder',)
+    __slots__ = ('recorder', 'locked')
 
-    def __init__(self, recorder):
+    def __init__(self, recorder, locked):
         self.recorder = recorder
+        self.locked = locked
 
     def __enter__(self):
-        self.recorder._state.busy = True
-        self.recorder._lock.acquire()
+        self.recorder._state.depth += 1
+        if self.locked:
+            self.recorder._lock.acquire()
 
     def __exit__(self, *exc_info):
-        recorder = self.recorder
-        recorder._lock.release()
-        recorder._state.busy = False
-        if recorder._state.deferred is not None:
-            recorder._handle_deferred_signal()
+        if self.locked:
+            self.recorder._lock.release()
+        self.recorder._leave()
 
 
 def close_on_signals(recorder, signals=(signal.SIGINT, signal.SIGTERM)):
@@ -337,7 +350,7 @@ def close_on_signals(recorder, signals=(signal.SIGINT, signal.SIGTERM)):
 
 def _on_signal(recorder, previous, signum, frame):
     state = recorder._state
-    if state.busy:
+    if state.depth:
         state.deferred = (previous, signum, frame)
         return
     recorder.close()

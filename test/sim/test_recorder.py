@@ -520,6 +520,24 @@ def test_signal_during_a_write_is_handled_when_the_write_returns(tmp_path, sigus
         assert [t for _, t, _ in reader.messages()] == [5]
 
 
+def test_signal_while_held_waits_for_the_section_end(tmp_path, sigusr1_previous):
+    """Published-then-recorded inside ``holding_signals``: a signal there loses nothing.
+
+    The signal lands before the write of the section (after the "publish"); the bag stays
+    open for that write and closes as the section ends, the previous handler after it.
+    """
+    recorder = BagRecorder(tmp_path / 'bag')
+    recorder.add_topic('/cmd', Twist, RELIABLE)
+    close_on_signals(recorder, signals=(signal.SIGUSR1,))
+    with recorder.holding_signals():
+        signal.raise_signal(signal.SIGUSR1)
+        recorder.write('/cmd', Twist(), 7)
+        assert not recorder.closed and not sigusr1_previous
+    assert recorder.closed and sigusr1_previous == [signal.SIGUSR1]
+    with AnyReader([tmp_path / 'bag']) as reader:
+        assert [t for _, t, _ in reader.messages()] == [7]
+
+
 def test_ignored_signal_stays_ignored(tmp_path):
     """A signal the process ignores is not turned into a bag close."""
     original = signal.signal(signal.SIGUSR2, signal.SIG_IGN)
