@@ -77,6 +77,7 @@ bench: $(PKG_STAMP) $(DEV_STAMP)
 	$(PY) bench/bench_node.py
 	$(PY) bench/bench_node.py --obstacle-updates
 	$(PY) bench/bench_obstacle_flood.py
+	$(PY) bench/bench_logging.py
 	$(PY) bench/bench_cold.py
 	$(PY) bench/bench_sim.py
 	$(PY) bench/bench_sim_closed_loop.py --floor  # merges its records into sim.json

@@ -76,6 +76,7 @@ from polyc2bf_ros.filter_parameters import (
     model_parameters,
     NODE_PARAMETERS,
 )
+from polyc2bf_ros.loop_log import LoopLogger
 from polyc2bf_ros.node_main import run_node
 from polyc2bf_ros.obstacle_intake import ObstacleIntake
 from polyc2bf_ros.stall_guard import StallGuard
@@ -121,6 +122,7 @@ class SafetyFilterNode(Node):
         self._intake = ObstacleIntake(self._filter_spec(settings),
                                       lambda: self.get_clock().now().nanoseconds * 1e-9,
                                       settings.intake, self._obstacles_ready.trigger)
+        self._log = LoopLogger(self.get_logger())  # for the control path (loop_log)
         self._stall_guard = StallGuard(settings.stall_timeout, self._on_stall,
                                        settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT)
         self._apply(settings)
@@ -318,13 +320,13 @@ class SafetyFilterNode(Node):
             elif snapshot.invalid:
                 self._bad_message('obstacles (NaN/Inf)')
             if snapshot.error:
-                self.get_logger().error(snapshot.error, throttle_duration_sec=1.0)
+                self._log.error(snapshot.error, throttle_s=1.0)
         return snapshot
 
     def _bad_message(self, what):
         self._invalid_messages += 1
         self._last_invalid = what
-        self.get_logger().error(f'invalid {what}: braking', throttle_duration_sec=1.0)
+        self._log.error(f'invalid {what}: braking', throttle_s=1.0)
 
     def _on_enable(self, request, response):
         """``~/enable``: true filters, false passes nominal commands through."""
@@ -356,7 +358,7 @@ class SafetyFilterNode(Node):
         cmd = self._cmd
         message = (f'control loop stalled for {silence:.3f} s (stall_timeout '
                    f'{self._stall_guard.timeout:g} s): stop published by the stall guard')
-        self.get_logger().error(message, throttle_duration_sec=1.0)
+        self._log.error(message, throttle_s=1.0)
         if cmd is not None:
             self._publish_stop(cmd, self._decision.stop())
         values = {**self._status_values, 'stalls': self._stall_guard.stalls,
@@ -464,8 +466,8 @@ class SafetyFilterNode(Node):
                             'their hull (max_parts)')
         if not decision.enabled:
             warnings.append('DISABLED: pass-through, not filtering')
-            self.get_logger().warning('safety filter is DISABLED: nominal commands pass '
-                                      'through unfiltered', throttle_duration_sec=5.0)
+            self._log.warning('safety filter is DISABLED: nominal commands pass through '
+                              'unfiltered', throttle_s=5.0)
         if stale and self._cmd is not None:
             warnings.append(f'stale {", ".join(stale)}: stopping')
         fallbacks = [f'{name} x{window[name]}' for name in _FALLBACKS if window[name]]

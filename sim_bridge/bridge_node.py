@@ -109,6 +109,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from polyc2bf_ros.conversions import SerializedCommand
 from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.loop_log import LoopLogger
 from polyc2bf_ros.node_main import CONFIGURATION_ERRORS, log_configuration_error
 from sim_bridge.bag_reader import message_class
 from sim_bridge.cdr import OdometryCdr, tf_message_cdr, TF_MESSAGE_TYPE
@@ -240,6 +241,7 @@ class BridgeNode(Node):
     def __init__(self, **kwargs):
         """Load the scenario, build the world, publishers, subscriptions and the recorder."""
         super().__init__('sim_bridge', **kwargs)
+        self._log = LoopLogger(self.get_logger())  # for the loop (loop_log)
         params = {name: self._declare(name, *spec) for name, spec in PARAMETERS.items()}
         if not params['scenario']:
             raise ValueError("parameter 'scenario' is required (a shipped name such as "
@@ -428,7 +430,7 @@ class BridgeNode(Node):
             command = SerializedCommand(data, stamped=True)
         except ValueError as exc:
             robot.stray += 1
-            self.get_logger().error(f'{robot.command_topic}: {exc}', throttle_duration_sec=1.0)
+            self._log.error(f'{robot.command_topic}: {exc}', throttle_s=1.0)
             return
         stamp_ns, (x, _, z, rx, ry, rz) = command.stamp_ns, command.values
         values = (x, rz) if robot.kind == 'velocity' else (z, rx, ry, rz)
@@ -566,9 +568,9 @@ class BridgeNode(Node):
         for robot in self._pending():
             robot.waited = False
             robot.timeouts += 1
-            self.get_logger().warning(
+            self._log.warning(
                 f'{robot.name}: no command for t = {self._now_ns * 1e-9:.3f} s within '
-                f'lockstep_timeout; stepping without it', throttle_duration_sec=1.0)
+                f'lockstep_timeout; stepping without it', throttle_s=1.0)
 
     def run(self):
         """Run the scenario to its duration; return True when it was reached."""

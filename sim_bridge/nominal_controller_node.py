@@ -33,6 +33,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from polyc2bf_ros import conversions
 from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
+from polyc2bf_ros.loop_log import LoopLogger
 from polyc2bf_ros.node_main import run_node
 from sim_bridge.bag_reader import message_class
 from sim_bridge.robots import ROBOT_TYPES
@@ -50,6 +51,7 @@ class NominalControllerNode(Node):
     def __init__(self, **kwargs):
         """Declare ``robot_type``, ``controller``, ``goal`` and ``gains.*``; wire the topics."""
         super().__init__('nominal_controller', **kwargs)
+        self._log = LoopLogger(self.get_logger())  # for the loop (loop_log)
         robot_type = self.declare_parameter('robot_type', 'quadruped', ParameterDescriptor(
             description='a sim_bridge.robots type: quadruped or diff_drive (TwistStamped on '
             'cmd_vel_in) or crazyflie (WrenchStamped on wrench_in)', read_only=True)).value
@@ -100,7 +102,7 @@ class NominalControllerNode(Node):
         try:
             self._target = ReferencePath(points) if points else None
         except ValueError as exc:  # NaN/Inf
-            self.get_logger().error(f'plan dropped: {exc}', throttle_duration_sec=1.0)
+            self._log.error(f'plan dropped: {exc}', throttle_s=1.0)
             self._target = None
 
     def _on_odom(self, data):
@@ -108,7 +110,7 @@ class NominalControllerNode(Node):
         try:
             odom = conversions.read_odometry(data)
         except ValueError as exc:
-            self.get_logger().error(f'odometry dropped: {exc}', throttle_duration_sec=1.0)
+            self._log.error(f'odometry dropped: {exc}', throttle_s=1.0)
             return
         result = conversions.state_from_odometry(self._model, odom.pose, odom.twist)
         if result is None:  # NaN/Inf

@@ -88,7 +88,7 @@ def _type_name(msg_type):
 
 
 class _ThreadState(threading.local):
-    depth = 0          # how many recorder sections (locked methods, held signals) this thread is in
+    depth = 0          # recorder sections (locked methods, held signals) this thread is in
     deferred = None    # (previous handler, signum, frame) of a signal that arrived meanwhile
 
 
