@@ -19,10 +19,15 @@ Cases (the adversarial client's): ``none`` (a few static walls: the floor of the
 setup), ``circle_10k`` and ``star_10k`` (one 10,000-point convex / non-convex polygon,
 10 msg/s), ``markers_5000`` (5,000 squares in one message, 1 msg/s; more than the default
 ``max_obstacles``, so the node answers with stops, which count as answers), ``flood_200hz``
-(100 changing squares per message at 200 msg/s).  Targets: answered >= 0.99 and max gap
-<= 2 periods.  Results: a table and ``bench/results/obstacle_flood.json``.
+(100 changing squares per message at 200 msg/s).  Each case runs ``--repeats`` times (this
+VM's speed drifts); the table gives the median of the runs and the worst run.  Targets, on
+the medians: answered >= 0.99 and max gap <= 2 periods.  Results: a table and
+``bench/results/obstacle_flood.json`` (one record per case, with every run's values).  A run
+in which the driver's own publish call blocked (``DRIVER_STALL_S``) is run again and counted
+(column ``reruns``).
 
     .venv/bin/python bench/bench_obstacle_flood.py [--cases ...] [--duration 10] [--rate 100]
+                                                   [--repeats 3]
 """
 import argparse
 import json
@@ -63,6 +68,12 @@ CASES = {
     'flood_200hz': (200.0, 100, 5, False),
 }
 TARGET_ANSWERED, TARGET_GAP_PERIODS = 0.99, 2.0
+# The driver's own publish calls now and then block for ~0.33 s inside Fast DDS (measured:
+# the odometry publish, in about a third of the ``none`` runs, with the subject answering
+# every period meanwhile).  A run whose window holds such a stall measures the driver, not
+# the subject: it is counted and run again, up to MAX_RERUNS times.
+DRIVER_STALL_S = 0.05
+MAX_RERUNS = 3
 
 
 def _outline(points, star, centre, size, rng):
@@ -125,8 +136,12 @@ def run_flood(case, seconds):
     return 0
 
 
-def _drive(node, stop):
-    """Publish odometry (0.5 m/s) and a nominal 0.8 m/s command at 50 Hz until ``stop``."""
+def _drive(node, stop, stalls):
+    """Publish odometry (0.5 m/s) and a nominal 0.8 m/s command at 50 Hz until ``stop``.
+
+    Appends to ``stalls`` (monotonic start, seconds) every publish call that blocked for
+    more than ``DRIVER_STALL_S``: input the subject could not answer in time.
+    """
     odom_pub = node.create_publisher(Odometry, f'{NAMESPACE}/odom', RELIABLE)
     cmd_pub = node.create_publisher(Twist, f'{NAMESPACE}/cmd_vel_in', RELIABLE)
     odom = Odometry()
@@ -137,8 +152,12 @@ def _drive(node, stop):
     cmd.linear.x = 0.8
     odom_bytes, cmd_bytes = serialize_message(odom), serialize_message(cmd)
     while not stop.wait(0.02):
+        start = time.monotonic()
         odom_pub.publish(odom_bytes)
         cmd_pub.publish(cmd_bytes)
+        blocked = time.monotonic() - start
+        if blocked > DRIVER_STALL_S:
+            stalls.append((start, blocked))
 
 
 def _window_metrics(times, start, end, rate):
@@ -182,8 +201,8 @@ def run_case(case, rate, duration, warmup):
     node.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, 10)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    stop = threading.Event()
-    driver = threading.Thread(target=_drive, args=(node, stop), daemon=True)
+    stop, stalls = threading.Event(), []
+    driver = threading.Thread(target=_drive, args=(node, stop, stalls), daemon=True)
     try:
         if flooder.stdout.readline().strip() != 'ready':
             raise RuntimeError('the flooder did not start')
@@ -218,16 +237,43 @@ def run_case(case, rate, duration, warmup):
             'meets_target': answered >= TARGET_ANSWERED and gap <= TARGET_GAP_PERIODS,
             'flood_sent': flood.get('sent'), 'obstacles_in_use': values.get('obstacles_in_use'),
             'obstacles_simplified': values.get('obstacles_simplified'),
-            'node_message': message, 'load_1min': os.getloadavg()[0]}
+            'node_message': message, 'load_1min': os.getloadavg()[0],
+            'driver_stalls_s': [round(b, 3) for t, b in stalls if t < end and t + b > start]}
+
+
+def run_valid(case, args):
+    """``run_case`` again while the driver stalled in the window (at most MAX_RERUNS times)."""
+    discarded = []
+    while True:
+        record = run_case(case, args.rate, args.duration, args.warmup)
+        if not record['driver_stalls_s'] or len(discarded) == MAX_RERUNS:
+            return {**record, 'discarded_driver_stalls': discarded}
+        discarded.append(record['driver_stalls_s'])
+        print(f'  driver publish blocked {record["driver_stalls_s"]} s: run again', flush=True)
+
+
+def summarize(runs):
+    """One record of a case's runs: medians (targets), worst run, and every run's values."""
+    answered = float(np.median([r['answered_frac'] for r in runs]))
+    gap = float(np.median([r['max_gap_periods'] for r in runs]))
+    return {**runs[-1], 'repeats': len(runs), 'answered_frac': answered,
+            'reruns_for_driver_stalls': sum(len(r['discarded_driver_stalls']) for r in runs),
+            'max_gap_periods': gap,
+            'meets_target': answered >= TARGET_ANSWERED and gap <= TARGET_GAP_PERIODS,
+            'worst_answered_frac': min(r['answered_frac'] for r in runs),
+            'worst_max_gap_periods': max(r['max_gap_periods'] for r in runs),
+            'runs_answered_frac': [r['answered_frac'] for r in runs],
+            'runs_max_gap_periods': [r['max_gap_periods'] for r in runs]}
 
 
 def print_table(records):
-    """One row per case."""
+    """One row per case: medians over the repeats, then the worst run."""
     print(f'{"case":<14}{"msg/s":>7}{"answered":>10}{"max gap":>9}{"target":>8}'
-          f'{"in use":>8}  node status')
+          f'{"worst gap":>11}{"reruns":>8}{"in use":>8}  node status')
     for r in records:
         print(f'{r["case"]:<14}{r["messages_per_s"]:>7g}{r["answered_frac"]:>10.4f}'
               f'{r["max_gap_periods"]:>9.2f}{"yes" if r["meets_target"] else "NO":>8}'
+              f'{r["worst_max_gap_periods"]:>11.2f}{r["reruns_for_driver_stalls"]:>8}'
               f'{str(r["obstacles_in_use"]):>8}  {r["node_message"][:60]}')
 
 
@@ -241,6 +287,7 @@ def main(argv=None):
     parser.add_argument('--rate', type=float, default=100.0)
     parser.add_argument('--duration', type=float, default=10.0)
     parser.add_argument('--warmup', type=float, default=2.0)
+    parser.add_argument('--repeats', type=int, default=3)
     args = parser.parse_args(argv)
     if args.role == 'flood':
         return run_flood(args.case, args.seconds)
@@ -248,8 +295,11 @@ def main(argv=None):
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     records = []
     for case in args.cases:
-        print(f'case {case} ...', flush=True)
-        records.append(run_case(case, args.rate, args.duration, args.warmup))
+        runs = []
+        for repeat in range(args.repeats):
+            print(f'case {case} run {repeat + 1}/{args.repeats} ...', flush=True)
+            runs.append(run_valid(case, args))
+        records.append(summarize(runs))
     print_table(records)
     write_records(records, RESULTS)
     return 0
