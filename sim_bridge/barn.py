@@ -21,7 +21,7 @@ expected 2 numbers [x, y], got 3``.
 
 A world is run as the Scenario ``BarnWorld.scenario()`` builds (checked like a
 scenario file, so a start or goal inside a cylinder is refused): one
-``diff_drive`` robot ``base`` (a disc of ``ROBOT_RADIUS``) at the start, its
+``diff_drive`` robot ``base`` (a disc of ``robots.DIFF_DRIVE_RADIUS``) at the start, its
 ``path`` the reference path, every cylinder an obstacle ``CYLINDER_HEIGHT``
 tall (a true cylinder in PyBullet, its circumscribed 12-gon for the filter, as
 for a CYLINDER marker), ``TIME_LIMIT`` s long, the project's default rates.  It
@@ -51,13 +51,13 @@ from pathlib import Path
 
 import numpy as np
 
+from sim_bridge.robots import DIFF_DRIVE_RADIUS
 from sim_bridge.scenario import FieldReader, SCENARIO_DIR, scenario_from_dict, ScenarioError
 
 # The shipped copy: <repo>/bench/data/barn from a checkout, <share>/polyc2bf_ros/bench/...
 # when installed (SCENARIO_DIR is <root>/config/scenarios in both).
 WORLDS_FILE = SCENARIO_DIR.parents[1] / 'bench' / 'data' / 'barn' / 'barn_worlds.json'
 ROBOT_NAME = 'base'
-ROBOT_RADIUS = 0.2          # m: BARN's reference paths keep >= 0.225 m from 99 % of worlds
 CYLINDER_HEIGHT = 1.0       # m, as in BARN's worlds
 TIME_LIMIT = 100.0          # s
 GOAL_RADIUS = 1.0           # m
@@ -95,7 +95,7 @@ class BarnWorld:
         """Return BARN's optimal time OT = reference path length / 2 m/s [s]."""
         return self.reference_path_length_m / OPTIMAL_SPEED
 
-    def scenario(self, radius=ROBOT_RADIUS):
+    def scenario(self, radius=DIFF_DRIVE_RADIUS):
         """Return the world as a checked Scenario with a diff-drive disc of ``radius``."""
         robot = {'name': ROBOT_NAME, 'type': 'diff_drive', 'start': self.start.tolist(),
                  'goal': self.goal.tolist(), 'radius': float(radius),

@@ -73,6 +73,7 @@ from sim_bridge import plots
 from sim_bridge.closed_loop import default_barrier, NOMINALS, obstacle_free, run_in_process
 from sim_bridge.launcher import FILTER_CHOICES
 from sim_bridge.metrics import GOAL_TOLERANCE
+from sim_bridge.robots import robot_type
 from sim_bridge.scenario import load_scenario, scenario_names
 from sim_bridge.world import CLEARANCE_RANGE
 
@@ -182,11 +183,8 @@ def summarise(run, reference_times):
 
 
 def _units(run):
-    kinds = {run.scenario.robot(name).type for name in run.robots}
-    units = {'quadruped': 'unicycle [a m/s^2, alpha rad/s^2]',
-             'diff_drive': 'unicycle [a m/s^2, alpha rad/s^2]',
-             'crazyflie': 'rotor thrusts [N]'}
-    return ', '.join(sorted({units[k] for k in kinds}))
+    return ', '.join(sorted({robot_type(run.scenario.robot(name).type).input_units
+                             for name in run.robots}))
 
 
 # -- progress ------------------------------------------------------------------------------

@@ -21,7 +21,9 @@ class RobotType:
     ``nominal_topic`` (in) and ``safe_topic`` (out), with ``filter_parameters`` added;
     ``radius``: default footprint radius [m]; ``start_fields`` / ``goal_fields``: the
     scenario layouts; ``yaw_index``: the yaw's place in the state; ``radius_from_offset``:
-    the body is a disc guarded ``model_params.offset_l`` ahead of its centre.
+    the body is a disc guarded ``model_params.offset_l`` ahead of its centre;
+    ``input_units``: what the filter's input u is, for the evaluation's intervention
+    column.
     """
 
     name: str
@@ -37,6 +39,7 @@ class RobotType:
     goal_controller: type
     state_size: int
     yaw_index: int
+    input_units: str
     filter_parameters: MappingProxyType = dataclasses.field(
         default_factory=lambda: MappingProxyType({}))
     radius_from_offset: bool = False
@@ -61,21 +64,23 @@ _TWIST = dict(model='unicycle', command_kind='velocity',
               command_type='geometry_msgs/msg/TwistStamped', safe_topic='cmd_vel_out',
               nominal_topic='cmd_vel_in', start_fields='[x, y, yaw]', goal_fields='[x, y]',
               goal_controller=UnicycleGoalController, state_size=5, yaw_index=2,
+              input_units='unicycle [a m/s^2, alpha rad/s^2]',
               filter_parameters=MappingProxyType({'stamped': True}))
 
 # Footprint circle radius [m] around the base: the standing A1 reaches 0.378 m (its rear
-# knees stick out 0.354 m behind the base), a diff-drive base is a disc of this radius
-# (BARN's reference paths keep >= 0.225 m from every cylinder in 99 % of its worlds), the
-# Crazyflie its rotor tips.
+# knees stick out 0.354 m behind the base), a diff-drive base is a disc of
+# DIFF_DRIVE_RADIUS, the Crazyflie its rotor tips.
+DIFF_DRIVE_RADIUS = 0.2  # m: BARN's reference paths keep >= 0.225 m from 99 % of its worlds
 ROBOT_TYPES = MappingProxyType({robot.name: robot for robot in (
     RobotType('quadruped', params_file='quadruped.yaml', radius=0.4, **_TWIST),
-    RobotType('diff_drive', params_file='diff_drive.yaml', radius=0.2,
+    RobotType('diff_drive', params_file='diff_drive.yaml', radius=DIFF_DRIVE_RADIUS,
               radius_from_offset=True, **_TWIST),
     RobotType('crazyflie', model='quadrotor', params_file='crazyflie_thrust.yaml',
               command_kind='wrench', command_type='geometry_msgs/msg/WrenchStamped',
               safe_topic='wrench_out', nominal_topic='wrench_in', radius=cf.BODY_RADIUS,
               start_fields='[x, y, z, yaw]', goal_fields='[x, y, z]',
-              goal_controller=QuadrotorGoalController, state_size=12, yaw_index=8),
+              goal_controller=QuadrotorGoalController, state_size=12, yaw_index=8,
+              input_units='rotor thrusts [N]'),
 )})
 
 
