@@ -1,6 +1,6 @@
 """The collision-cone barrier h and its Lie derivatives, for any cone model.
 
-For relative position p (cone axis) and relative velocity v (paper eq. 9)::
+For relative position p (cone axis) and relative velocity v (paper eq. 7)::
 
     h = <p, v> + |v|_e s(p),        |v|_e = sqrt(|v|^2 + eps^2)
 
@@ -14,7 +14,7 @@ Partial derivatives::
     dh/dp = v + |v|_e ds/dp
     dh/dv = p + (s / |v|_e) v
 
-Relative kinematics in the cone's plane (paper eq. 17-19): each obstacle n
+Relative kinematics in the cone's plane (paper eq. 14-16): each obstacle n
 has a constant projection P_n (2 x d) onto its plane, translates at c_dot_n,
 and the robot's reference point moves with r_dot and r_ddot = drift + B u, so
 p_dot = v and::

@@ -3,7 +3,7 @@
 Every cone model maps convex polygons (in a plane, relative to a viewpoint q)
 to a cone with apex q, axis vector p and a shape term::
 
-    s(p) = ||p|| cos(phi) = <p, k_hat>                  (PolyC2BF, paper eq. 9)
+    s(p) = ||p|| cos(phi) = <p, k_hat>                  (PolyC2BF, paper eq. 7)
     s(p) = sqrt(||p||^2 - R^2)                          (C3BF, paper eq. 3)
 
 with its gradient ds/dp, so that one barrier serves all of them

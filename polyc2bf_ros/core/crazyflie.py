@@ -19,7 +19,8 @@ clockwise seen from above, starting front-right::
 A rotor spinning clockwise (seen from above) pushes the body
 counter-clockwise, so its yaw reaction torque is ``+c_tau f``.
 
-Mixer (paper eq. 16, generalised from its "+" layout to the X layout)::
+Mixer (the input matrix of paper eq. 13, generalised from its "+" layout to the X
+layout)::
 
     [T, tau_x, tau_y, tau_z]^T = M f,   M = [[1,     1,     1,     1    ],
                                              [y_1,   y_2,   y_3,   y_4  ],

@@ -2,7 +2,7 @@
 
 Planar models see every obstacle in the horizontal plane.  3-D models see each
 obstacle, a vertical prism (footprint x [z_min, z_max]), in two planes, each
-through a constant projection P_n (2 x 3) as the paper assumes (eq. 17 and its
+through a constant projection P_n (2 x 3) as the paper assumes (eq. 14 and its
 footnote)::
 
     horizontal   P   = [[1, 0, 0], [0, 1, 0]]     footprint polygon

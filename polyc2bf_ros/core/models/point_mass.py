@@ -1,4 +1,4 @@
-"""Point mass with acceleration input, in 2-D and 3-D (paper eq. 20).
+"""Point mass with acceleration input, in 2-D and 3-D (paper eq. 18).
 
 State x = [p, v] with p, v in R^d, input u = a in R^d::
 

@@ -1,4 +1,4 @@
-"""Quadrotor with rotor-thrust inputs (paper eq. 16-19), parameters from Crazyflie 2.1.
+"""Quadrotor with rotor-thrust inputs (paper eq. 13-17), parameters from Crazyflie 2.1.
 
 State x = [p (3), v (3), roll, pitch, yaw, w (3 body rates)], input u = f (4 rotor
 thrusts, N).  With R = Rz(yaw) Ry(pitch) Rx(roll) (body to world), the
@@ -9,7 +9,7 @@ mixer [T, tau] = M f of ``polyc2bf_ros.core.crazyflie`` and inertia I::
     [roll, pitch, yaw]_dot = E(roll, pitch) w      (E singular at pitch = +-90 deg)
     w_dot = I^-1 (tau - w x I w)
 
-The guarded point is b = [0, 0, l] in the body frame (paper eq. 17)::
+The guarded point is b = [0, 0, l] in the body frame (paper eq. 14)::
 
     r      = p + R b
     r_dot  = v + R (w x b)
@@ -17,7 +17,7 @@ The guarded point is b = [0, 0, l] in the body frame (paper eq. 17)::
       drift = [0, 0, -g] + R (w x (w x b)) + R [b]x I^-1 (w x I w)
       B     = R e_z 1^T / m - R [b]x I^-1 M_tau
 
-(using w_dot x b = -[b]x w_dot); this is the paper's eq. 19 for the X layout.
+(using w_dot x b = -[b]x w_dot); with it, Lg h is the paper's eq. 17 for the X layout.
 ``reference`` evaluates these in one compiled kernel.
 """
 import math

@@ -1,10 +1,10 @@
-"""Acceleration-controlled unicycle (paper eq. 10-13), the quadruped's model.
+"""Acceleration-controlled unicycle (paper eq. 8-12), the quadruped's model.
 
 State x = [x_p, y_p, theta, v, omega], input u = [a, alpha]::
 
     x_dot = [v cos(theta), v sin(theta), omega, 0, 0] + [[0,0],[0,0],[0,0],[1,0],[0,1]] u
 
-The reference point sits a distance l ahead of the axle (paper eq. 11); with
+The reference point sits a distance l ahead of the axle (paper eq. 9); with
 l = 0 the steering column of Lgh vanishes::
 
     r     = [x_p + l cos(theta), y_p + l sin(theta)]
