@@ -13,7 +13,7 @@ PKG_STAMP := $(VENV)/.pkg-installed
 # (polyc2bf_ros/core/jit.py): nodes then start in ~0.2 s without numba/LLVM in memory.
 BUILD_KERNELS := PYTHONPATH=$(CURDIR) $(PY) -m polyc2bf_ros.core.build_kernels
 PKG_SOURCES := setup.py setup.cfg package.xml \
-	$(shell find polyc2bf_ros sim_bridge config launch resource -type f \
+	$(shell find polyc2bf_ros sim_bridge config launch resource bench/data -type f \
 	        -not -name '*.pyc' -not -name '_kernels*' -not -path '*/__pycache__/*' 2>/dev/null)
 
 # DDS never leaves this machine. Tests pick a ROS_DOMAIN_ID per pytest worker
