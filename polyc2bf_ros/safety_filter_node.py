@@ -58,6 +58,7 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_srvs.srv import SetBool
@@ -121,7 +122,7 @@ class SafetyFilterNode(Node):
         self._obstacles_ready = self.create_guard_condition(self._answer_if_ready)
         self._intake = ObstacleIntake(self._filter_spec(settings),
                                       lambda: self.get_clock().now().nanoseconds * 1e-9,
-                                      settings.intake, self._obstacles_ready.trigger)
+                                      settings.intake, self._obstacles_processed)
         self._log = LoopLogger(self.get_logger())  # for the control path (loop_log)
         self._stall_guard = StallGuard(settings.stall_timeout, self._on_stall,
                                        settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT)
@@ -307,6 +308,18 @@ class SafetyFilterNode(Node):
     def _on_obstacles(self, data):
         """Queue a serialized MarkerArray for the obstacle worker (``obstacle_intake``)."""
         self._intake.submit(data, time.monotonic())
+
+    def _obstacles_processed(self):
+        """Feeder thread, after each pass: wake a command that waits for its obstacles.
+
+        On a loaded machine a pass can end after ``destroy_node`` gave up waiting for it
+        (Ctrl-C while the worker was busy): the guard condition is gone then, and nothing
+        waits for it.
+        """
+        try:
+            self._obstacles_ready.trigger()
+        except InvalidHandle:
+            pass
 
     def _take_obstacles(self):
         """Hand the worker's newest snapshot to the decision; log what is wrong with it."""

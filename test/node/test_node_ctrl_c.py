@@ -17,10 +17,12 @@ import time
 from pathlib import Path
 
 import pytest
+import rclpy
 from geometry_msgs.msg import Twist
 from visualization_msgs.msg import Marker, MarkerArray
 
 from node_harness import Harness, node_log, odometry, REPO, twist, wall
+from polyc2bf_ros.safety_filter_node import SafetyFilterNode
 
 # The reported failure: still running > 20 s after SIGINT.  A clean exit takes well under
 # a second; PROMPT_S is a hang detector that holds with both cores busy, not a latency bound.
@@ -86,3 +88,20 @@ def test_ctrl_c_ends_a_busy_node_promptly(ignore_sigint):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_an_obstacle_pass_that_ends_after_destroy_node_is_ignored():
+    """A feeder pass that ends after ``destroy_node`` wakes nothing and raises nothing.
+
+    On a loaded machine ``destroy_node`` can give up waiting for the feeder thread's last
+    pass; that pass then found the guard condition destroyed: a traceback at Ctrl-C.
+    """
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = SafetyFilterNode(context=context)
+    node._obstacles_processed()  # the running node: the guard condition fires
+    node.destroy_node()
+    try:
+        node._obstacles_processed()
+    finally:
+        rclpy.try_shutdown(context=context)
