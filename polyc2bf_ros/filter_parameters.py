@@ -17,6 +17,7 @@ from pathlib import Path
 import yaml
 
 from polyc2bf_ros.core.command_filter import CommandFilter
+from polyc2bf_ros.core.decision import DEADLOCK_DEFAULTS
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import FilterConfig
@@ -62,6 +63,11 @@ NODE_PARAMETERS = {
                       'obstacle input is unusable (stop)', False),
     'stall_timeout': (0.5, (0.01, 10.0), 'no control step for this long [s] (steady clock): '
                       'a separate thread publishes the stop', False),
+    'deadlock_time': (DEADLOCK_DEFAULTS[0], (0.05, 600.0), 'deadlock: the filter held the robot '
+                      'against its nominal command for this long [s] ...', False),
+    'deadlock_radius': (DEADLOCK_DEFAULTS[1], (0.0, 10.0), '... while its reference point '
+                        'stayed within this distance [m] (core/deadlock.py); reported on '
+                        '~/deadlock and in /diagnostics', False),
 }
 
 # FilterConfig field: ((min, max) or None, description); control_period comes from rate.
@@ -162,6 +168,7 @@ class NodeSettings:
     stall_timeout: float
     block_if_invalid: bool
     max_extrapolation: float
+    deadlock: tuple
     parameters: dict
     ignored: tuple = ()
 
@@ -209,7 +216,9 @@ def build_settings(values, model=None):
         intake=IntakeSettings(*(values[name] for name in IntakeSettings._fields)),
         stall_timeout=float(values['stall_timeout']),
         block_if_invalid=bool(values['block_if_invalid']),
-        max_extrapolation=float(values['max_extrapolation']), parameters=dict(values))
+        max_extrapolation=float(values['max_extrapolation']),
+        deadlock=(float(values['deadlock_time']), float(values['deadlock_radius'])),
+        parameters=dict(values))
     if not settings.stall_timeout > 2.0 * settings.tick:
         raise ParameterError(f'stall_timeout ({settings.stall_timeout:g} s) must exceed two '
                              f'control ticks ({2.0 * settings.tick:g} s)')

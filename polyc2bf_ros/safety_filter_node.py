@@ -38,6 +38,12 @@ Stall guard: if no control step or tick has run for ``stall_timeout`` (steady
 clock), a separate thread publishes the stop and the node's status at level
 ERROR on ``/diagnostics`` (``stall_guard``).
 
+Deadlock: when the filter has held the robot in place against its nominal command for
+``deadlock_time`` (within ``deadlock_radius``; ``core.deadlock``), ``~/deadlock``
+(std_msgs/Bool, reliable + transient local, published on every change) turns true and
+``/diagnostics`` says so at WARN, for a planner or behaviour tree to act on (replan,
+back up).  The node itself keeps filtering: a report changes no command.
+
 Hot path: odometry and commands are taken serialized and only the fields used
 are read (``conversions``, CDR section); the answer is a copy of the command's
 bytes with its six numbers replaced, so its header is the input's.
@@ -61,6 +67,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidHandle
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
 from visualization_msgs.msg import MarkerArray
 
@@ -118,7 +125,9 @@ class SafetyFilterNode(Node):
         self._has_header = self._stamped or not velocity
 
         self._decision = ControlDecision(settings.command_filter, settings.timeouts,
-                                         settings.block_if_invalid, settings.max_extrapolation)
+                                         settings.block_if_invalid, settings.max_extrapolation,
+                                         settings.deadlock)
+        self._deadlocked = None  # last state published on ~/deadlock
         self._obstacles_ready = self.create_guard_condition(self._answer_if_ready)
         self._intake = ObstacleIntake(self._filter_spec(settings),
                                       lambda: self.get_clock().now().nanoseconds * 1e-9,
@@ -164,6 +173,10 @@ class SafetyFilterNode(Node):
                                  raw=True)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 1)
+        self._deadlock_pub = self.create_publisher(
+            Bool, '~/deadlock', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                           durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self._report_deadlock(False)
         self.create_service(SetBool, '~/enable', self._on_enable)
 
         callback = self._on_watchdog if self._per_command else self._on_timer
@@ -218,7 +231,8 @@ class SafetyFilterNode(Node):
         self._barrier = self._filter.safety_filter.config.barrier
         self._period = settings.period
         self._decision.configure(settings.command_filter, settings.timeouts,
-                                 settings.block_if_invalid, settings.max_extrapolation)
+                                 settings.block_if_invalid, settings.max_extrapolation,
+                                 settings.deadlock)
         self._intake.configure(settings.intake, self._filter_spec(settings))
         self._stall_guard.timeout = settings.stall_timeout
         self._stall_guard.period = settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT
@@ -392,9 +406,11 @@ class SafetyFilterNode(Node):
         action = decision.action
         if action == 'stop':
             self._publish_stop(cmd, decision.command)
+            self._report_deadlock(False)
             return
         if action == 'pass':
             self._publish(cmd.data)
+            self._report_deadlock(False)
             return
         info = decision.info
         # A refused step returns the stop: nothing of the nominal command is kept then.
@@ -402,9 +418,22 @@ class SafetyFilterNode(Node):
         self._publish(cmd.replaced(conversions.values_from_command(
             decision.command, self._model_name, kept)))
         # Bookkeeping after the answer is out.
+        self._report_deadlock(decision.deadlocked)
         self._last_info = info
         self._min_h = min(self._min_h, info.min_h)
         self._latency.add(time.perf_counter() - start)
+
+    def _report_deadlock(self, deadlocked):
+        """Publish ``~/deadlock`` (latched) when the detector's verdict changes."""
+        if deadlocked == self._deadlocked:
+            return
+        self._deadlocked = deadlocked
+        self._deadlock_pub.publish(Bool(data=deadlocked))
+        if deadlocked:
+            detector = self._decision.deadlock
+            self._log.warning(f'deadlock: the filter has held the robot within '
+                              f'{detector.radius_m:g} m for {detector.time_s:g} s against its '
+                              'nominal command')
 
     def _publish(self, data):
         """Publish a serialized command and count it for the achieved rate."""
@@ -458,6 +487,9 @@ class SafetyFilterNode(Node):
             'obstacles_hulled': len(obstacles.hulled),
             'block_if_invalid': str(decision.block_if_invalid).lower(),
             'stalls': self._stall_guard.stalls,
+            'deadlocked': str(bool(self._deadlocked)).lower(),
+            'deadlocks': decision.deadlock.onsets,
+            'deadlock_held_s': f'{decision.deadlock.held_s(now):.2f}',
             **{f'rejected {key}': reason for key, reason in sorted(rejected.items())},
         }
         self._min_h = math.inf
@@ -483,6 +515,9 @@ class SafetyFilterNode(Node):
                               'unfiltered', throttle_s=5.0)
         if stale and self._cmd is not None:
             warnings.append(f'stale {", ".join(stale)}: stopping')
+        if self._deadlocked:
+            warnings.append(f'deadlock: held in place by the filter for '
+                            f'{decision.deadlock.held_s(now):.1f} s')
         fallbacks = [f'{name} x{window[name]}' for name in _FALLBACKS if window[name]]
         if fallbacks:
             warnings.append('fallback ' + ', '.join(fallbacks))

@@ -17,7 +17,8 @@ the scenario suite (``evaluate.filter_statistics``; null for ``none``); extras:
 ``optimal_time_s``, ``final_position`` [x, y], ``final_distance_m`` (to the
 goal), ``final_gap_m`` (from the disc to the nearest cylinder's surface at the
 end, exact for cylinders: |p - c| - r_cylinder - r_disc), ``path_length_m``,
-latency, fallback steps, ``steps`` and ``wall_time_s``.
+latency, fallback steps, ``steps``, ``wall_time_s`` and the deadlock report's
+``deadlock_detections`` and ``deadlocked_at_end`` (``evaluate.filter_statistics``).
 
 ``results.md``: one row per filter x nominal (rates over worlds, mean metric
 with failures as 0) beside BARN's DWA baseline, and the plots
@@ -91,6 +92,8 @@ def barn_record(world, run):
         'path_length_m': metrics['path_length_m'],
         'latency_p50_us': stats['latency_p50_us'], 'latency_p99_us': stats['latency_p99_us'],
         'fallback_steps': stats['fallback_steps'], 'steps': stats['steps'],
+        'deadlock_detections': stats['deadlock_detections'],
+        'deadlocked_at_end': stats['deadlocked_at_end'],
         'wall_time_s': round(run.wall_time_s, 2),
     }
 

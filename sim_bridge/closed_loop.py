@@ -38,7 +38,9 @@ the exact information:
 
 Recorded per robot and period: time, state, nominal and safe commands, the
 model input ``u`` and ``u_nom`` (accelerations, or rotor thrusts), the filter
-status and the wall time of ``CommandFilter.filter`` (the step latency).
+status, the wall time of ``CommandFilter.filter`` (the step latency) and the verdict of
+the node's ``DeadlockDetector`` (``core.deadlock``, on simulated time, with the
+parameter file's ``deadlock_time`` / ``deadlock_radius``).
 """
 import dataclasses
 import time
@@ -49,6 +51,7 @@ from visualization_msgs.msg import Marker
 
 from polyc2bf_ros import marker_obstacles
 from polyc2bf_ros.core import crazyflie
+from polyc2bf_ros.core.deadlock import DeadlockDetector, holds
 from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig
@@ -98,6 +101,7 @@ class RobotTrace:
     u: np.ndarray
     statuses: list
     latency_s: np.ndarray
+    deadlocked: np.ndarray
 
     def speeds(self):
         """Return the speed [m/s] at every recorded state (|v| or |velocity|)."""
@@ -147,7 +151,9 @@ class _Robot:
                       'rate': 1.0 / period, **body_parameters(spec)}
         self.filter = None
         # The model gives u and u_nom for the intervention metric even without a filter.
-        self.reference = build_filter(parameters).command_filter
+        settings = build_filter(parameters)
+        self.reference = settings.command_filter
+        self.detector = DeadlockDetector(*settings.deadlock)
         if barrier != 'none':
             self.filter = build_filter({**parameters, 'filter.barrier': barrier}).command_filter
         self.robot_radius = self.reference.safety_filter.config.robot_radius
@@ -162,6 +168,7 @@ class _Robot:
         self.inputs = inputs
         self.statuses = []
         self.latency = np.full(steps, np.nan)
+        self.deadlocked = np.zeros(steps, dtype=bool)
 
     def command(self, k, state, obstacles):
         """Return the safe command of period ``k`` and record it."""
@@ -176,6 +183,9 @@ class _Robot:
                                                obstacles)
             self.latency[k] = time.perf_counter() - start
             status = info.status.value
+            self.deadlocked[k] = self.detector.update(
+                self.times[k], self.filter.model.reference(state).position,
+                holds(info, nominal, command))
         self.nominal[k] = nominal
         self.commands[k] = command
         self.statuses.append(status)
@@ -186,6 +196,7 @@ class _Robot:
         self.times, self.states = self.times[:steps], self.states[:steps + 1]
         self.nominal, self.commands = self.nominal[:steps], self.commands[:steps]
         self.statuses, self.latency = self.statuses[:steps], self.latency[:steps]
+        self.deadlocked = self.deadlocked[:steps]
 
     def _model_inputs(self):
         """Return (u_nom, u) per period, in the model's inputs, from the recorded commands.
@@ -213,7 +224,7 @@ class _Robot:
         return RobotTrace(self.spec.name, self.spec.type, self.spec.goal,
                           (model.input_lower, model.input_upper), self.times, self.states,
                           self.nominal, self.commands, *self._model_inputs(), self.statuses,
-                          self.latency)
+                          self.latency, self.deadlocked)
 
 
 @dataclasses.dataclass

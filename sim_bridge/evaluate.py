@@ -50,7 +50,11 @@ Per run (one record in ``results.json``; the keys of doc/design.md, result recor
   ``fallback_at_start``: the first step already fell back (a robot starts inside
   its (virtual) obstacle: no cone, the C3BF failure the paper describes);
 - ``latency_p50_us`` / ``latency_p99_us``: wall time of ``CommandFilter.filter``
-  per step, in this process (not the node's DDS round trip).
+  per step, in this process (not the node's DDS round trip);
+- ``deadlock_detections``: onsets of the node's deadlock report (``core.deadlock``: held in
+  place by the filter against the nominal for ``deadlock_time``) summed over robots;
+  ``deadlocked_at_end``: some robot was reported deadlocked at the last step.  The
+  findings compare them with the ``deadlock`` label (which looks at the speed only).
 
 Filter-dependent values are null for ``none``.  Output in ``--out``:
 ``results.json``, ``results.md`` (table per scenario x filter aggregated over
@@ -118,7 +122,7 @@ def filter_statistics(run):
 
     Keys: mean_intervention, fallback_rate, latency_p50_us, latency_p99_us,
     mean_intervention_unclipped, intervention_units, fallback_steps, fallback_at_start,
-    steps.
+    steps, deadlock_detections, deadlocked_at_end.
     """
     filtered = run.barrier != 'none'
     statuses = [s for trace in run.robots.values() for s in trace.statuses]
@@ -142,6 +146,11 @@ def filter_statistics(run):
         'fallback_at_start': any(t.statuses[0] in FALLBACKS for t in run.robots.values()
                                  if t.statuses),
         'steps': len(statuses),
+        'deadlock_detections': sum(int(np.count_nonzero(np.diff(t.deadlocked.astype(int),
+                                                                 prepend=0) == 1))
+                                   for t in run.robots.values()),
+        'deadlocked_at_end': any(bool(t.deadlocked[-1]) for t in run.robots.values()
+                                 if len(t.deadlocked)),
     }
 
 
@@ -176,6 +185,8 @@ def summarise(run, reference_times):
         'intervention_units': stats['intervention_units'],
         'fallback_steps': stats['fallback_steps'],
         'fallback_at_start': no_cone, 'goal_reached': reached,
+        'deadlock_detections': stats['deadlock_detections'],
+        'deadlocked_at_end': stats['deadlocked_at_end'],
         'steps': stats['steps'], 'duration_s': run.scenario.duration,
         'wall_time_s': round(run.wall_time_s, 2), 'robots': robots,
     }
@@ -403,6 +414,7 @@ def findings(records, rows):
         if stuck:
             lines.append(f'{name} did not reach the goal in: ' + ', '.join(
                 f'{r["scenario"]} (seed {r["seed"]}, {_why(r)})' for r in stuck) + '.')
+        lines += _deadlock_finding(name, [r for r in records if r['filter'] == name])
         slow = [row for row in rows if row['filter'] == name
                 and (row['time_to_goal_ratio'] or 0.0) > 1.25]
         if slow:
@@ -415,6 +427,25 @@ def findings(records, rows):
                      + (f' ({", ".join(hits)})' if hits else '') + ': the scenarios are not '
                      'trivially safe.')
     return lines
+
+
+def _deadlock_finding(name, records):
+    """One line: how the deadlock report compares with the runs labelled deadlock."""
+    labelled = [r for r in records if r['deadlock']]
+    detected = [r for r in records if r['deadlock_detections']]
+    if not (labelled or detected):
+        return []
+    flagged = sum(r['deadlocked_at_end'] for r in labelled)
+    freed = [r for r in detected if r['goal_reached']]
+    missed = [r for r in labelled if not r['deadlocked_at_end']]
+    line = (f'{name}: the deadlock report flagged {flagged} of the {len(labelled)} runs '
+            f'labelled deadlock at their end; {len(detected)} runs had a report')
+    if freed:
+        line += f', {len(freed)} of them then reached the goal (the robot got free)'
+    if missed:
+        line += ('; not flagged: ' + ', '.join(f'{r["scenario"]} (seed {r["seed"]})'
+                                               for r in missed))
+    return [line + '.']
 
 
 def _why(record):

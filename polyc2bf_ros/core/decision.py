@@ -19,19 +19,23 @@ but under ``block_if_invalid`` only when nothing in it was rejected (wrong frame
 marker): rejected input then stops the robot once it has lasted ``obstacles_timeout``, or at
 once when that is 0 ('blocked_stop').  The obstacles are moved to the odometry's stamp by
 ``age = clip(t_odom - t_ref, 0, max_extrapolation)`` (``extrapolation_age``).  A stop is the
-model's stop command (``CommandFilter.stop``).  The node, offline bag replay and the
-evaluation all decide through this class.
+model's stop command (``CommandFilter.stop``).  Every filtered step also goes to the
+``DeadlockDetector`` (``core.deadlock``: held in place by the filter for ``deadlock_time``
+within ``deadlock_radius``), whose verdict the ``Decision`` carries; any other step
+clears it.  The node, offline bag replay and the evaluation all decide through this class.
 """
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple, Optional
 
+from polyc2bf_ros.core.deadlock import DeadlockDetector, holds
 from polyc2bf_ros.core.obstacle_tracker import extrapolation_age
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterStatus
 from polyc2bf_ros.core.watchdog import Watchdog
 
 COUNTS = tuple(s.value for s in FilterStatus) + ('stale_stop', 'blocked_stop')
+DEADLOCK_DEFAULTS = (3.0, 0.1)  # deadlock_time [s], deadlock_radius [m]
 
 
 @dataclass(frozen=True)
@@ -72,22 +76,29 @@ class Decision(NamedTuple):
     """What to publish: ``action`` 'filter', 'stop' or 'pass'; ``command`` for the first two.
 
     ``info`` is the filter's ``FilterInfo`` for 'filter'; ``reason`` the count a stop went to
-    ('stale_stop', 'invalid_input', 'blocked_stop').
+    ('stale_stop', 'invalid_input', 'blocked_stop'); ``deadlocked`` the deadlock detector's
+    verdict after this step.
     """
 
     action: str
     command: object = None
     info: object = None
     reason: str = ''
+    deadlocked: bool = False
 
 
 class ControlDecision:
     """Inputs, watchdogs and the ``CommandFilter``: one call per step (module docstring)."""
 
-    def __init__(self, command_filter, timeouts, block_if_invalid=True, max_extrapolation=0.5):
-        """Decide with ``command_filter``; ``timeouts`` = {'odom', 'cmd', 'obstacles': s}."""
+    def __init__(self, command_filter, timeouts, block_if_invalid=True, max_extrapolation=0.5,
+                 deadlock=DEADLOCK_DEFAULTS):
+        """Decide with ``command_filter``; ``timeouts`` = {'odom', 'cmd', 'obstacles': s}.
+
+        ``deadlock`` = (deadlock_time [s], deadlock_radius [m]) of the deadlock detector.
+        """
         self.watchdog = Watchdog(timeouts)
-        self.configure(command_filter, timeouts, block_if_invalid, max_extrapolation)
+        self.deadlock = DeadlockDetector(*deadlock)
+        self.configure(command_filter, timeouts, block_if_invalid, max_extrapolation, deadlock)
         self.counts = dict.fromkeys(COUNTS, 0)
         self.enabled = True
         self.snapshot = ObstacleSnapshot()
@@ -98,8 +109,10 @@ class ControlDecision:
         self.command_vector = None
         self.command_valid = False
 
-    def configure(self, command_filter, timeouts, block_if_invalid, max_extrapolation):
+    def configure(self, command_filter, timeouts, block_if_invalid, max_extrapolation,
+                  deadlock=DEADLOCK_DEFAULTS):
         """Take new settings (a parameter change); the inputs held are kept."""
+        self.deadlock.configure(*deadlock)
         self.filter = command_filter
         for name, timeout in timeouts.items():
             self.watchdog.set_timeout(name, timeout)
@@ -137,6 +150,7 @@ class ControlDecision:
     def step(self, now):
         """Return the ``Decision`` for this step (module docstring)."""
         if not self.enabled:
+            self.deadlock.clear()
             if self.watchdog.is_stale('cmd', now) or not self.command_valid:
                 return self._stop('stale_stop' if self.command_valid else 'invalid_input')
             return Decision('pass')
@@ -152,8 +166,12 @@ class ControlDecision:
         safe, info = self.filter.filter(self.state, self.yaw, self.command_vector,
                                         snapshot.obstacles, age)
         self.counts[info.status.value] += 1
-        return Decision('filter', safe, info)
+        position = self.filter.model.reference(self.state).position
+        return Decision('filter', safe, info,
+                        deadlocked=self.deadlock.update(
+                            now, position, holds(info, self.command_vector, safe)))
 
     def _stop(self, reason):
         self.counts[reason] += 1
+        self.deadlock.clear()
         return Decision('stop', self.stop(), reason=reason)

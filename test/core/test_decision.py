@@ -109,3 +109,41 @@ def test_the_stop_before_any_odometry_is_the_zero_command():
     decision = ControlDecision(build_filter({}).command_filter, TIMEOUTS)
     stop = decision.stop()
     assert np.all(np.isfinite(stop)) and not math.isnan(float(np.sum(stop)))
+
+
+def test_a_robot_held_at_the_wall_is_reported_deadlocked_after_deadlock_time():
+    """At rest 0.3 m from the wall, told to drive on: held, deadlocked after 3 s, not before.
+
+    A stale input then stops the robot: that stop clears the verdict.
+    """
+    decision = ControlDecision(build_filter({}).command_filter, TIMEOUTS, deadlock=(3.0, 0.1))
+    at_wall = (1.45, 0.0, 0.0, 0.0, 0.0)
+    verdicts = []
+    for k in range(400):
+        now = 10.0 + 0.01 * k
+        decision.odometry(now, at_wall, 0.0, now)
+        decision.command(now, (0.8, 0.0))
+        decision.obstacles(_snapshot(received=now))
+        result = decision.step(now)
+        assert result.action == 'filter' and result.command[0] < 0.8
+        verdicts.append(result.deadlocked)
+    first = verdicts.index(True)
+    assert 299 <= first <= 301 and all(verdicts[first:])
+    assert decision.deadlock.onsets == 1
+    assert not decision.step(20.0).deadlocked and decision.deadlock.held_s(20.0) == 0.0
+
+
+@pytest.mark.parametrize('state, command', [
+    ((0.0, 0.0, math.pi, 0.0, 0.0), (0.5, 0.0)),   # driving away: nothing in the way
+    ((1.45, 0.0, 0.0, 0.0, 0.0), (0.0, 0.0)),      # parked at the wall, told to stand
+])
+def test_a_robot_the_filter_does_not_hold_back_is_never_deadlocked(state, command):
+    """Not held back: at rest for 2 s, four times deadlock_time, and never reported."""
+    decision = ControlDecision(build_filter({}).command_filter, TIMEOUTS, deadlock=(0.5, 0.1))
+    for k in range(200):
+        now = 10.0 + 0.01 * k
+        decision.odometry(now, state, state[2], now)
+        decision.command(now, command)
+        decision.obstacles(_snapshot(received=now))
+        assert not decision.step(now).deadlocked
+    assert decision.deadlock.onsets == 0

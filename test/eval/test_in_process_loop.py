@@ -83,3 +83,20 @@ def test_no_filter_drives_into_the_wall(long_wall):
     assert np.isnan(run.robots['a1'].latency_s).all()
     record = summarise(run, {'a1': 10.0})
     assert record['outcome'] == 'collision' and record['mean_intervention'] is None
+
+
+def test_the_deadlock_report_flags_the_popup_box_and_not_the_long_wall(long_wall):
+    """Stopped for good before the pop-up box: reported at the end, labelled deadlock.
+
+    Slowed and steered along the long wall, then through to the goal: never reported.
+    """
+    run = run_in_process('popup_obstacle', 'polyc2bf_inflated')
+    record = summarise(run, {'a1': 10.0})
+    assert record['outcome'] == 'deadlock'
+    assert record['deadlocked_at_end'] and record['deadlock_detections'] == 1
+    trace = run.robots['a1']
+    first = int(np.argmax(trace.deadlocked))
+    assert trace.times[first] > 3.0 + 3.0  # the box appears at 3 s; held 3 s at least
+    assert trace.deadlocked[first:].all()
+    passed = summarise(long_wall['polyc2bf_inflated'], {'a1': 10.0})
+    assert passed['success'] and passed['deadlock_detections'] == 0

@@ -1,0 +1,90 @@
+"""``DeadlockDetector``: held in place by the filter for T within R, on given times."""
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from polyc2bf_ros.core.deadlock import DeadlockDetector, holds, MIN_INTERVENTION
+from polyc2bf_ros.core.safety_filter import FilterInfo, FilterStatus
+from strategies import examples
+
+
+def run(detector, steps, dt=0.01):
+    """Feed ``[(position, holding)]`` at ``dt`` apart from t = 0; return the verdicts."""
+    return [detector.update(k * dt, p, h) for k, (p, h) in enumerate(steps)]
+
+
+def test_deadlocked_exactly_after_the_time_held_in_place():
+    """Held at one point: False until T has passed since the first held step, then True."""
+    verdicts = run(DeadlockDetector(1.0, 0.1), [((0.0, 0.0), True)] * 150)
+    assert verdicts.index(True) == 100 and all(verdicts[100:])
+
+
+def test_creeping_slower_than_radius_over_time_is_a_deadlock_faster_is_not():
+    """R / T = 0.1 m/s: 0.05 m/s counts as standing, 0.2 m/s re-anchors for ever."""
+    for speed, expected in ((0.05, True), (0.2, False)):
+        steps = [((speed * 0.01 * k, 0.0), True) for k in range(300)]
+        assert any(run(DeadlockDetector(1.0, 0.1), steps)) is expected
+
+
+def test_a_step_that_does_not_hold_starts_the_count_again():
+    """One free step in the middle: the deadlock comes T after it, counted once."""
+    detector = DeadlockDetector(1.0, 0.1)
+    steps = [((0.0, 0.0), True)] * 80 + [((0.0, 0.0), False)] + [((0.0, 0.0), True)] * 120
+    verdicts = run(detector, steps)
+    assert verdicts.index(True) == 81 + 100 and detector.onsets == 1
+
+
+def test_each_new_deadlock_is_counted():
+    """Deadlock, freed, deadlock again: two onsets."""
+    detector = DeadlockDetector(0.5, 0.1)
+    run(detector, ([((0.0, 0.0), True)] * 60 + [((0.0, 0.0), False)]) * 2)
+    assert detector.onsets == 2
+
+
+def test_holding_means_the_filter_acted_and_changed_the_command():
+    """Acted and changed the command: holds; unconstrained, or changed too little: not.
+
+    Too little: by at most MIN_INTERVENTION in every component.
+    """
+    nominal, held_back, kept = (0.8, 0.0), (0.1, 0.0), (0.8 - 0.5 * MIN_INTERVENTION, 0.0)
+    assert holds(FilterInfo(FilterStatus.OK, active=np.array([3])), nominal, held_back)
+    assert not holds(FilterInfo(FilterStatus.OK, active=np.array([3])), nominal, kept)
+    assert not holds(FilterInfo(FilterStatus.OK), nominal, held_back)
+    for status in (FilterStatus.SLACK, FilterStatus.BRAKE, FilterStatus.ESCAPE):
+        assert holds(FilterInfo(status), nominal, held_back)
+
+
+@pytest.mark.parametrize('time_s, radius_m', [(0.0, 0.1), (-1.0, 0.1), (math.inf, 0.1),
+                                              (1.0, -0.1), (1.0, math.nan)])
+def test_bad_thresholds_are_refused(time_s, radius_m):
+    """T must be positive and finite, R non-negative and finite."""
+    with pytest.raises(ValueError):
+        DeadlockDetector(time_s, radius_m)
+
+
+@settings(max_examples=examples(200), deadline=None)
+@given(st.lists(st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3), st.booleans(),
+                          st.floats(0.001, 0.2)), min_size=1, max_size=120),
+       st.floats(0.05, 1.0), st.floats(0.0, 0.3))
+def test_a_verdict_always_rests_on_a_held_window(steps, time_s, radius_m):
+    """Whenever it says deadlocked, every step of the last T s held, within 2R of each other.
+
+    (Within R of one anchor, so within 2R pairwise.)  And a robot held at one point for
+    longer than T plus one step is always reported.
+    """
+    detector = DeadlockDetector(time_s, radius_m)
+    now, history = 0.0, []
+    for x, y, holding, dt in steps:
+        now += dt
+        history.append((now, np.array([x, y]), holding))
+        if detector.update(now, (x, y), holding):
+            window = [(p, h) for t, p, h in history if t >= now - time_s]
+            assert all(h for _, h in window)
+            assert all(np.linalg.norm(p - q) <= 2.0 * radius_m + 1e-12
+                       for p, _ in window for q, _ in window)
+    held = DeadlockDetector(time_s, radius_m)
+    verdicts = [held.update(k * 0.01, (0.1, 0.2), True)
+                for k in range(int(time_s / 0.01) + 2)]
+    assert verdicts[-1]
