@@ -17,7 +17,7 @@ from pathlib import Path
 import yaml
 
 from polyc2bf_ros.core.command_filter import CommandFilter
-from polyc2bf_ros.core.decision import DEADLOCK_DEFAULTS
+from polyc2bf_ros.core.decision import DEADLOCK_DEFAULTS, RESOLUTIONS
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import FilterConfig
@@ -68,6 +68,10 @@ NODE_PARAMETERS = {
     'deadlock_radius': (DEADLOCK_DEFAULTS[1], (0.0, 10.0), '... while its reference point '
                         'stayed within this distance [m] (core/deadlock.py); reported on '
                         '~/deadlock and in /diagnostics', False),
+    'deadlock_resolution': ('none', None, "what a reported deadlock does: 'none' (report "
+                            "only) or 'circulate' (unicycle: the nominal is steered along the "
+                            'blocking obstacle, core/circulation.py; no constraint is relaxed)',
+                            False),
 }
 
 # FilterConfig field: ((min, max) or None, description); control_period comes from rate.
@@ -169,6 +173,7 @@ class NodeSettings:
     block_if_invalid: bool
     max_extrapolation: float
     deadlock: tuple
+    resolution: str
     parameters: dict
     ignored: tuple = ()
 
@@ -218,7 +223,10 @@ def build_settings(values, model=None):
         block_if_invalid=bool(values['block_if_invalid']),
         max_extrapolation=float(values['max_extrapolation']),
         deadlock=(float(values['deadlock_time']), float(values['deadlock_radius'])),
-        parameters=dict(values))
+        resolution=values['deadlock_resolution'], parameters=dict(values))
+    if settings.resolution not in RESOLUTIONS:
+        raise ParameterError(f"parameter 'deadlock_resolution' must be one of {RESOLUTIONS}, "
+                             f'got {settings.resolution!r}')
     if not settings.stall_timeout > 2.0 * settings.tick:
         raise ParameterError(f'stall_timeout ({settings.stall_timeout:g} s) must exceed two '
                              f'control ticks ({2.0 * settings.tick:g} s)')

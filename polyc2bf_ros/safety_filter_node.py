@@ -126,7 +126,7 @@ class SafetyFilterNode(Node):
 
         self._decision = ControlDecision(settings.command_filter, settings.timeouts,
                                          settings.block_if_invalid, settings.max_extrapolation,
-                                         settings.deadlock)
+                                         settings.deadlock, settings.resolution)
         self._deadlocked = None  # last state published on ~/deadlock
         self._obstacles_ready = self.create_guard_condition(self._answer_if_ready)
         self._intake = ObstacleIntake(self._filter_spec(settings),
@@ -232,7 +232,7 @@ class SafetyFilterNode(Node):
         self._period = settings.period
         self._decision.configure(settings.command_filter, settings.timeouts,
                                  settings.block_if_invalid, settings.max_extrapolation,
-                                 settings.deadlock)
+                                 settings.deadlock, settings.resolution)
         self._intake.configure(settings.intake, self._filter_spec(settings))
         self._stall_guard.timeout = settings.stall_timeout
         self._stall_guard.period = settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT

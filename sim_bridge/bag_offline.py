@@ -177,7 +177,8 @@ class _OfflineNode:
         self.setup = setup
         self.filter = setup.command_filter
         self.decision = ControlDecision(setup.command_filter, setup.timeouts,
-                                        setup.block_if_invalid, setup.max_extrapolation)
+                                        setup.block_if_invalid, setup.max_extrapolation,
+                                        setup.deadlock, setup.resolution)
         self.pipeline = ObstaclePipeline()
         self.spec = (setup.model_name, setup.command_filter.safety_filter.config)
         self.frame = None

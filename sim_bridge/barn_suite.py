@@ -48,7 +48,7 @@ from sim_bridge.barn import (
     WORLDS_FILE,
 )
 from sim_bridge.closed_loop import run_in_process
-from sim_bridge.evaluate import filter_statistics, Progress, resolve_filters
+from sim_bridge.evaluate import filter_statistics, override_parameters, Progress, resolve_filters
 from sim_bridge.world import CLEARANCE_RANGE
 
 BARN_KEYS = ('suite', 'world', 'filter', 'nominal', 'success', 'collision', 'timeout',
@@ -106,20 +106,22 @@ def _trajectory(run):
     return {'positions': kept, 'collision': positions[-1] if run.ended == 'collision' else None}
 
 
-def run_world(world, combos):
+def run_world(world, combos, parameters=None):
     """Run ``world`` (BarnWorld) with every (filter, nominal) of ``combos``.
 
     Return [(record, trajectory)] in ``combos`` order; the Scenario is built once.
+    ``parameters``: node parameters that override the parameter file's.
     """
     scenario = world.scenario()
     results = []
     for barrier, nominal in combos:
-        run = run_in_process(scenario, barrier, nominal=nominal, until=BarnReferee())
+        run = run_in_process(scenario, barrier, nominal=nominal, until=BarnReferee(),
+                             parameters=parameters)
         results.append((barn_record(world, run), _trajectory(run)))
     return results
 
 
-def run_barn(worlds, combos, jobs=None, progress=True):
+def run_barn(worlds, combos, jobs=None, progress=True, parameters=None):
     """Run every world x combo over ``jobs`` processes (default: the CPU count).
 
     Return (records, trajectories) in world, then combo order; trajectories are keyed
@@ -138,12 +140,13 @@ def run_barn(worlds, combos, jobs=None, progress=True):
 
     if jobs == 1:
         for world in worlds:
-            finished(world, run_world(world, combos))
+            finished(world, run_world(world, combos, parameters))
     else:
         # spawn: a fresh interpreter per worker, whatever this process holds (PyBullet, DDS).
         pool = ProcessPoolExecutor(min(jobs, len(worlds)), mp_context=get_context('spawn'))
         try:
-            futures = {pool.submit(run_world, world, combos): world for world in worlds}
+            futures = {pool.submit(run_world, world, combos, parameters): world
+                       for world in worlds}
             for future in as_completed(futures):
                 finished(futures[future], future.result())
         finally:
@@ -264,7 +267,8 @@ def main_barn(parser, args, command):
     out = Path(args.out or 'runs/barn')
     start = time.monotonic()
     try:
-        records, trajectories = run_barn(worlds, combos, jobs)
+        records, trajectories = run_barn(worlds, combos, jobs,
+                                         parameters=override_parameters(args))
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130

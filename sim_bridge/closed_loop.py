@@ -5,7 +5,7 @@ round(physics_rate / control_rate)`` physics steps), for every robot at once::
 
     state    = world.robot_state(robot)                      (the odometry's state)
     command  = nominal law of ``nominal_controller``: [v, omega] or wrench
-    safe     = CommandFilter.filter(state, yaw, command, obstacles)   (the node's decision)
+    safe     = ControlDecision.step(t)  on that state, command and obstacles (the node's)
     world.set_command(robot, safe); n x world.step()        (zero-order hold)
 
 Nominal laws (``NOMINALS``): ``goal``, the go-to-goal controller of the robot's
@@ -38,9 +38,12 @@ the exact information:
 
 Recorded per robot and period: time, state, nominal and safe commands, the
 model input ``u`` and ``u_nom`` (accelerations, or rotor thrusts), the filter
-status, the wall time of ``CommandFilter.filter`` (the step latency) and the verdict of
-the node's ``DeadlockDetector`` (``core.deadlock``, on simulated time, with the
-parameter file's ``deadlock_time`` / ``deadlock_radius``).
+status, the wall time of the decision step (the step latency) and the verdict of the
+node's deadlock report (``core.deadlock``, on simulated time, with the parameter file's
+``deadlock_time`` / ``deadlock_radius``).  The decision is the node's ``ControlDecision``
+with every input fresh (timeouts 0) and the obstacles stamped with the period's time;
+``parameters`` (e.g. ``{'deadlock_resolution': 'circulate'}``) override the parameter
+file's values for every robot.
 """
 import dataclasses
 import time
@@ -51,7 +54,7 @@ from visualization_msgs.msg import Marker
 
 from polyc2bf_ros import marker_obstacles
 from polyc2bf_ros.core import crazyflie
-from polyc2bf_ros.core.deadlock import DeadlockDetector, holds
+from polyc2bf_ros.core.decision import ControlDecision, ObstacleSnapshot
 from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig
@@ -136,7 +139,7 @@ class ClosedLoopRun:
 class _Robot:
     """One robot's controller, filter and trace buffers."""
 
-    def __init__(self, spec, barrier, nominal, period, steps, world):
+    def __init__(self, spec, barrier, nominal, period, steps, world, overrides=None):
         """Build the nominal law and (unless ``barrier`` is 'none') the node's CommandFilter."""
         robot = ROBOT_TYPES[spec.type]
         self.kind, self.yaw_index = robot.command_kind, robot.yaw_index
@@ -148,14 +151,16 @@ class _Robot:
                                  f'robot with a path, not a {spec.type} with path {spec.path}')
             self.controller, self.target = UnicyclePathController(), ReferencePath(spec.path)
         parameters = {**load_parameters([params_file(spec.type)], (), spec.name),
-                      'rate': 1.0 / period, **body_parameters(spec)}
-        self.filter = None
+                      'rate': 1.0 / period, **body_parameters(spec), **(overrides or {})}
+        self.filter = self.decision = None
         # The model gives u and u_nom for the intervention metric even without a filter.
-        settings = build_filter(parameters)
-        self.reference = settings.command_filter
-        self.detector = DeadlockDetector(*settings.deadlock)
+        self.reference = build_filter(parameters).command_filter
         if barrier != 'none':
-            self.filter = build_filter({**parameters, 'filter.barrier': barrier}).command_filter
+            settings = build_filter({**parameters, 'filter.barrier': barrier})
+            self.filter = settings.command_filter
+            self.decision = ControlDecision(self.filter, dict.fromkeys(settings.timeouts, 0.0),
+                                            settings.block_if_invalid, 0.0, settings.deadlock,
+                                            settings.resolution)
         self.robot_radius = self.reference.safety_filter.config.robot_radius
         state = world.robot_state(spec.name)
         dim = 2 if robot.unicycle else 4
@@ -177,15 +182,17 @@ class _Robot:
         else:
             nominal = self.controller.wrench(state, self.target)
         command, status = nominal, 'none'
-        if self.filter is not None:
+        if self.decision is not None:
+            now, decision = self.times[k], self.decision
             start = time.perf_counter()
-            command, info = self.filter.filter(state, float(state[self.yaw_index]), nominal,
-                                               obstacles)
+            decision.odometry(now, state, float(state[self.yaw_index]), now)
+            decision.command(now, nominal)
+            decision.obstacles(ObstacleSnapshot(obstacles=obstacles, t_ref=now, received=now))
+            result = decision.step(now)
             self.latency[k] = time.perf_counter() - start
-            status = info.status.value
-            self.deadlocked[k] = self.detector.update(
-                self.times[k], self.filter.model.reference(state).position,
-                holds(info, nominal, command))
+            command = result.command
+            status = result.info.status.value if result.info is not None else result.reason
+            self.deadlocked[k] = result.deadlocked
         self.nominal[k] = nominal
         self.commands[k] = command
         self.statuses.append(status)
@@ -318,11 +325,12 @@ def obstacle_free(scenario):
 
 
 def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=None,
-                   progress=None, nominal='goal', until=None):
+                   progress=None, nominal='goal', until=None, parameters=None):
     """Run ``scenario`` (Scenario or name) in lockstep in this process; return ClosedLoopRun.
 
     ``progress(sim_time, duration)`` is called about once per simulated second;
-    ``until(sim_time, world, metrics)`` after every period: anything true ends the run.
+    ``until(sim_time, world, metrics)`` after every period: anything true ends the run;
+    ``parameters``: node parameters that override the parameter file's.
     """
     if barrier not in FILTER_CHOICES:
         raise ValueError(f'filter must be one of {", ".join(FILTER_CHOICES)}, got {barrier!r}')
@@ -339,7 +347,7 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
     try:
         steps = int(round(scenario.duration / period))
         metrics = RunMetrics(world)
-        robots = {spec.name: _Robot(spec, barrier, nominal, period, steps, world)
+        robots = {spec.name: _Robot(spec, barrier, nominal, period, steps, world, parameters)
                   for spec in scenario.robots}
         view = _ObstacleView(world)
         report_every = max(1, round(1.0 / period))

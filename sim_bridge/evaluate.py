@@ -73,6 +73,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polyc2bf_ros.core.decision import RESOLUTIONS
 from sim_bridge import plots
 from sim_bridge.closed_loop import default_barrier, NOMINALS, obstacle_free, run_in_process
 from sim_bridge.launcher import FILTER_CHOICES
@@ -265,8 +266,11 @@ def plan_runs(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
 
 
 def run_suite(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
-              duration=None, progress=True):
-    """Run the obstacle-free references and every planned run; return (records, runs)."""
+              duration=None, progress=True, parameters=None):
+    """Run the obstacle-free references and every planned run; return (records, runs).
+
+    ``parameters``: node parameters that override the parameter files' (``run_in_process``).
+    """
     planned = plan_runs(scenarios, filters, seeds, random_seeds, duration)
     # References run for the scenario file's own duration, whatever ``duration`` says.
     references = {}
@@ -287,7 +291,7 @@ def run_suite(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
             if bar is not None:
                 bar.update(base + sim_time * weight, label)
 
-        run = run_in_process(scenario, barrier, progress=report)
+        run = run_in_process(scenario, barrier, progress=report, parameters=parameters)
         done += scenario.duration * weight
         if is_reference:
             reference_times[scenario.name] = {name: m['time_to_goal_s']
@@ -522,6 +526,9 @@ def _parser():
     parser.add_argument('--out', default=None,
                         help='output directory (default runs/eval, runs/barn for barn)')
     parser.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
+    parser.add_argument('--deadlock-resolution', choices=RESOLUTIONS, default=None,
+                        help="the filter's deadlock_resolution (default: the parameter "
+                        "file's, 'none' as shipped)")
     scenarios = parser.add_argument_group('scenario suite')
     scenarios.add_argument('--scenarios', nargs='+', default=None, metavar='NAME',
                            help=f'scenarios (default: all shipped: {", ".join(scenario_names())})')
@@ -542,6 +549,13 @@ def _parser():
     barn.add_argument('--limit', type=int, default=None, metavar='K',
                       help='only the first K worlds of the file')
     return parser
+
+
+def override_parameters(args):
+    """Return the node parameters the command line sets (``--deadlock-resolution``)."""
+    if args.deadlock_resolution is None:
+        return {}
+    return {'deadlock_resolution': args.deadlock_resolution}
 
 
 SUITE_OPTIONS = {'scenarios': ('scenarios', 'seeds', 'random_seeds', 'duration'),
@@ -574,7 +588,8 @@ def main(argv=None):
     out = args.out or 'runs/eval'
     try:
         records, runs = run_suite(scenarios, args.filters or list(FILTER_CHOICES), args.seeds,
-                                  random_seeds, args.duration)
+                                  random_seeds, args.duration,
+                                  parameters=override_parameters(args))
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130

@@ -22,12 +22,16 @@ once when that is 0 ('blocked_stop').  The obstacles are moved to the odometry's
 model's stop command (``CommandFilter.stop``).  Every filtered step also goes to the
 ``DeadlockDetector`` (``core.deadlock``: held in place by the filter for ``deadlock_time``
 within ``deadlock_radius``), whose verdict the ``Decision`` carries; any other step
-clears it.  The node, offline bag replay and the evaluation all decide through this class.
+clears it.  With ``deadlock_resolution`` 'circulate' (unicycle only) a reported deadlock
+starts a ``core.circulation.Circulation``: the nominal command handed to the filter is
+steered along the blocking obstacle until it releases; the filter's rows stay as they are.
+The node, offline bag replay and the evaluation all decide through this class.
 """
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple, Optional
 
+from polyc2bf_ros.core.circulation import Circulation
 from polyc2bf_ros.core.deadlock import DeadlockDetector, holds
 from polyc2bf_ros.core.obstacle_tracker import extrapolation_age
 from polyc2bf_ros.core.obstacles import ObstacleSet
@@ -36,6 +40,7 @@ from polyc2bf_ros.core.watchdog import Watchdog
 
 COUNTS = tuple(s.value for s in FilterStatus) + ('stale_stop', 'blocked_stop')
 DEADLOCK_DEFAULTS = (3.0, 0.1)  # deadlock_time [s], deadlock_radius [m]
+RESOLUTIONS = ('none', 'circulate')
 
 
 @dataclass(frozen=True)
@@ -91,14 +96,17 @@ class ControlDecision:
     """Inputs, watchdogs and the ``CommandFilter``: one call per step (module docstring)."""
 
     def __init__(self, command_filter, timeouts, block_if_invalid=True, max_extrapolation=0.5,
-                 deadlock=DEADLOCK_DEFAULTS):
+                 deadlock=DEADLOCK_DEFAULTS, resolution='none'):
         """Decide with ``command_filter``; ``timeouts`` = {'odom', 'cmd', 'obstacles': s}.
 
-        ``deadlock`` = (deadlock_time [s], deadlock_radius [m]) of the deadlock detector.
+        ``deadlock`` = (deadlock_time [s], deadlock_radius [m]) of the deadlock detector;
+        ``resolution`` one of ``RESOLUTIONS``.
         """
         self.watchdog = Watchdog(timeouts)
         self.deadlock = DeadlockDetector(*deadlock)
-        self.configure(command_filter, timeouts, block_if_invalid, max_extrapolation, deadlock)
+        self.circulation = None
+        self.configure(command_filter, timeouts, block_if_invalid, max_extrapolation, deadlock,
+                       resolution)
         self.counts = dict.fromkeys(COUNTS, 0)
         self.enabled = True
         self.snapshot = ObstacleSnapshot()
@@ -110,9 +118,17 @@ class ControlDecision:
         self.command_valid = False
 
     def configure(self, command_filter, timeouts, block_if_invalid, max_extrapolation,
-                  deadlock=DEADLOCK_DEFAULTS):
+                  deadlock=DEADLOCK_DEFAULTS, resolution='none'):
         """Take new settings (a parameter change); the inputs held are kept."""
+        if resolution not in RESOLUTIONS:
+            raise ValueError(f'deadlock resolution must be one of {RESOLUTIONS}, '
+                             f'got {resolution!r}')
         self.deadlock.configure(*deadlock)
+        circulate = resolution == 'circulate' and command_filter.model.name == 'unicycle'
+        if not circulate:
+            self.circulation = None
+        elif self.circulation is None:
+            self.circulation = Circulation()
         self.filter = command_filter
         for name, timeout in timeouts.items():
             self.watchdog.set_timeout(name, timeout)
@@ -163,13 +179,20 @@ class ControlDecision:
                 and self.watchdog.timeout('obstacles') == 0.0):
             return self._stop('blocked_stop')
         age = extrapolation_age(self.odom_stamp, snapshot.t_ref, self.max_extrapolation)
-        safe, info = self.filter.filter(self.state, self.yaw, self.command_vector,
-                                        snapshot.obstacles, age)
-        self.counts[info.status.value] += 1
         position = self.filter.model.reference(self.state).position
-        return Decision('filter', safe, info,
-                        deadlocked=self.deadlock.update(
-                            now, position, holds(info, self.command_vector, safe)))
+        command, circulation = self.command_vector, self.circulation
+        if circulation is not None:
+            circulation.release_if_done(now, position)
+            command = circulation.command(self.yaw, command)
+        safe, info = self.filter.filter(self.state, self.yaw, command, snapshot.obstacles, age)
+        self.counts[info.status.value] += 1
+        onsets = self.deadlock.onsets
+        deadlocked = self.deadlock.update(now, position, holds(info, command, safe))
+        if circulation is not None:
+            circulation.observe(info)
+            if self.deadlock.onsets > onsets:
+                circulation.engage(now, position, self.yaw)
+        return Decision('filter', safe, info, deadlocked=deadlocked)
 
     def _stop(self, reason):
         self.counts[reason] += 1

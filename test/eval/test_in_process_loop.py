@@ -100,3 +100,16 @@ def test_the_deadlock_report_flags_the_popup_box_and_not_the_long_wall(long_wall
     assert trace.deadlocked[first:].all()
     passed = summarise(long_wall['polyc2bf_inflated'], {'a1': 10.0})
     assert passed['success'] and passed['deadlock_detections'] == 0
+
+
+def test_circulation_resolves_the_popup_box_without_collision():
+    """deadlock_resolution circulate: reported once, steered around the box, at the goal.
+
+    The report comes deadlock_time after the robot stood; the filter's rows are the same.
+    """
+    run = run_in_process('popup_obstacle', 'polyc2bf_inflated', duration=30.0,
+                         parameters={'deadlock_resolution': 'circulate'})
+    record = summarise(run, {'a1': 10.0})
+    assert record['success'] and not record['collision']
+    assert record['min_clearance_m'] is None or record['min_clearance_m'] > 0.05
+    assert record['deadlock_detections'] >= 1 and not record['deadlocked_at_end']

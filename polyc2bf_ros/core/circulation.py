@@ -1,0 +1,96 @@
+"""Deadlock resolution by circulation: steer the nominal along the blocking obstacle.
+
+Once the deadlock report (``core.deadlock``) fires, the unicycle's nominal command is
+replaced by one that drives along the boundary of the obstacle holding it, on one side,
+latched (after Keyumarsi et al. 2025, "circulation" around the active constraint).  The
+safety filter then filters that command like any other: no CBF row is dropped or relaxed,
+so the guarantee is the filter's, unchanged; only the wish it is asked to grant changes.
+
+Per step while circulating, with p the cone axis of the obstacle part with the smallest
+h (from the robot's reference point toward it; the previous step's cones), side
+sigma in {+1 left, -1 right} and the nominal speed v_n > 0::
+
+    t      = R(sigma pi/2) p / |p|                      (tangent, on the latched side)
+    e      = wrap(atan2(t) - theta)                     (heading error)
+    omega* = clip(k_theta e, +-omega_max)
+    v*     = v_n max(0, cos e)                          (turn first when facing away)
+
+The side is chosen once, when the deadlock is reported: the side of p the robot's heading
+already lies on (sigma = sign(p x heading), left on a tie), so the robot turns the short
+way.  A second report while circulating (held again, e.g. in a corner) flips the side.
+Circulation ends when the reference point is ``release_distance`` from where it began,
+or after ``max_time`` s; the original nominal then takes over again.  Only unicycle
+velocity commands [v, omega] are circulated; other models keep their nominal.
+"""
+import math
+
+import numpy as np
+
+
+def _wrap(angle):
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class Circulation:
+    """The rule of the module docstring; ``ControlDecision`` drives it."""
+
+    def __init__(self, release_distance=1.0, max_time=10.0, turn_gain=2.0, max_turn_rate=1.5):
+        """Circulate until ``release_distance`` [m] from the start or ``max_time`` [s]."""
+        if not (release_distance > 0.0 and max_time > 0.0 and turn_gain > 0.0
+                and max_turn_rate > 0.0):
+            raise ValueError('circulation: release_distance, max_time, turn_gain and '
+                             'max_turn_rate must be positive')
+        self.release_distance, self.max_time = float(release_distance), float(max_time)
+        self.turn_gain, self.max_turn_rate = float(turn_gain), float(max_turn_rate)
+        self.side = 0          # +1 left, -1 right, 0 not circulating
+        self.engagements = 0   # circulations started (a flipped side counts again)
+        self._start = None
+        self._since = math.nan
+        self._axis = None      # cone axis of the blocking part, last known
+
+    @property
+    def active(self):
+        """Return True while circulating."""
+        return self.side != 0
+
+    def observe(self, info):
+        """Remember the cone axis of the part with the smallest h in ``info`` (if any)."""
+        evaluation = getattr(info, 'evaluation', None)
+        if evaluation is None or not len(info.h):
+            return
+        h = np.where(evaluation.valid & np.isfinite(info.h), info.h, np.inf)
+        index = int(np.argmin(h))
+        if math.isfinite(h[index]):
+            axis = evaluation.cones.p[:, index]
+            if float(np.hypot(*axis)) > 0.0:
+                self._axis = np.array(axis, dtype=float)
+
+    def engage(self, now, position, yaw):
+        """Start (or, while circulating, flip) circulation at the robot's reference point."""
+        if self._axis is None:
+            return
+        if self.active:
+            self.side = -self.side
+        else:
+            heading = (math.cos(yaw), math.sin(yaw))
+            cross = self._axis[0] * heading[1] - self._axis[1] * heading[0]
+            self.side = 1 if cross >= 0.0 else -1
+        self.engagements += 1
+        self._start, self._since = np.array(position, dtype=float), now
+
+    def release_if_done(self, now, position):
+        """End circulation once far enough from its start or after ``max_time``."""
+        if self.active and (now - self._since >= self.max_time or np.linalg.norm(
+                np.asarray(position, dtype=float) - self._start) >= self.release_distance):
+            self.side = 0
+
+    def command(self, yaw, nominal):
+        """Return the unicycle command [v, omega] to ask the filter for (module docstring)."""
+        speed = abs(float(nominal[0]))
+        if not self.active or self._axis is None or speed == 0.0:
+            return nominal
+        ax, ay = self._axis / float(np.hypot(*self._axis))
+        tx, ty = -self.side * ay, self.side * ax
+        error = _wrap(math.atan2(ty, tx) - yaw)
+        omega = min(max(self.turn_gain * error, -self.max_turn_rate), self.max_turn_rate)
+        return np.array([speed * max(0.0, math.cos(error)), omega])
