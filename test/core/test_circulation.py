@@ -9,7 +9,7 @@ from polyc2bf_ros.core.circulation import Circulation
 
 
 def info_with_axis(axis, h=0.1):
-    """A FilterInfo stand-in: one valid part with cone axis ``axis`` and barrier value ``h``."""
+    """Return a FilterInfo stand-in: one valid part, cone axis ``axis``, barrier value ``h``."""
     cones = SimpleNamespace(p=np.array(axis, dtype=float).reshape(2, 1))
     return SimpleNamespace(h=np.array([h]), evaluation=SimpleNamespace(
         valid=np.array([True]), cones=cones))
