@@ -28,8 +28,6 @@ The detector only reports: it changes no command.  ``onsets`` counts the deadloc
 """
 import math
 
-import numpy as np
-
 from polyc2bf_ros.core.safety_filter import FilterStatus
 
 HOLDING_STATUSES = frozenset({FilterStatus.SLACK, FilterStatus.BRAKE, FilterStatus.ESCAPE})
@@ -39,10 +37,12 @@ MIN_INTERVENTION = 0.05
 def holds(info, nominal, safe):
     """Return True when the step of ``info`` (a ``FilterInfo``) held back the ``nominal``.
 
-    ``nominal`` and ``safe``: the step's nominal and safe command vectors.
+    ``nominal`` and ``safe``: the step's nominal and safe command vectors (plain Python
+    on these few numbers: numpy's per-call cost would be most of the step's share).
     """
-    acted = len(info.active) > 0 or info.status in HOLDING_STATUSES
-    return acted and float(np.max(np.abs(np.subtract(nominal, safe)))) > MIN_INTERVENTION
+    if not (len(info.active) or info.status in HOLDING_STATUSES):
+        return False
+    return any(abs(float(a) - float(b)) > MIN_INTERVENTION for a, b in zip(nominal, safe))
 
 
 class DeadlockDetector:
@@ -71,14 +71,14 @@ class DeadlockDetector:
     def update(self, now, position, holding):
         """Take one step at steady time ``now``; return whether the robot is deadlocked.
 
-        ``position``: the reference point; ``holding``: ``holds(info)`` of the step.
+        ``position``: the reference point (only read when ``holding``: a step that does not
+        hold may pass None); ``holding``: ``holds(...)`` of the step.
         """
-        position = np.asarray(position, dtype=float)
-        if (not holding or self._anchor is None
-                or np.linalg.norm(position - self._anchor) > self.radius_m):
-            self._anchor = position.copy() if holding else None
-            self._since = now
-            self.deadlocked = False
+        if not holding:
+            self._anchor, self._since, self.deadlocked = None, now, False
+            return False
+        if self._anchor is None or math.dist(position, self._anchor) > self.radius_m:
+            self._anchor, self._since, self.deadlocked = tuple(map(float, position)), now, False
             return False
         if not self.deadlocked and now - self._since >= self.time_s:
             self.deadlocked = True

@@ -179,20 +179,25 @@ class ControlDecision:
                 and self.watchdog.timeout('obstacles') == 0.0):
             return self._stop('blocked_stop')
         age = extrapolation_age(self.odom_stamp, snapshot.t_ref, self.max_extrapolation)
-        position = self.filter.model.reference(self.state).position
         command, circulation = self.command_vector, self.circulation
-        if circulation is not None:
-            circulation.release_if_done(now, position)
+        if circulation is not None and circulation.active:
+            circulation.release_if_done(now, self._position())
             command = circulation.command(self.yaw, command)
         safe, info = self.filter.filter(self.state, self.yaw, command, snapshot.obstacles, age)
         self.counts[info.status.value] += 1
+        # The reference point costs a model call: only needed while the filter holds.
+        holding = holds(info, command, safe)
+        position = self._position() if holding else None
         onsets = self.deadlock.onsets
-        deadlocked = self.deadlock.update(now, position, holds(info, command, safe))
+        deadlocked = self.deadlock.update(now, position, holding)
         if circulation is not None:
             circulation.observe(info)
             if self.deadlock.onsets > onsets:
                 circulation.engage(now, position, self.yaw)
         return Decision('filter', safe, info, deadlocked=deadlocked)
+
+    def _position(self):
+        return self.filter.model.reference(self.state).position
 
     def _stop(self, reason):
         self.counts[reason] += 1
