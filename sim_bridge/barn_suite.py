@@ -48,7 +48,14 @@ from sim_bridge.barn import (
     WORLDS_FILE,
 )
 from sim_bridge.closed_loop import run_in_process
-from sim_bridge.evaluate import filter_statistics, override_parameters, Progress, resolve_filters
+from sim_bridge.evaluate import (
+    filter_statistics,
+    group_records,
+    override_parameters,
+    Progress,
+    resolve_filters,
+    table_cell,
+)
 from sim_bridge.world import CLEARANCE_RANGE
 
 BARN_KEYS = ('suite', 'world', 'filter', 'nominal', 'success', 'collision', 'timeout',
@@ -165,11 +172,8 @@ def run_barn(worlds, combos, jobs=None, progress=True, parameters=None):
 
 def aggregate_barn(records):
     """Return one row per (filter, nominal) in record order: rates over worlds and means."""
-    groups = {}
-    for record in records:
-        groups.setdefault((record['filter'], record['nominal']), []).append(record)
     rows = []
-    for (name, nominal), group in groups.items():
+    for (name, nominal), group in group_records(records, 'filter', 'nominal').items():
         successes = [r['time_s'] for r in group if r['success']]
         clearances = [r['min_clearance_m'] for r in group if r['min_clearance_m'] is not None]
         interventions = [r['mean_intervention'] for r in group
@@ -189,10 +193,6 @@ def aggregate_barn(records):
     return rows
 
 
-def _cell(value, digits=3):
-    return '–' if value is None else f'{value:.{digits}f}'
-
-
 def barn_table(rows):
     """Return the Markdown table of aggregated rows, with BARN's DWA baseline last."""
     lines = ['| filter | nominal | worlds | success | collision | deadlock | timeout | '
@@ -204,8 +204,8 @@ def barn_table(rows):
         lines.append(
             f'| {r["filter"]} | {r["nominal"]} | {r["runs"]} | {r["success"]:.3f} | '
             f'{r["collision"]:.3f} | {r["deadlock"]:.3f} | {r["timeout"]:.3f} | '
-            f'{r["barn_metric"]:.3f} | {_cell(r["mean_success_time_s"], 1)} | {clearance} | '
-            f'{_cell(r["mean_intervention"])} | {_cell(r["fallback_rate"])} |')
+            f'{r["barn_metric"]:.3f} | {table_cell(r["mean_success_time_s"], 1)} | {clearance} | '
+            f'{table_cell(r["mean_intervention"], 3)} | {table_cell(r["fallback_rate"], 3)} |')
     base = DWA_BASELINE
     lines.append(f'| DWA (move_base, BARN) | – | 50 x 10 runs | {base["success"]:.3f} | '
                  f'{base["collision"]:.3f} | – | {base["timeout"]:.3f} | '

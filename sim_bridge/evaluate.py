@@ -308,13 +308,18 @@ def run_suite(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
 
 # -- tables and findings --------------------------------------------------------------------
 
-def aggregate(records):
-    """Return one row per (scenario, filter), aggregated over seeds, in record order."""
+def group_records(records, *keys):
+    """Return ``{(record[k] for k in keys): [records]}``, groups in first-record order."""
     groups = {}
     for record in records:
-        groups.setdefault((record['scenario'], record['filter']), []).append(record)
+        groups.setdefault(tuple(record[key] for key in keys), []).append(record)
+    return groups
+
+
+def aggregate(records):
+    """Return one row per (scenario, filter), aggregated over seeds, in record order."""
     rows = []
-    for (scenario, name), group in groups.items():
+    for (scenario, name), group in group_records(records, 'scenario', 'filter').items():
         def values(key, group=group):
             return [r[key] for r in group if r[key] is not None]
 
@@ -344,7 +349,8 @@ def _mean(values):
     return float(np.mean(values)) if values else None
 
 
-def _cell(value, digits=2, suffix=''):
+def table_cell(value, digits=2, suffix=''):
+    """Return ``value`` for a Markdown table: ``digits`` decimals and ``suffix``, '–' if None."""
     return '–' if value is None else f'{value:.{digits}f}{suffix}'
 
 
@@ -359,13 +365,13 @@ def markdown_table(rows):
                      else f'{r["min_clearance_m"]:.3f}')
         latency = ('–' if r['latency_p50_us'] is None
                    else f'{r["latency_p50_us"]:.0f} / {r["latency_p99_us"]:.0f}')
+        fallback = None if r['fallback_rate'] is None else 100 * r['fallback_rate']
         lines.append(
             f'| {r["scenario"]} | {r["filter"]} | {r["success"]}/{n} | {r["collision"]}/{n} | '
             f'{r["deadlock"]}/{n} | {r["timeout"]}/{n} | {r["fallback_at_start"]}/{n} | '
             f'{clearance} | '
-            f'{_cell(r["time_to_goal_ratio"])} | {_cell(r["mean_intervention"], 3)} | '
-            f'{_cell(None if r["fallback_rate"] is None else 100 * r["fallback_rate"], 1, " %")}'
-            f' | {latency} |')
+            f'{table_cell(r["time_to_goal_ratio"])} | {table_cell(r["mean_intervention"], 3)} | '
+            f'{table_cell(fallback, 1, " %")} | {latency} |')
     return '\n'.join(lines)
 
 

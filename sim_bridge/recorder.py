@@ -45,14 +45,7 @@ from pathlib import Path
 import yaml
 from mcap.writer import CompressionType, LIBRARY_IDENTIFIER, Writer
 from rclpy.serialization import serialize_message
-from rosbags.interfaces import (
-    Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
-)
+from rosbags import interfaces
 from rosbags.rosbag2.metadata import dump_qos_v9
 from rosbags.typesys import get_typestore, Stores
 
@@ -65,14 +58,14 @@ TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 def _rosbags_qos(profile):
     """Return an rclpy ``QoSProfile`` as rosbags' ``Qos`` (their policy enums share values)."""
     def qos_time(duration):
-        return QosTime(*divmod(duration.nanoseconds, 10 ** 9))
+        return interfaces.QosTime(*divmod(duration.nanoseconds, 10 ** 9))
 
-    return Qos(QosHistory(profile.history.value), profile.depth,
-               QosReliability(profile.reliability.value),
-               QosDurability(profile.durability.value), qos_time(profile.deadline),
-               qos_time(profile.lifespan), QosLiveliness(profile.liveliness.value),
-               qos_time(profile.liveliness_lease_duration),
-               profile.avoid_ros_namespace_conventions)
+    return interfaces.Qos(
+        interfaces.QosHistory(profile.history.value), profile.depth,
+        interfaces.QosReliability(profile.reliability.value),
+        interfaces.QosDurability(profile.durability.value), qos_time(profile.deadline),
+        qos_time(profile.lifespan), interfaces.QosLiveliness(profile.liveliness.value),
+        qos_time(profile.liveliness_lease_duration), profile.avoid_ros_namespace_conventions)
 
 
 def _yaml(value):

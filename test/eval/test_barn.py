@@ -8,14 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sim_bridge.barn import (
-    barn_metric,
-    BarnError,
-    BarnReferee,
-    load_worlds,
-    ROBOT_NAME,
-    WORLDS_FILE,
-)
+from sim_bridge import barn
 from sim_bridge.barn_suite import BARN_KEYS
 from sim_bridge.evaluate import main
 
@@ -43,14 +36,14 @@ def _write(tmp_path, worlds, name='worlds.json'):
 
 def test_the_shipped_file_loads_with_its_licence_and_citation():
     """200 worlds, BARN's start and goal; the MIT notice and the citation sit beside it."""
-    worlds = load_worlds(WORLDS_FILE)
+    worlds = barn.load_worlds(barn.WORLDS_FILE)
     assert len(worlds) == 200 and len({w.world for w in worlds}) == 200
     for world in worlds:
         np.testing.assert_allclose(world.start, [-2.25, 3.0, 1.57])
         np.testing.assert_allclose(world.goal, [-2.25, 13.0])
         assert world.centers.shape[1] == 2 and world.reference_path.shape[1] == 2
-    assert 'MIT License' in (WORLDS_FILE.parent / 'LICENSE').read_text()
-    citation = (WORLDS_FILE.parent / 'README.md').read_text()
+    assert 'MIT License' in (barn.WORLDS_FILE.parent / 'LICENSE').read_text()
+    citation = (barn.WORLDS_FILE.parent / 'README.md').read_text()
     assert 'Benchmarking Metric Ground Navigation' in citation
 
 
@@ -70,8 +63,8 @@ def test_the_shipped_file_loads_with_its_licence_and_citation():
 def test_a_malformed_world_is_refused_naming_world_and_field(tmp_path, changes, message):
     """Each broken field of the second world is named with the world's id and place."""
     path = _write(tmp_path, [_world(1), _world(7, **changes)])
-    with pytest.raises(BarnError) as error:
-        load_worlds(path)
+    with pytest.raises(barn.BarnError) as error:
+        barn.load_worlds(path)
     assert str(error.value).startswith(f'{path}: ') and message in str(error.value)
 
 
@@ -79,26 +72,26 @@ def test_a_missing_field_and_a_bad_document_are_refused(tmp_path):
     """A missing field is named; so are a file that is not JSON and one without worlds."""
     world = _world(3)
     del world['centers']
-    with pytest.raises(BarnError, match=r'world 3 \(worlds\[0\]\): centers: missing'):
-        load_worlds(_write(tmp_path, [world]))
+    with pytest.raises(barn.BarnError, match=r'world 3 \(worlds\[0\]\): centers: missing'):
+        barn.load_worlds(_write(tmp_path, [world]))
     (tmp_path / 'broken.json').write_text('{"worlds": [')
-    with pytest.raises(BarnError, match='not valid JSON'):
-        load_worlds(tmp_path / 'broken.json')
-    with pytest.raises(BarnError, match='worlds: expected a non-empty list'):
-        load_worlds(_write(tmp_path, []))
+    with pytest.raises(barn.BarnError, match='not valid JSON'):
+        barn.load_worlds(tmp_path / 'broken.json')
+    with pytest.raises(barn.BarnError, match='worlds: expected a non-empty list'):
+        barn.load_worlds(_write(tmp_path, []))
 
 
 def test_a_start_against_a_cylinder_is_refused_when_the_world_is_built(tmp_path):
     """The world's Scenario is checked like a scenario file: the message names the world."""
-    (world,) = load_worlds(_write(tmp_path, [_world(4, centers=[[-2.25, 3.1]])]))
-    with pytest.raises(BarnError, match=r"world 4: robots\[0\].start: .* from obstacle "
+    (world,) = barn.load_worlds(_write(tmp_path, [_world(4, centers=[[-2.25, 3.1]])]))
+    with pytest.raises(barn.BarnError, match=r"world 4: robots\[0\].start: .* from obstacle "
                        r"'cylinder_0', less than the robot radius 0.2"):
         world.scenario()
 
 
 def test_other_keys_are_accepted(tmp_path):
     """A converted file may carry more than the format reads."""
-    (world,) = load_worlds(_write(tmp_path, [_world(5, difficulty=0.3)]))
+    (world,) = barn.load_worlds(_write(tmp_path, [_world(5, difficulty=0.3)]))
     assert world.world == 5 and world.name == 'barn_005'
     assert world.optimal_time == pytest.approx(world.reference_path_length_m / 2.0)
 
@@ -113,27 +106,27 @@ def test_other_keys_are_accepted(tmp_path):
 ])
 def test_barn_metric_by_hand(success, time, optimal, expected):
     """The metric is success * OT / clip(T, 2 OT, 8 OT)."""
-    assert barn_metric(success, time, optimal) == pytest.approx(expected)
+    assert barn.barn_metric(success, time, optimal) == pytest.approx(expected)
 
 
 def _referee_inputs(position, collision=False):
     """Return stand-ins for the world and metrics the referee reads: the base at ``position``."""
     world = SimpleNamespace(robot_state=lambda name: np.array([*position, 0.0, 0.0, 0.0]),
                             robot_spec=lambda name: SimpleNamespace(goal=np.array(GOAL)))
-    metrics = SimpleNamespace(robots={ROBOT_NAME: SimpleNamespace(collision=collision)})
+    metrics = SimpleNamespace(robots={barn.ROBOT_NAME: SimpleNamespace(collision=collision)})
     return world, metrics
 
 
 def test_referee_ends_runs_on_collision_goal_and_a_stop():
     """Collision first; within 1 m of the goal; 10 s within 0.1 m of one point; else go on."""
-    referee = BarnReferee()
+    referee = barn.BarnReferee()
     assert referee(0.1, *_referee_inputs([-2.25, 12.1], collision=True)) == 'collision'
     assert referee(0.1, *_referee_inputs([-2.25, 12.1])) == 'success'
-    referee = BarnReferee()
+    referee = barn.BarnReferee()
     assert referee(1.0, *_referee_inputs([-2.25, 5.0])) is None
     assert referee(10.9, *_referee_inputs([-2.2, 5.05])) is None
     assert referee(11.0, *_referee_inputs([-2.2, 5.05])) == 'deadlock'
-    referee = BarnReferee()
+    referee = barn.BarnReferee()
     for step in range(200):  # creeping 0.02 m/s: it moves, so it is no deadlock
         assert referee(0.1 * step, *_referee_inputs([-2.25, 5.0 + 0.002 * step])) is None
 
