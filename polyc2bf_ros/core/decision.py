@@ -179,15 +179,18 @@ class ControlDecision:
                 and self.watchdog.timeout('obstacles') == 0.0):
             return self._stop('blocked_stop')
         age = extrapolation_age(self.odom_stamp, snapshot.t_ref, self.max_extrapolation)
-        command, circulation = self.command_vector, self.circulation
+        command, circulation, position = self.command_vector, self.circulation, None
         if circulation is not None and circulation.active:
-            circulation.release_if_done(now, self._position())
+            position = self._position()
+            circulation.release_if_done(now, position)
             command = circulation.command(self.yaw, command)
         safe, info = self.filter.filter(self.state, self.yaw, command, snapshot.obstacles, age)
         self.counts[info.status.value] += 1
-        # The reference point costs a model call: only needed while the filter holds.
+        # The reference point costs a model call: only needed while the filter holds (or
+        # circulates, which computed it already; the state has not changed since).
         holding = holds(info, command, safe)
-        position = self._position() if holding else None
+        if holding and position is None:
+            position = self._position()
         onsets = self.deadlock.onsets
         deadlocked = self.deadlock.update(now, position, holding)
         if circulation is not None:
