@@ -77,7 +77,8 @@ NODE_PARAMETERS = {
 # FilterConfig field: ((min, max) or None, description); control_period comes from rate.
 FILTER_PARAMETERS = {
     'barrier': (None, "cone construction: 'polyc2bf_paper' (segment extended by w/2), "
-                "'polyc2bf_inflated' (polygon inflated by the radius) or 'c3bf' (circles)"),
+                "'polyc2bf_inflated' (polygon inflated by the radius), 'c3bf' (circles) or "
+                "'polyc2bf_horizon' (inflated, only what is reachable within the horizon)"),
     'robot_radius': ((0.0, 10.0), 'robot radius w/2 [m]'),
     'gamma': ((0.0, 1000.0), 'class-K gain in h_dot + gamma h >= margin [1/s], > 0'),
     'margin_gain': ((0.0, 1000.0), 'sample-and-hold margin = margin_gain * T'),
@@ -88,6 +89,10 @@ FILTER_PARAMETERS = {
     'escape_speed': ((0.0, 10.0), 'speed [m/s] of the escape from inside an obstacle'),
     'escape_gain': ((0.0, 1000.0), 'gain [1/s] of the escape velocity loop, > 0'),
     'inflation_segments': ((3, 256), 'segments of the robot disc for polyc2bf_inflated'),
+    'horizon': ((0.0, 1e9), 'polyc2bf_horizon: time horizon tau [s]; a closing velocity '
+                'is allowed while contact is more than tau away, > 0'),
+    'cone_axis': (None, "polyc2bf_horizon: cone axis 'bisector' (the exact silhouette) or "
+                  "'midpoint' (the paper's)"),
 }
 
 class ParameterError(ValueError):

@@ -265,10 +265,13 @@ def main_barn(parser, args, command):
     combos = [(name, nominal) for nominal in args.nominal or ['path'] for name in filters]
     jobs = args.jobs or os.cpu_count() or 1
     out = Path(args.out or 'runs/barn')
+    try:
+        parameters = override_parameters(args)
+    except ValueError as exc:
+        parser.error(str(exc))
     start = time.monotonic()
     try:
-        records, trajectories = run_barn(worlds, combos, jobs,
-                                         parameters=override_parameters(args))
+        records, trajectories = run_barn(worlds, combos, jobs, parameters=parameters)
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130

@@ -72,6 +72,7 @@ from datetime import datetime
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from polyc2bf_ros.core.decision import RESOLUTIONS
 from sim_bridge import plots
@@ -535,6 +536,9 @@ def _parser():
     parser.add_argument('--deadlock-resolution', choices=RESOLUTIONS, default=None,
                         help="the filter's deadlock_resolution (default: the parameter "
                         "file's, 'none' as shipped)")
+    parser.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='set a node parameter of every filtered robot, as ros2 run -p '
+                        '(value read as YAML), e.g. -p filter.horizon:=2.0; repeatable')
     scenarios = parser.add_argument_group('scenario suite')
     scenarios.add_argument('--scenarios', nargs='+', default=None, metavar='NAME',
                            help=f'scenarios (default: all shipped: {", ".join(scenario_names())})')
@@ -558,10 +562,19 @@ def _parser():
 
 
 def override_parameters(args):
-    """Return the node parameters the command line sets (``--deadlock-resolution``)."""
-    if args.deadlock_resolution is None:
-        return {}
-    return {'deadlock_resolution': args.deadlock_resolution}
+    """Return the node parameters the command line sets (``--param``, ``--deadlock-resolution``).
+
+    Raise ValueError on a ``--param`` without ``:=``.
+    """
+    parameters = {}
+    for item in args.param:
+        name, separator, value = item.partition(':=')
+        if not separator or not name:
+            raise ValueError(f'--param wants NAME:=VALUE, got {item!r}')
+        parameters[name] = yaml.safe_load(value)
+    if args.deadlock_resolution is not None:
+        parameters['deadlock_resolution'] = args.deadlock_resolution
+    return parameters
 
 
 SUITE_OPTIONS = {'scenarios': ('scenarios', 'seeds', 'random_seeds', 'duration'),
@@ -593,9 +606,12 @@ def main(argv=None):
         parser.error('--random-seeds must be >= 1')
     out = args.out or 'runs/eval'
     try:
+        parameters = override_parameters(args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    try:
         records, runs = run_suite(scenarios, args.filters or list(FILTER_CHOICES), args.seeds,
-                                  random_seeds, args.duration,
-                                  parameters=override_parameters(args))
+                                  random_seeds, args.duration, parameters=parameters)
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130

@@ -46,7 +46,7 @@ from sim_bridge.scenario import load_scenario, SCENARIO_DIR
 CONFIG_DIR = SCENARIO_DIR.parent
 # Children import the same code as this process: the directory holding sim_bridge/.
 SOURCE_ROOT = Path(__file__).resolve().parents[1]
-BARRIERS = ('polyc2bf_paper', 'polyc2bf_inflated', 'c3bf')
+BARRIERS = ('polyc2bf_paper', 'polyc2bf_inflated', 'c3bf', 'polyc2bf_horizon')
 FILTER_CHOICES = BARRIERS + ('none',)
 LOCKSTEP_FILTER = {'trigger': 'command', 'match_stamps': True, 'odom_timeout': 10.0,
                    'cmd_timeout': 10.0, 'obstacles_timeout': 0.0}

@@ -48,29 +48,44 @@ class BarrierTerms:
 
 
 @kernel
+def plane_motion(projections, velocities, position_rate, drift, n):
+    """Return (vx, vy, ax, ay): obstacle n's v = P_n (c_dot_n - r_dot) and a = -P_n drift."""
+    vx = vy = ax = ay = 0.0
+    for d in range(position_rate.shape[0]):
+        rate = velocities[n, d] - position_rate[d]
+        vx += projections[n, 0, d] * rate
+        vy += projections[n, 1, d] * rate
+        ax -= projections[n, 0, d] * drift[d]
+        ay -= projections[n, 1, d] * drift[d]
+    return vx, vy, ax, ay
+
+
+@kernel
+def store_input_column(projections, input_matrix, dh_dvx, dh_dvy, out, first, n):
+    """Write Lg h = B_n^T dh/dv = -(P_n B)^T dh/dv into rows ``first``... of column ``n``."""
+    dim, inputs = input_matrix.shape
+    for j in range(inputs):
+        bx = by = 0.0
+        for d in range(dim):
+            bx += projections[n, 0, d] * input_matrix[d, j]
+            by += projections[n, 1, d] * input_matrix[d, j]
+        out[first + j, n] = -(bx * dh_dvx + by * dh_dvy)
+
+
+@kernel
 def barrier_column(px, py, shape, ds_dpx, ds_dpy, projections, velocities, position_rate,
                    drift, input_matrix, eps_sq, out, first, n):
     """Write h, Lf h, Lg h of one cone into rows ``first``... of column ``n`` of ``out``.
 
     The cone of obstacle n is given by p = (px, py), s = ``shape`` and ds/dp, the obstacles'
     projections P (N, 2, d) and velocities c_dot (N, d) (see the module docstring).
+    Return (vx, vy), the relative velocity v.
     """
-    dim, inputs = input_matrix.shape
-    vx = vy = ax = ay = 0.0
-    for d in range(dim):
-        rate = velocities[n, d] - position_rate[d]
-        vx += projections[n, 0, d] * rate
-        vy += projections[n, 1, d] * rate
-        ax -= projections[n, 0, d] * drift[d]
-        ay -= projections[n, 1, d] * drift[d]
+    vx, vy, ax, ay = plane_motion(projections, velocities, position_rate, drift, n)
     speed = math.sqrt(vx * vx + vy * vy + eps_sq)
     dh_dpx, dh_dpy = vx + speed * ds_dpx, vy + speed * ds_dpy
     dh_dvx, dh_dvy = px + (shape / speed) * vx, py + (shape / speed) * vy
     out[first, n] = px * vx + py * vy + speed * shape
     out[first + 1, n] = dh_dpx * vx + dh_dpy * vy + (dh_dvx * ax + dh_dvy * ay)
-    for j in range(inputs):
-        bx = by = 0.0
-        for d in range(dim):
-            bx += projections[n, 0, d] * input_matrix[d, j]
-            by += projections[n, 1, d] * input_matrix[d, j]
-        out[first + 2 + j, n] = -(bx * dh_dvx + by * dh_dvy)
+    store_input_column(projections, input_matrix, dh_dvx, dh_dvy, out, first + 2, n)
+    return vx, vy

@@ -196,7 +196,7 @@ class ConeModel(abc.ABC):
 
 
 @kernel
-def _nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy):
+def nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy):
     """Return (|d|^2, k, d_x, d_y, inside) for the edge of polygon ``n`` nearest to q.
 
     d = r_k - t_k e_k is the offset of q from edge k's nearest point, r_k = q - v_k,
@@ -214,14 +214,13 @@ def _nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy):
 
 
 @kernel
-def polygon_cone(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, extension):
-    """Return (px, py, kx, ky, s, ds_dpx, ds_dpy, valid): the PolyC2BF cone of polygon n.
+def silhouette(x, y, count, n, qx, qy):
+    """Return (a, b, seen): the silhouette vertices A, B of polygon n seen from q.
 
-    Silhouette vertices (module docstring): edge k faces the viewpoint q when q is
-    strictly right of it, cross(e_k, v_k - q) > 0; the facing edges form one chain: A
-    is the vertex where it ends (the first whose incoming edge faces and outgoing edge
-    does not), B the one where it starts.  With ``extension`` > 0 the cone is only
-    valid when q is farther than it from the polygon.
+    Edge k faces the viewpoint q when q is strictly right of it, cross(e_k, v_k - q) > 0;
+    the facing edges form one chain: A is the vertex where it ends (the first whose
+    incoming edge faces and outgoing edge does not), B the one where it starts.  ``seen``
+    is False when no edge faces q (q inside or on the polygon): there is no cone.
     """
     last = count - 1
     # Edges v_next - v_k from the vertices (as ``PlanarPolygons`` stores them, bit for
@@ -242,9 +241,16 @@ def polygon_cone(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, extension):
         incoming = facing
         if a >= 0 and b >= 0:
             break  # both ends of the (single) facing chain found
-    a, b = max(a, 0), max(b, 0)
-    ax, ay = x[n, a] - qx, y[n, a] - qy
-    bx, by = x[n, b] - qx, y[n, b] - qy
+    return max(a, 0), max(b, 0), seen
+
+
+@kernel
+def midpoint_cone(ax, ay, bx, by, extension):
+    """Return (px, py, kx, ky, s, ds_dpx, ds_dpy): the paper's cone of silhouette rays a, b.
+
+    a = A - q, b = B - q; the segment is extended by ``extension`` at both ends (module
+    docstring), p aims at its midpoint and k is the extended end with the larger angle.
+    """
     px, py = 0.5 * (ax + bx), 0.5 * (ay + by)
     if extension != 0.0:
         ux, uy = bx - ax, by - ay
@@ -261,11 +267,23 @@ def polygon_cone(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, extension):
     else:
         s, k_norm, kx, ky = b_cos, b_norm, bx, by
     hx, hy = kx / k_norm, ky / k_norm
+    return px, py, kx, ky, s, hx + (px - s * hx) / k_norm, hy + (py - s * hy) / k_norm
+
+
+@kernel
+def polygon_cone(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, extension):
+    """Return (px, py, kx, ky, s, ds_dpx, ds_dpy, valid): the PolyC2BF cone of polygon n.
+
+    ``silhouette``, then ``midpoint_cone``.  With ``extension`` > 0 the cone is only valid
+    when q is farther than it from the polygon.
+    """
+    a, b, seen = silhouette(x, y, count, n, qx, qy)
+    px, py, kx, ky, s, ds_dpx, ds_dpy = midpoint_cone(
+        x[n, a] - qx, y[n, a] - qy, x[n, b] - qx, y[n, b] - qy, extension)
     if seen and extension > 0.0:
-        square = _nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)[0]
+        square = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)[0]
         seen = math.sqrt(square) > extension
-    return (px, py, kx, ky, s, hx + (px - s * hx) / k_norm, hy + (py - s * hy) / k_norm,
-            seen)
+    return px, py, kx, ky, s, ds_dpx, ds_dpy, seen
 
 
 @kernel
@@ -321,7 +339,7 @@ def _polygon_exits(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, extension, 
     shared = viewpoints.shape[1] == 1
     for n in range(counts.shape[0]):
         j = 0 if shared else n
-        square, k, dx, dy, inside = _nearest_edge(x, y, edge_x, edge_y, inv_sq, counts[n], n,
+        square, k, dx, dy, inside = nearest_edge(x, y, edge_x, edge_y, inv_sq, counts[n], n,
                                                   viewpoints[0, j], viewpoints[1, j])
         distance = math.sqrt(square)
         if inside or distance == 0.0:  # the nearest edge's outward normal
@@ -495,15 +513,3 @@ class CircleCone(ConeModel):
     def fill_exits(self, prepared, viewpoints, out):
         """Run the circle exit kernel."""
         _circle_exits(prepared.centres, prepared.radii, viewpoints, out)
-
-
-CONE_MODELS = {cls.name: cls for cls in (PaperCone, InflatedCone, CircleCone)}
-
-
-def make_cone_model(name, robot_radius, segments=16) -> ConeModel:
-    """Build the cone model called ``name``."""
-    if name == InflatedCone.name:
-        return InflatedCone(robot_radius, segments)
-    if name not in CONE_MODELS:
-        raise ValueError(f'unknown barrier {name!r}; choose one of {", ".join(CONE_MODELS)}')
-    return CONE_MODELS[name](robot_radius)

@@ -76,14 +76,8 @@ from typing import Optional
 import numpy as np
 
 from polyc2bf_ros.core.barrier import BarrierTerms
-from polyc2bf_ros.core.cones import (
-    CONE_MODELS,
-    Cones,
-    make_cone_model,
-    PLANE_CONES,
-    PLANE_K,
-    PLANE_ROWS,
-)
+from polyc2bf_ros.core.cone_models import CONE_AXES, CONE_MODELS, make_cone_model
+from polyc2bf_ros.core.cones import Cones, PLANE_CONES, PLANE_K, PLANE_ROWS
 from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
@@ -127,6 +121,8 @@ class FilterConfig:
     escape_speed: float = 0.3
     escape_gain: float = 2.0
     inflation_segments: int = 16
+    horizon: float = 1.0
+    cone_axis: str = 'bisector'
 
     @property
     def margin(self):
@@ -147,6 +143,11 @@ class FilterConfig:
             if not np.isfinite(value) or value < 0 or (name in positive and value == 0):
                 kind = 'positive' if name in positive else 'non-negative'
                 raise ValueError(f'{name} must be finite and {kind}, got {value!r}')
+        if self.cone_axis not in CONE_AXES:
+            raise ValueError(f'cone_axis must be one of {list(CONE_AXES)}, '
+                             f'got {self.cone_axis!r}')
+        if not (self.horizon > 0.0):
+            raise ValueError(f'horizon must be positive (inf: none), got {self.horizon!r}')
         if not 3 <= self.inflation_segments <= 256:
             raise ValueError('inflation_segments must be in [3, 256], '
                              f'got {self.inflation_segments!r}')
@@ -348,7 +349,8 @@ class SafetyFilter:
         self.model = model
         self.config = (config or FilterConfig()).validate()
         self.cone_model = make_cone_model(self.config.barrier, self.config.robot_radius,
-                                          self.config.inflation_segments)
+                                          self.config.inflation_segments, self.config.horizon,
+                                          self.config.cone_axis)
         self.solver = make_solver(self.config.solver)
         self._state_shape, self._input_shape = (model.state_dim,), (model.input_dim,)
         self._weights = np.ones(model.input_dim)

@@ -16,14 +16,24 @@ from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from strategies import convex_polygons, examples, random_state
 
-BARRIERS = ('polyc2bf_paper', 'polyc2bf_inflated', 'c3bf')
+BARRIERS = {'polyc2bf_paper': {}, 'polyc2bf_inflated': {}, 'c3bf': {},
+            'horizon_midpoint': {'barrier': 'polyc2bf_horizon', 'horizon': 0.8,
+                                 'cone_axis': 'midpoint'},
+            'horizon_bisector': {'barrier': 'polyc2bf_horizon', 'horizon': 0.8,
+                                 'cone_axis': 'bisector'}}
 STEP = 1e-6
 RELATIVE_TOLERANCE = 1e-5
 
 
-def _structure(evaluation):
-    """Return what must not jump between the two evaluation points."""
-    return evaluation.cones.k - evaluation.cones.p, evaluation.plane, evaluation.inside
+def _structure(evaluation, bisector):
+    """Return what must not jump between the two evaluation points.
+
+    k - p is constant for a fixed vertex pair of a midpoint cone; the bisector cone's k is
+    the closer silhouette ray, so k + viewpoint is that vertex.
+    """
+    cones = evaluation.cones
+    fixed = cones.k + evaluation.block[:2] if bisector else cones.k - cones.p
+    return fixed, evaluation.plane, evaluation.inside
 
 
 @pytest.mark.parametrize('barrier', BARRIERS)
@@ -36,7 +46,9 @@ def test_lie_derivatives_match_finite_differences(model_name, barrier, polygon, 
     """Lf h + Lg h u equals (h(x+) - h(x-)) / (2 dt) within 1e-5 relative error."""
     rng = np.random.default_rng(seed)
     model = make_model(model_name)
-    filt = SafetyFilter(model, FilterConfig(barrier=barrier, robot_radius=0.25))
+    config = BARRIERS[barrier] or {'barrier': barrier}
+    filt = SafetyFilter(model, FilterConfig(robot_radius=0.25, **config))
+    bisector = config.get('cone_axis') == 'bisector'
     z_min, z_max = (rng.uniform(-2.0, 0.0), rng.uniform(0.2, 2.0)) if bounded else (-np.inf,
                                                                                    np.inf)
     velocity = rng.uniform(-1.0, 1.0, 3) if moving else np.zeros(3)
@@ -50,9 +62,9 @@ def test_lie_derivatives_match_finite_differences(model_name, barrier, polygon, 
     ahead = filt.evaluate(x + STEP * x_dot, obstacles, STEP)
     behind = filt.evaluate(x - STEP * x_dot, obstacles, -STEP)
     assume(not here.inside.any())
-    for a, b in zip(_structure(ahead), _structure(behind)):
+    for a, b in zip(_structure(ahead, bisector), _structure(behind, bisector)):
         assume(np.allclose(a, b, atol=1e-4))
-    assume(np.allclose(_structure(here)[0], _structure(ahead)[0], atol=1e-4))
+    assume(np.allclose(_structure(here, bisector)[0], _structure(ahead, bisector)[0], atol=1e-4))
 
     finite_difference = (ahead.terms.h - behind.terms.h) / (2 * STEP)
     analytic = here.terms.lf_h + u @ here.terms.lg_h

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from polyc2bf_ros.core import jit
-from polyc2bf_ros.core.cones import CONE_MODELS
+from polyc2bf_ros.core.cone_models import CONE_MODELS
 from polyc2bf_ros.core.geometry import convex_hull
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet

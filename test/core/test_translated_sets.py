@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, HealthCheck, settings, strategies as st
 
-from polyc2bf_ros.core.cones import CONE_MODELS, make_cone_model
+from polyc2bf_ros.core.cone_models import CONE_MODELS, make_cone_model
 from polyc2bf_ros.core.geometry import PolygonBatch
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
