@@ -93,6 +93,10 @@ FILTER_PARAMETERS = {
                 'is allowed while contact is more than tau away, > 0'),
     'cone_axis': (None, "polyc2bf_horizon: cone axis 'bisector' (the exact silhouette) or "
                   "'midpoint' (the paper's)"),
+    'braking_check': (None, 'planar models: keep an input only if the robot can still brake '
+                      'to rest clear of every obstacle afterwards, else brake now '
+                      '(core/braking_check.py)'),
+    'braking_margin': ((0.0, 1.0), 'braking check: clearance kept beyond robot_radius [m]'),
 }
 
 class ParameterError(ValueError):

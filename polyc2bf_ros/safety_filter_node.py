@@ -93,7 +93,7 @@ _STEADY = ClockType.STEADY_TIME
 _DIAGNOSTICS_PERIOD = 1.0
 _MARKERS_PERIOD = 0.1
 _STALL_CHECKS_PER_TIMEOUT = 4
-_FALLBACKS = ('slack', 'brake', 'escape')
+_FALLBACKS = ('slack', 'brake', 'escape', 'backup')
 _INFEASIBLE = ('slack', 'brake')
 _REFUSED = FilterStatus.INVALID_INPUT
 

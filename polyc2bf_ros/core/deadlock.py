@@ -30,7 +30,8 @@ import math
 
 from polyc2bf_ros.core.safety_filter import FilterStatus
 
-HOLDING_STATUSES = frozenset({FilterStatus.SLACK, FilterStatus.BRAKE, FilterStatus.ESCAPE})
+HOLDING_STATUSES = frozenset({FilterStatus.SLACK, FilterStatus.BRAKE, FilterStatus.ESCAPE,
+                              FilterStatus.BACKUP})
 MIN_INTERVENTION = 0.05
 
 

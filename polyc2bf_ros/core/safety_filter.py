@@ -65,6 +65,9 @@ Fallbacks, always flagged in ``FilterInfo.status``:
 
   over the parts the point is inside: over a wall's top edge the vertical plane
   gives straight up, not a crawl sideways along the wall.
+* ``backup``: ``braking_check`` (planar models with a ``braking_path``): the input
+  found would leave the robot no way to brake to rest clear of the obstacles, while
+  braking now still does; brake now (``polyc2bf_ros.core.braking_check``).
 * ``invalid_input``: NaN/Inf in state, nominal input or obstacles; brake.
 """
 import enum
@@ -76,8 +79,9 @@ from typing import Optional
 import numpy as np
 
 from polyc2bf_ros.core.barrier import BarrierTerms
+from polyc2bf_ros.core.braking_check import path_is_clear
 from polyc2bf_ros.core.cone_models import CONE_AXES, CONE_MODELS, make_cone_model
-from polyc2bf_ros.core.cones import Cones, PLANE_CONES, PLANE_K, PLANE_ROWS
+from polyc2bf_ros.core.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K, PLANE_ROWS
 from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
@@ -96,6 +100,7 @@ class FilterStatus(str, enum.Enum):
     SLACK = 'slack'
     BRAKE = 'brake'
     ESCAPE = 'escape'
+    BACKUP = 'backup'
     INVALID_INPUT = 'invalid_input'
 
 
@@ -123,6 +128,8 @@ class FilterConfig:
     inflation_segments: int = 16
     horizon: float = 1.0
     cone_axis: str = 'bisector'
+    braking_check: bool = False
+    braking_margin: float = 0.01
 
     @property
     def margin(self):
@@ -137,7 +144,7 @@ class FilterConfig:
             raise ValueError(f'solver must be one of {sorted(SOLVERS)}, got {self.solver!r}')
         positive = ('gamma', 'control_period', 'velocity_epsilon', 'slack_weight',
                     'escape_gain')
-        non_negative = ('robot_radius', 'margin_gain', 'escape_speed')
+        non_negative = ('robot_radius', 'margin_gain', 'escape_speed', 'braking_margin')
         for name in positive + non_negative:
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0 or (name in positive and value == 0):
@@ -221,8 +228,9 @@ class Evaluation:
 class _Prepared:
     """Everything per obstacle set that does not change between steps, and row buffers.
 
-    ``count`` obstacle parts; ``velocities`` (N, d) are their c_dot in the robot's d
-    dimensions and ``offsets`` (N, d) how far they moved from where ``views`` has them
+    ``count`` obstacle parts; ``footprints`` their polygons for the braking check (planar
+    models with ``braking_check``, else None); ``velocities`` (N, d) are their c_dot in the
+    robot's d dimensions and ``offsets`` (N, d) how far they moved from where ``views`` has them
     (zero unless the set is a translation, see ``polyc2bf_ros.core.views``); ``rows_a``
     (N, m), ``rows_b`` and ``index`` (N,) are scratch space for the QP rows (the first
     rows of a step are valid).
@@ -236,12 +244,13 @@ class _Prepared:
     rows_a: np.ndarray
     rows_b: np.ndarray
     index: np.ndarray
+    footprints: Optional[PlanarPolygons] = None
 
     def translated(self, offsets, velocities):
         """Return the same views and buffers with obstacles moved by ``offsets`` (N, d)."""
         return _Prepared(count=self.count, views=self.views, velocities=velocities,
                          offsets=offsets, finite=self.finite, rows_a=self.rows_a,
-                         rows_b=self.rows_b, index=self.index)
+                         rows_b=self.rows_b, index=self.index, footprints=self.footprints)
 
 
 @kernel(signature('i8', F2, F1, F1, I1, 'f8', I1))
@@ -360,6 +369,8 @@ class SafetyFilter:
         self._row_settings = (float(self.config.margin), float(self.config.gamma),
                               self._lower, self._upper, bool(self.config.prune))
         self._epsilon = float(self.config.velocity_epsilon)
+        self._braking = bool(self.config.braking_check) and model.position_dim == 2
+        self._clearance = float(self.config.robot_radius + self.config.braking_margin)
         # The step's reference kinematics, refilled each step (it never leaves the step).
         self._reference = ReferenceKinematics.empty(model.position_dim, model.input_dim)
         # What prepared views depend on: the cone model's settings, dimension and radius.
@@ -424,6 +435,11 @@ class SafetyFilter:
                 return self._brake(state, FilterStatus.BRAKE, start, 'QP and slack QP failed',
                                    h, min_h, evaluation)
             u, slack, status, message, active = solved
+        if self._braking and status in (FilterStatus.OK, FilterStatus.SLACK):
+            if self._must_brake(state, u, prepared, obstacle_age):
+                u, status = self.model.clip_input(self.model.braking_input(state)), \
+                    FilterStatus.BACKUP
+                message = 'braking check: the input leaves no clear way to stop; braking'
         return u, FilterInfo(
             status=status, h=h, min_h=min_h, active=active,
             solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
@@ -458,6 +474,25 @@ class SafetyFilter:
         active = active[:_active_parts(rows_a, u, rows_b, prepared.index,
                                        ACTIVE_TOLERANCE + slack, active)]
         return u, slack, status, message, active
+
+    def _must_brake(self, state, u, prepared, age):
+        """Return True when braking now is clear and holding ``u`` for one period is not.
+
+        ``polyc2bf_ros.core.braking_check``: x+ = x + T (f(x) + g(x) u).
+        """
+        period = self.config.control_period
+        after = state + period * self.model.state_derivative(state, u)
+        return (not self._path_is_clear(after, prepared, age + period)
+                and self._path_is_clear(state, prepared, age))
+
+    def _path_is_clear(self, state, prepared, age):
+        """Return True when the braking path from ``state`` keeps the robot's disc clear."""
+        footprints = prepared.footprints
+        return path_is_clear(
+            footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
+            footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
+            float(age), self.model.braking_path(state, self.config.control_period),
+            self.config.control_period, self._clearance)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""
@@ -569,7 +604,9 @@ class SafetyFilter:
             velocities=np.ascontiguousarray(obstacles.velocities[:, :dim], dtype=np.float64),
             offsets=np.zeros((count, dim)), finite=finite,
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
-            index=np.empty(count, dtype=np.intp))
+            index=np.empty(count, dtype=np.intp),
+            footprints=PlanarPolygons.from_batch(obstacles.footprints) if self._braking
+            else None)
 
     def _views(self, obstacles):
         """Return the views of ``obstacles``, prepared once per set and geometry settings."""

@@ -78,6 +78,15 @@ class RobotModel(abc.ABC):
     def braking_input(self, x):
         """Return the input that brings the robot to rest fastest (defined for any x)."""
 
+    def braking_path(self, x, period):
+        """Return the reference point's positions (K, position_dim) under ``braking_input``.
+
+        Row k is where the point is (k + 1) periods after applying the brake at x (held
+        for one period at a time, as the node does), the last at rest.  None: the model
+        has no braking path, and ``braking_check`` does not apply to it.
+        """
+        return None
+
     def as_state(self, x):
         """Return x as a C-contiguous float64 state vector; ValueError on a wrong shape."""
         x = np.ascontiguousarray(x, dtype=np.float64)

@@ -6,12 +6,32 @@ State x = [p, v] with p, v in R^d, input u = a in R^d::
 """
 import numpy as np
 
+from polyc2bf_ros.core.jit import F1, F2, kernel, signature
 from polyc2bf_ros.core.models.base import (
     damped_brake,
     ReferenceKinematics,
     register_model,
     RobotModel,
 )
+
+
+@kernel(signature('i8', F1, 'f8', 'f8', 'f8', F2))
+def _braking_path(x, limit, time_constant, period, out):
+    """Write the positions along the per-axis damped brake into ``out``; return the rows."""
+    dim = out.shape[1]
+    position, velocity = x[:dim].copy(), x[dim:].copy()
+    rows = 0
+    for k in range(out.shape[0]):
+        moving = False
+        for d in range(dim):
+            position[d] += period * velocity[d]
+            velocity[d] += period * min(max(-velocity[d] / time_constant, -limit), limit)
+            moving = moving or abs(velocity[d]) >= 1e-6
+            out[k, d] = position[d]
+        rows = k + 1
+        if not moving:
+            break
+    return rows
 
 
 class PointMass(RobotModel):
@@ -47,6 +67,15 @@ class PointMass(RobotModel):
         d = self.position_dim
         return damped_brake(np.asarray(x, dtype=float)[d:], self.input_upper,
                             self.brake_time_constant)
+
+    def braking_path(self, x, period):
+        """Return the point's path under the brake (``RobotModel.braking_path``)."""
+        x = self.as_state(x)
+        d = self.position_dim
+        stop = float(np.max(np.abs(x[d:]))) / self.input_upper[0]
+        out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2, d))
+        return out[:_braking_path(x, float(self.input_upper[0]), self.brake_time_constant,
+                                  float(period), out)]
 
 
 @register_model

@@ -44,6 +44,27 @@ def _offset_point(x, offset, position, velocity, drift, input_matrix):
     input_matrix[1, 0], input_matrix[1, 1] = s, offset * c
 
 
+@kernel(signature('i8', F1, 'f8', F1, 'f8', 'f8', F2))
+def _braking_path(x, offset, limits, time_constant, period, out):
+    """Write the reference point's positions along the brake into ``out``; return the rows.
+
+    One Euler step of the dynamics per period, the damped brake held over it
+    (``damped_brake``); ends at rest (|v|, |omega| < 1e-6) or when ``out`` is full.
+    """
+    px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
+    rows = 0
+    for k in range(out.shape[0]):
+        c, s = math.cos(theta), math.sin(theta)
+        px, py, theta = px + period * v * c, py + period * v * s, theta + period * omega
+        v += period * min(max(-v / time_constant, -limits[0]), limits[0])
+        omega += period * min(max(-omega / time_constant, -limits[1]), limits[1])
+        out[k, 0], out[k, 1] = px + offset * math.cos(theta), py + offset * math.sin(theta)
+        rows = k + 1
+        if abs(v) < 1e-6 and abs(omega) < 1e-6:
+            break
+    return rows
+
+
 @register_model
 class Unicycle(RobotModel):
     """Acceleration-controlled unicycle with reference-point offset ``offset_l``."""
@@ -84,3 +105,11 @@ class Unicycle(RobotModel):
         """Decelerate v and omega to zero at the input limits."""
         return damped_brake(np.asarray(x, dtype=float)[3:5], self.input_upper,
                             self.brake_time_constant)
+
+    def braking_path(self, x, period):
+        """Return the reference point's path under the brake (``RobotModel.braking_path``)."""
+        x = self.as_state(x)
+        stop = abs(x[3]) / self.input_upper[0] + abs(x[4]) / self.input_upper[1]
+        out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2, 2))
+        return out[:_braking_path(x, self.offset_l, self.input_upper, self.brake_time_constant,
+                                  float(period), out)]

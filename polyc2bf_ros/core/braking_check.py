@@ -1,0 +1,72 @@
+"""Braking check: accept an input only if the robot can still brake to rest without contact.
+
+The CBF rows bound the direction of the relative velocity, one step at a time.  Under input
+bounds and sample-and-hold they can ask for more than the robot can do: an acceleration-
+controlled unicycle whose guarded point sits close to the axle (small offset l) steers
+through omega, a state, so the rows can only brake; a heading turning into a cone makes h
+fall faster than braking can lift it, the QP turns infeasible and the slack fallback brakes
+too late (BARN: h < 0 with the QP still ``ok``, then grazes of 1-6 mm).
+
+This is a backup-policy check (the gatekeeper of Agrawal & Panagou, 2024; backup CBFs,
+Gurriet et al., 2018).  With x+ the state after holding the filter's input u for one period
+T, and B(x) the reference point's path under the model's braking input from x
+(``RobotModel.braking_path``, one Euler step per period), u is kept when
+
+    dist(B(x+)_k, O_n(t_k)) >= R + margin     for every path point k and obstacle part n,
+
+with O_n(t_k) the footprint moved at its velocity to the time of point k and R the robot
+radius (the exact disc, not an inflated polygon).  Otherwise the filter brakes now.  If B(x)
+is clear, so is what follows: either u is kept and B(x+) is clear, or the robot brakes, and
+the brake from x+ = B(x)_0 continues along the rest of B(x).  By induction the robot stays
+clear of every obstacle that is static or moves as its stated velocity says, as long as the
+plant follows the model.  When B(x) itself is not clear (an obstacle appeared, or the robot
+started too close) braking guarantees nothing, and the filter's input stands.
+
+Cost: the path (|v| / a_max / T + 8 brake time constants / T rows) is computed in one
+kernel; an obstacle part is only measured against it when its bounding box comes within
+reach of the path's, so the cost grows with the obstacles near the robot, not with all.
+"""
+import math
+
+from polyc2bf_ros.core.cones import nearest_edge
+from polyc2bf_ros.core.jit import F2, I1, kernel, signature
+
+
+@kernel(signature('b1', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8', 'f8'))
+def path_is_clear(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, age, path,
+                  period, clearance):
+    """Return True when every row k of ``path`` (K, 2) keeps ``clearance`` from every polygon.
+
+    Polygon n (CCW, rows of ``x``, ``y`` as ``cones.PlanarPolygons``) has moved by
+    ``offsets[n]`` and moves at ``velocities[n]``; path row k is at age + (k + 1) period.
+    """
+    rows = path.shape[0]
+    if rows == 0:
+        return True
+    low_x = high_x = path[0, 0]
+    low_y = high_y = path[0, 1]
+    for k in range(rows):
+        low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
+        low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
+    last = age + rows * period
+    square_clearance = clearance * clearance
+    for n in range(counts.shape[0]):
+        vx, vy = velocities[n, 0], velocities[n, 1]
+        reach = clearance + max(abs(age), abs(last)) * math.sqrt(vx * vx + vy * vy)
+        box_low_x = box_high_x = x[n, 0]
+        box_low_y = box_high_y = y[n, 0]
+        for j in range(counts[n]):
+            box_low_x, box_high_x = min(box_low_x, x[n, j]), max(box_high_x, x[n, j])
+            box_low_y, box_high_y = min(box_low_y, y[n, j]), max(box_high_y, y[n, j])
+        ox, oy = offsets[n, 0], offsets[n, 1]
+        if (low_x - ox - reach > box_high_x or high_x - ox + reach < box_low_x
+                or low_y - oy - reach > box_high_y or high_y - oy + reach < box_low_y):
+            continue
+        for k in range(rows):
+            t = age + (k + 1) * period
+            square, _, _, _, inside = nearest_edge(
+                x, y, edge_x, edge_y, inv_sq, counts[n], n, path[k, 0] - t * vx - ox,
+                path[k, 1] - t * vy - oy)
+            if inside or square < square_clearance:
+                return False
+    return True

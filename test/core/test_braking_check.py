@@ -1,0 +1,117 @@
+"""The braking check: braking paths, the path clearance kernel, and the filter's backup."""
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from polyc2bf_ros.core.braking_check import path_is_clear
+from polyc2bf_ros.core.cones import PlanarPolygons
+from polyc2bf_ros.core.geometry import PolygonBatch, signed_distance
+from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
+from strategies import convex_polygons, examples
+
+PERIOD = 0.01
+
+
+@pytest.mark.parametrize('speed', [0.0, 0.3, 1.0, 2.0])
+def test_unicycle_braking_path_stops_straight_at_the_braking_distance(speed):
+    """Straight ahead at v: the path runs along the heading and ends at rest after ~v^2/2a."""
+    model = make_model('unicycle', offset_l=0.2, max_accel=2.0)
+    path = model.braking_path(np.array([1.0, 2.0, np.pi / 2, speed, 0.0]), PERIOD)
+    assert path.shape[1] == 2 and len(path) >= 1
+    assert np.allclose(path[:, 0], 1.0)
+    travelled = path[-1, 1] - 2.2
+    # Euler steps of the held brake, then the damped tail: within two periods of travel.
+    assert abs(travelled - speed ** 2 / 4.0) <= 2 * PERIOD * speed + 1e-9
+    assert np.all(np.diff(path[:, 1]) >= 0)
+
+
+def test_unicycle_braking_path_starts_one_period_ahead_and_curves_with_omega():
+    """Row 0 is the point after one period; a turning robot brakes along an arc."""
+    model = make_model('unicycle', offset_l=0.0)
+    state = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
+    path = model.braking_path(state, PERIOD)
+    assert np.allclose(path[0], [PERIOD, 0.0])
+    assert path[-1, 1] > 0.01  # turned left while stopping
+
+
+def test_point_mass_braking_path_ends_at_rest():
+    """The double integrator stops per axis at its limit; 3-D paths have three columns."""
+    path = make_model('point_mass_2d', max_accel=3.0).braking_path(
+        np.array([0.0, 0.0, 1.5, -0.6]), PERIOD)
+    assert np.isclose(path[-1, 0], 1.5 ** 2 / 6.0, atol=2 * PERIOD * 1.5)
+    assert path[-1, 1] < 0
+    assert make_model('point_mass_3d').braking_path(np.zeros(6), PERIOD).shape == (1, 3)
+
+
+def _clear_by_brute_force(polygons, velocities, path, age, clearance):
+    for polygon, velocity in zip(polygons, velocities):
+        for k, point in enumerate(path):
+            moved = polygon + (age + (k + 1) * PERIOD) * velocity
+            if signed_distance(point, moved) < clearance:
+                return False
+    return True
+
+
+@settings(max_examples=examples(150), deadline=None)
+@given(polygons=st.lists(convex_polygons(centre_range=3.0), min_size=1, max_size=4),
+       seed=st.integers(0, 2 ** 32 - 1), clearance=st.floats(0.0, 0.5))
+def test_path_clearance_matches_brute_force(polygons, seed, clearance):
+    """The kernel (bounding-box pruning included) agrees with point-polygon distances."""
+    rng = np.random.default_rng(seed)
+    start, heading = rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)
+    steps = rng.integers(1, 60)
+    path = start + np.outer(np.arange(1, steps + 1) * 0.05,
+                            [np.cos(heading), np.sin(heading)])
+    velocities = rng.uniform(-0.5, 0.5, (len(polygons), 2)) * rng.integers(0, 2)
+    age = float(rng.uniform(0.0, 0.2))
+    prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
+    answer = path_is_clear(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                           prepared.inv_sq, prepared.counts, velocities,
+                           np.zeros_like(velocities), age, path, PERIOD, clearance)
+    expected = _clear_by_brute_force(polygons, velocities, path, age, clearance)
+    distances = [signed_distance(p, poly + (age + (k + 1) * PERIOD) * v)
+                 for poly, v in zip(polygons, velocities) for k, p in enumerate(path)]
+    if abs(min(distances) - clearance) > 1e-9:  # not on the boundary of the test
+        assert answer == expected
+
+
+def _wall_ahead_filter(check):
+    wall = Obstacle(polygon=np.array([[1.0, -2.0], [1.2, -2.0], [1.2, 2.0], [1.0, 2.0]]))
+    filt = SafetyFilter(make_model('unicycle', offset_l=0.01, max_accel=2.0), FilterConfig(
+        barrier='polyc2bf_horizon', robot_radius=0.21, horizon=0.1, gamma=5.0, braking_check=check,
+        control_period=PERIOD))
+    return filt, ObstacleSet.from_obstacles([wall])
+
+
+def test_filter_brakes_when_the_input_would_leave_no_clear_stop():
+    """Closing on a wall at the speed that brakes to rest just clear of it.
+
+    A short horizon (0.1 s) and gamma = 5 let the barrier accept accelerating on; one more
+    period at that speed leaves too little room to stop, so the check brakes now.
+    """
+    model = make_model('unicycle', offset_l=0.01, max_accel=2.0)
+    filt, obstacles = _wall_ahead_filter(True)
+    # Find the speed at which braking now stops 1-4 mm before the disc touches the wall.
+    gap = 1.0 - 0.21
+    speed = next(v for v in np.arange(0.3, 3.0, 0.001)
+                 if model.braking_path(np.array([0.0, 0.0, 0.0, v, 0.0]), PERIOD)[-1, 0]
+                 > gap - 0.001 - 0.01)
+    state = np.array([-0.002, 0.0, 0.0, speed, 0.0])
+    u, info = filt.step(state, obstacles, np.array([2.0, 0.0]))
+    assert info.status == FilterStatus.BACKUP
+    assert np.allclose(u, model.clip_input(model.braking_input(state)))
+    unchecked, _ = _wall_ahead_filter(False)
+    _, plain = unchecked.step(state, obstacles, np.array([2.0, 0.0]))
+    assert plain.status == FilterStatus.OK
+
+
+def test_filter_leaves_the_input_alone_when_braking_cannot_help_either():
+    """Within radius + margin of the wall, braking is not clear either: nothing overridden.
+
+    The CBF rows and the escape act there.
+    """
+    filt, obstacles = _wall_ahead_filter(True)
+    _, info = filt.step(np.array([0.775, 0.0, 0.0, 0.5, 0.0]), obstacles, np.array([0.0, 0.0]))
+    assert info.status != FilterStatus.BACKUP
