@@ -101,6 +101,9 @@ def barn_record(world, run):
         'fallback_steps': stats['fallback_steps'], 'steps': stats['steps'],
         'deadlock_detections': stats['deadlock_detections'],
         'deadlocked_at_end': stats['deadlocked_at_end'],
+        'negative_h_rate': stats['negative_h_rate'], 'deepest_h': stats['deepest_h'],
+        'penetration_m': _round(max(0.0, -metrics['min_clearance_m']))
+        if metrics['min_clearance_m'] is not None else None,
         'wall_time_s': round(run.wall_time_s, 2),
     }
 
@@ -179,6 +182,8 @@ def aggregate_barn(records):
         interventions = [r['mean_intervention'] for r in group
                          if r['mean_intervention'] is not None]
         fallbacks = [r['fallback_rate'] for r in group if r['fallback_rate'] is not None]
+        negative = [r.get('negative_h_rate') for r in group
+                    if r.get('negative_h_rate') is not None]
         row = {'filter': name, 'nominal': nominal, 'runs': len(group)}
         row.update({outcome: sum(r[outcome] for r in group) / len(group)
                     for outcome in OUTCOMES})
@@ -188,6 +193,8 @@ def aggregate_barn(records):
             'min_clearance_m': min(clearances) if clearances else None,
             'mean_intervention': float(np.mean(interventions)) if interventions else None,
             'fallback_rate': float(np.mean(fallbacks)) if fallbacks else None,
+            'negative_h_rate': float(np.mean(negative)) if negative else None,
+            'penetration_m': max((r.get('penetration_m') or 0.0) for r in group),
         })
         rows.append(row)
     return rows
@@ -197,7 +204,7 @@ def barn_table(rows):
     """Return the Markdown table of aggregated rows, with BARN's DWA baseline last."""
     lines = ['| filter | nominal | worlds | success | collision | deadlock | timeout | '
              'metric | time of successes [s] | min clearance [m] | mean intervention | '
-             'fallback rate |', '|' + '---|' * 12]
+             'fallback rate | h < 0 steps | deepest penetration [m] |', '|' + '---|' * 14]
     for r in rows:
         clearance = (f'> {CLEARANCE_RANGE:g}' if r['min_clearance_m'] is None
                      else f'{r["min_clearance_m"]:.3f}')
@@ -205,11 +212,12 @@ def barn_table(rows):
             f'| {r["filter"]} | {r["nominal"]} | {r["runs"]} | {r["success"]:.3f} | '
             f'{r["collision"]:.3f} | {r["deadlock"]:.3f} | {r["timeout"]:.3f} | '
             f'{r["barn_metric"]:.3f} | {table_cell(r["mean_success_time_s"], 1)} | {clearance} | '
-            f'{table_cell(r["mean_intervention"], 3)} | {table_cell(r["fallback_rate"], 3)} |')
+            f'{table_cell(r["mean_intervention"], 3)} | {table_cell(r["fallback_rate"], 3)} | '
+            f'{table_cell(r["negative_h_rate"], 4)} | {r["penetration_m"]:.3f} |')
     base = DWA_BASELINE
     lines.append(f'| DWA (move_base, BARN) | – | 50 x 10 runs | {base["success"]:.3f} | '
                  f'{base["collision"]:.3f} | – | {base["timeout"]:.3f} | '
-                 f'{base["barn_metric"]:.3f} | – | – | – | – |')
+                 f'{base["barn_metric"]:.3f} | – | – | – | – | – | – |')
     return '\n'.join(lines)
 
 

@@ -105,6 +105,7 @@ class RobotTrace:
     statuses: list
     latency_s: np.ndarray
     deadlocked: np.ndarray
+    min_h: np.ndarray
 
     def speeds(self):
         """Return the speed [m/s] at every recorded state (|v| or |velocity|)."""
@@ -174,6 +175,7 @@ class _Robot:
         self.statuses = []
         self.latency = np.full(steps, np.nan)
         self.deadlocked = np.zeros(steps, dtype=bool)
+        self.min_h = np.full(steps, np.inf)  # the step's smallest barrier (inf: none)
 
     def command(self, k, state, obstacles):
         """Return the safe command of period ``k`` and record it."""
@@ -193,6 +195,8 @@ class _Robot:
             command = result.command
             status = result.info.status.value if result.info is not None else result.reason
             self.deadlocked[k] = result.deadlocked
+            if result.info is not None:
+                self.min_h[k] = result.info.min_h
         self.nominal[k] = nominal
         self.commands[k] = command
         self.statuses.append(status)
@@ -203,7 +207,7 @@ class _Robot:
         self.times, self.states = self.times[:steps], self.states[:steps + 1]
         self.nominal, self.commands = self.nominal[:steps], self.commands[:steps]
         self.statuses, self.latency = self.statuses[:steps], self.latency[:steps]
-        self.deadlocked = self.deadlocked[:steps]
+        self.deadlocked, self.min_h = self.deadlocked[:steps], self.min_h[:steps]
 
     def _model_inputs(self):
         """Return (u_nom, u) per period, in the model's inputs, from the recorded commands.
@@ -231,7 +235,7 @@ class _Robot:
         return RobotTrace(self.spec.name, self.spec.type, self.spec.goal,
                           (model.input_lower, model.input_upper), self.times, self.states,
                           self.nominal, self.commands, *self._model_inputs(), self.statuses,
-                          self.latency, self.deadlocked)
+                          self.latency, self.deadlocked, self.min_h)
 
 
 @dataclasses.dataclass

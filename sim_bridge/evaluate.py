@@ -124,7 +124,8 @@ def filter_statistics(run):
 
     Keys: mean_intervention, fallback_rate, latency_p50_us, latency_p99_us,
     mean_intervention_unclipped, intervention_units, fallback_steps, fallback_at_start,
-    steps, deadlock_detections, deadlocked_at_end.
+    steps, deadlock_detections, deadlocked_at_end, negative_h_rate (share of filtered steps
+    that start outside the safe set, some h < 0), deepest_h (the smallest h of the run).
     """
     filtered = run.barrier != 'none'
     statuses = [s for trace in run.robots.values() for s in trace.statuses]
@@ -135,6 +136,8 @@ def filter_statistics(run):
         clipped.append(np.linalg.norm(trace.u - u_nom, axis=1))
         raw.append(np.linalg.norm(trace.u - trace.u_nom, axis=1))
     counts = {status: statuses.count(status) for status in FALLBACKS}
+    min_h = np.concatenate([t.min_h for t in run.robots.values()])
+    finite = min_h[np.isfinite(min_h)]
     return {
         'mean_intervention': _round(float(np.mean(np.concatenate(clipped)))) if filtered
         else None,
@@ -153,6 +156,9 @@ def filter_statistics(run):
                                    for t in run.robots.values()),
         'deadlocked_at_end': any(bool(t.deadlocked[-1]) for t in run.robots.values()
                                  if len(t.deadlocked)),
+        'negative_h_rate': _round(float(np.mean(finite < 0)), 5) if filtered and finite.size
+        else None,
+        'deepest_h': _round(float(finite.min())) if filtered and finite.size else None,
     }
 
 
@@ -189,6 +195,8 @@ def summarise(run, reference_times):
         'fallback_at_start': no_cone, 'goal_reached': reached,
         'deadlock_detections': stats['deadlock_detections'],
         'deadlocked_at_end': stats['deadlocked_at_end'],
+        'negative_h_rate': stats['negative_h_rate'], 'deepest_h': stats['deepest_h'],
+        'penetration_m': _round(max(0.0, -min(clearances))) if clearances else None,
         'steps': stats['steps'], 'duration_s': run.scenario.duration,
         'wall_time_s': round(run.wall_time_s, 2), 'robots': robots,
     }
@@ -342,6 +350,7 @@ def aggregate(records):
             'latency_p50_us': float(np.median(values('latency_p50_us')))
             if values('latency_p50_us') else None,
             'latency_p99_us': max(values('latency_p99_us'), default=None),
+            'negative_h_rate': _mean(values('negative_h_rate')),
         })
     return rows
 
@@ -359,7 +368,7 @@ def markdown_table(rows):
     """Return the Markdown table of aggregated rows."""
     lines = ['| scenario | filter | success | collision | deadlock | timeout | no cone at t=0 | '
              'min clearance [m] | time to goal ratio | mean intervention | fallback rate | '
-             'latency p50 / p99 [us] |', '|' + '---|' * 12]
+             'h < 0 steps | latency p50 / p99 [us] |', '|' + '---|' * 13]
     for r in rows:
         n = r['runs']
         clearance = (f'> {CLEARANCE_RANGE:g}' if r['min_clearance_m'] is None
@@ -367,12 +376,13 @@ def markdown_table(rows):
         latency = ('–' if r['latency_p50_us'] is None
                    else f'{r["latency_p50_us"]:.0f} / {r["latency_p99_us"]:.0f}')
         fallback = None if r['fallback_rate'] is None else 100 * r['fallback_rate']
+        negative = None if r['negative_h_rate'] is None else 100 * r['negative_h_rate']
         lines.append(
             f'| {r["scenario"]} | {r["filter"]} | {r["success"]}/{n} | {r["collision"]}/{n} | '
             f'{r["deadlock"]}/{n} | {r["timeout"]}/{n} | {r["fallback_at_start"]}/{n} | '
             f'{clearance} | '
             f'{table_cell(r["time_to_goal_ratio"])} | {table_cell(r["mean_intervention"], 3)} | '
-            f'{table_cell(fallback, 1, " %")} | {latency} |')
+            f'{table_cell(fallback, 1, " %")} | {table_cell(negative, 2, " %")} | {latency} |')
     return '\n'.join(lines)
 
 
