@@ -56,9 +56,12 @@ simply brakes, without slowing the run.
 Real time (``lockstep: false``): periods are paced at ``real_time_factor`` times
 wall time; the latest command is applied whenever it arrives.
 
-The control period is ``n = round(physics_rate / control_rate)`` physics steps
-(240 / 100 Hz -> 2 steps, 120 Hz; the effective rate is logged): equal periods
-for the filter's sample-and-hold margin.
+The control period is ``n = physics_rate / control_rate`` physics steps
+(``Scenario.substeps``; 240 / 120 Hz -> 2 steps): equal periods for the
+filter's sample-and-hold margin.  Rates that do not make a whole number of
+steps (240 / 100 Hz) are refused, not rounded: the error names both rates and
+valid control rates nearby, and the node exits with status 1, like any bad
+parameter.
 
 With ``record: true`` every topic published or received goes into one bag
 (``bag_path``, default ``runs/<timestamp>/run``; ``sim_bridge.recorder``): the
@@ -128,7 +131,8 @@ except ImportError:
 PARAMETERS = {
     'scenario': ('', None, 'scenario name (config/scenarios/<name>.yaml) or YAML path; required'),
     'physics_rate': (-1.0, (-1.0, 10000.0), "physics rate [Hz]; -1 = the scenario's (240)"),
-    'control_rate': (-1.0, (-1.0, 10000.0), "control rate [Hz]; -1 = the scenario's (100)"),
+    'control_rate': (-1.0, (-1.0, 10000.0), "control rate [Hz], dividing physics_rate; -1 = the "
+                     "scenario's (120)"),
     'duration': (-1.0, (-1.0, 1e6), "sim time [s] after which the run ends; -1 = scenario's"),
     'seed': (-1, (-1, 2 ** 31 - 1), "random obstacle seed; -1 = the scenario's"),
     'lockstep': (True, None, "wait for every robot's command of period t before stepping"),
@@ -251,16 +255,15 @@ class BridgeNode(Node):
             scenario = scenario.with_seed(params['seed'])
         overrides = {name: params[name] for name in ('physics_rate', 'control_rate', 'duration')
                      if params[name] > 0}
+        # A Scenario checks its rates when made: ScenarioError (a ValueError) unless
+        # physics_rate / control_rate is a whole number of steps.
         scenario = dataclasses.replace(scenario, **overrides)
-        if scenario.control_rate > scenario.physics_rate:
-            raise ValueError(f'control_rate {scenario.control_rate:g} Hz exceeds physics_rate '
-                             f'{scenario.physics_rate:g} Hz')
         self.scenario = scenario
         self.params = params
         self.lockstep = params['lockstep']
         self.world = SimWorld(scenario)
         self.metrics = RunMetrics(self.world)
-        self.steps_per_period = max(1, round(scenario.physics_rate / scenario.control_rate))
+        self.steps_per_period = scenario.substeps
         self.period = self.steps_per_period * self.world.dt
         self.frame = params['frame_id']
         self.recorder = None

@@ -1,7 +1,8 @@
 """In-process lockstep closed loop: SimWorld + nominal controller + CommandFilter, no DDS.
 
 The evaluation's runner.  Each control period ``T`` (the bridge's: ``n =
-round(physics_rate / control_rate)`` physics steps), for every robot at once::
+physics_rate / control_rate`` physics steps, ``Scenario.substeps``; rates that
+do not divide are refused, not rounded), for every robot at once::
 
     state    = world.robot_state(robot)                      (the odometry's state)
     command  = nominal law of ``nominal_controller``: [v, omega] or wrench
@@ -345,7 +346,7 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
         scenario = scenario.with_seed(seed)
     if duration is not None:
         scenario = dataclasses.replace(scenario, duration=float(duration))
-    substeps = max(1, round(scenario.physics_rate / scenario.control_rate))
+    substeps = scenario.substeps
     period = 1.0 / control_rate(scenario)
     world = SimWorld(scenario)
     try:

@@ -128,9 +128,8 @@ def _parameter_text(value):
 
 
 def control_rate(scenario):
-    """Return the bridge's effective control rate: physics_rate / round(physics / control)."""
-    steps = max(1, round(scenario.physics_rate / scenario.control_rate))
-    return scenario.physics_rate / steps
+    """Return the bridge's control rate: physics_rate / ``scenario.substeps`` (a whole number)."""
+    return scenario.effective_control_rate
 
 
 def params_file(robot_type):

@@ -5,7 +5,7 @@ YAML schema (units: m, s, rad, Hz)::
     name: long_wall
     duration: 30.0
     physics_rate: 240          # optional, default 240
-    control_rate: 100          # optional, default 100, <= physics_rate
+    control_rate: 120          # optional, default 120; must divide physics_rate
     seed: 0                    # optional, default 0; drives random_obstacles
     robots:                    # names are the robots' ROS namespaces
       - {name: a1, type: quadruped, start: [x, y, yaw], goal: [x, y], radius: 0.4}
@@ -41,6 +41,13 @@ checked only against obstacles present at t = 0, goals against every obstacle
 as listed.  Every problem raises ``ScenarioError``
 naming the file and the field path, e.g.
 ``robots[1].start: expected 3 numbers [x, y, yaw] for a quadruped, got 2``.
+
+A control period is a whole number of physics steps, ``control_substeps``:
+``physics_rate / control_rate`` must be an integer (to ``RATE_TOLERANCE``,
+relative), or the rates are refused with the valid ones nearby (240 / 100 Hz
+is refused, 240 / 120 Hz is 2 steps); nothing is rounded.  Every ``Scenario``
+is checked when made, also by ``dataclasses.replace`` (the bridge's rate
+parameters), and the loader names the field.
 """
 import dataclasses
 import math
@@ -67,10 +74,52 @@ CYLINDER_SIDES = 12
 RANDOM_VERTICES = (3, 8)
 RANDOM_ATTEMPTS = 200
 _NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*\Z')
+DEFAULT_PHYSICS_RATE = 240.0  # Hz
+DEFAULT_CONTROL_RATE = 120.0  # Hz: 2 physics steps
+# Relative tolerance on physics_rate / control_rate being a whole number (float error only).
+RATE_TOLERANCE = 1e-9
+RATE_SUGGESTIONS = 4  # valid control rates listed when one is refused
 
 
 class ScenarioError(ValueError):
     """A scenario file is missing, unreadable or invalid; the message names the field."""
+
+
+def _rate_problem(physics_rate, control_rate):
+    """Return what is wrong with the rates as text after ``control_rate``, or None."""
+    ratio = physics_rate / control_rate
+    steps = round(ratio)
+    if steps >= 1 and abs(ratio - steps) <= RATE_TOLERANCE * steps:
+        return None
+    low = max(1, math.floor(ratio) - RATE_SUGGESTIONS // 2 + 1)
+    divisors = range(low, low + RATE_SUGGESTIONS)
+    valid = ', '.join(f'{physics_rate / n:g} Hz ({n} step{"s" if n > 1 else ""})'
+                      for n in divisors)
+    if control_rate > physics_rate:
+        problem = f'{control_rate:g} Hz exceeds physics_rate {physics_rate:g} Hz'
+    else:
+        problem = (f'{control_rate:g} Hz does not divide physics_rate {physics_rate:g} Hz '
+                   f'({physics_rate:g} / {control_rate:g} = {ratio:.6g} physics steps per '
+                   'control period, not a whole number; rates are not rounded)')
+    return f'{problem}; valid control rates nearby (physics_rate / n): {valid}'
+
+
+def control_substeps(physics_rate, control_rate):
+    """Return n = physics_rate / control_rate, the physics steps per control period.
+
+    The one place the count is computed: ``ScenarioError`` (a ``ValueError``) naming
+    both rates and valid control rates nearby unless the ratio is a whole number >= 1
+    to ``RATE_TOLERANCE`` (relative).
+    """
+    physics_rate, control_rate = float(physics_rate), float(control_rate)
+    if not (math.isfinite(physics_rate) and math.isfinite(control_rate)
+            and physics_rate > 0 and control_rate > 0):
+        raise ScenarioError(f'rates must be finite and > 0, got physics_rate {physics_rate:g} '
+                            f'Hz, control_rate {control_rate:g} Hz')
+    problem = _rate_problem(physics_rate, control_rate)
+    if problem is not None:
+        raise ScenarioError(f'control_rate {problem}')
+    return round(physics_rate / control_rate)
 
 
 def _scenario_dir():
@@ -183,6 +232,20 @@ class Scenario:
     robots: tuple
     obstacles: tuple = ()
     random_obstacles: RandomObstacles = None
+
+    def __post_init__(self):
+        """Refuse rates that do not make a whole number of physics steps per period."""
+        control_substeps(self.physics_rate, self.control_rate)
+
+    @property
+    def substeps(self):
+        """Return the physics steps per control period (``control_substeps``)."""
+        return control_substeps(self.physics_rate, self.control_rate)
+
+    @property
+    def effective_control_rate(self):
+        """Return physics_rate / substeps [Hz] (the control_rate, without its float error)."""
+        return self.physics_rate / self.substeps
 
     def with_seed(self, seed):
         """Return a copy whose random obstacles are drawn with ``seed``."""
@@ -411,10 +474,15 @@ def scenario_from_dict(data, source='<dict>'):
     reader = FieldReader(source)
     reader.mapping(data, '', ('name', 'duration', 'robots'),
                    ('physics_rate', 'control_rate', 'seed', 'obstacles', 'random_obstacles'))
-    physics_rate = reader.number(data.get('physics_rate', 240), 'physics_rate', positive=True)
-    control_rate = reader.number(data.get('control_rate', 100), 'control_rate', positive=True)
+    physics_rate = reader.number(data.get('physics_rate', DEFAULT_PHYSICS_RATE), 'physics_rate',
+                                 positive=True)
+    control_rate = reader.number(data.get('control_rate', DEFAULT_CONTROL_RATE), 'control_rate',
+                                 positive=True)
     if control_rate > physics_rate:
         reader.fail('control_rate', f'{control_rate} Hz exceeds physics_rate {physics_rate} Hz')
+    problem = _rate_problem(physics_rate, control_rate)
+    if problem is not None:
+        reader.fail('control_rate', problem)
     seed = data.get('seed', 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         reader.fail('seed', f'expected a whole number >= 0, got {seed!r}')

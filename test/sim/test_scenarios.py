@@ -65,7 +65,7 @@ def test_load_by_path_equals_load_by_name():
 def test_defaults_are_filled_in():
     """Rates, seed, z range, velocity, obstacle name and robot radius have defaults."""
     scenario = scenario_from_dict(_minimal())
-    assert (scenario.physics_rate, scenario.control_rate, scenario.seed) == (240, 100, 0)
+    assert (scenario.physics_rate, scenario.control_rate, scenario.seed) == (240, 120, 0)
     obstacle = scenario.obstacles[0]
     assert obstacle.z == (0.0, 1.0) and not obstacle.moving and obstacle.name == 'obstacle_0'
     assert scenario.robots[0].radius == ROBOT_TYPES['quadruped'].radius == 0.4
