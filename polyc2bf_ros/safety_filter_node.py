@@ -521,6 +521,8 @@ class SafetyFilterNode(Node):
         fallbacks = [f'{name} x{window[name]}' for name in _FALLBACKS if window[name]]
         if fallbacks:
             warnings.append('fallback ' + ', '.join(fallbacks))
+        if window['recovering']:
+            warnings.append(f'outside the safe set (h < 0) x{window["recovering"]}')
         level = (DiagnosticStatus.ERROR if errors else DiagnosticStatus.WARN if warnings
                  else DiagnosticStatus.OK)
         message = '; '.join(errors + warnings) or (

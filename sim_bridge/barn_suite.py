@@ -195,6 +195,10 @@ def aggregate_barn(records):
             'fallback_rate': float(np.mean(fallbacks)) if fallbacks else None,
             'negative_h_rate': float(np.mean(negative)) if negative else None,
             'penetration_m': max((r.get('penetration_m') or 0.0) for r in group),
+            'reported': sum(bool(r['deadlock_detections']) for r in group),
+            'freed': sum(bool(r['deadlock_detections']) and r['success'] for r in group),
+            'unflagged_stalls': sum((r['deadlock'] or r['timeout'])
+                                    and not r['deadlocked_at_end'] for r in group),
         })
         rows.append(row)
     return rows
@@ -221,6 +225,22 @@ def barn_table(rows):
     return '\n'.join(lines)
 
 
+def deadlock_lines(rows):
+    """Return one line per row: deadlock reports, runs freed after one, unflagged stalls.
+
+    With ``deadlock_resolution: circulate`` a run freed after a report is a resolution;
+    without it, a report the robot then got out of by itself is a false detection.
+    """
+    lines = []
+    for r in rows:
+        if r['filter'] == 'none':
+            continue
+        lines.append(f'- {r["filter"]} / {r["nominal"]}: {r["reported"]} of {r["runs"]} runs '
+                     f'had a deadlock report, {r["freed"]} of them then reached the goal; '
+                     f'{r["unflagged_stalls"]} stalled runs ended without a report.')
+    return lines
+
+
 def write_barn_outputs(out, records, trajectories, worlds, command, wall_time_s, jobs,
                        plots_too=True, worlds_label=None):
     """Write results.json, results.md and (unless ``plots_too`` is False) the PNGs.
@@ -243,7 +263,7 @@ def write_barn_outputs(out, records, trajectories, worlds, command, wall_time_s,
             '`sim_bridge/barn_suite.py` docstrings.  Rates are shares of the worlds; the '
             "metric is BARN's (failures count 0, at most 0.5); DWA is BARN's published "
             'baseline, not run here.',
-            '', barn_table(rows), '']
+            '', barn_table(rows), '', *deadlock_lines(rows), '']
     if plots_too:
         text += ['![outcomes](outcomes.png)', '', '![trajectories](trajectories.png)', '',
                  '![metric histogram](metric_histogram.png)', '']
@@ -286,6 +306,7 @@ def main_barn(parser, args, command):
     rows = write_barn_outputs(out, records, trajectories, worlds, command,
                               time.monotonic() - start, jobs, not args.no_plots, label)
     print(barn_table(rows))
+    print('\n'.join(['', *deadlock_lines(rows)]))
     print(f'\nwrote {out / "results.json"}, results.md'
           + ('' if args.no_plots else ', outcomes.png, trajectories.png, metric_histogram.png'))
     return 0

@@ -48,6 +48,10 @@ rounding, without preparing or copying any geometry per step.
 
 Fallbacks, always flagged in ``FilterInfo.status``:
 
+* ``recovering``: the QP is feasible but the step started outside the safe set (some
+  h < 0, the deepest in ``min_h``): its rows ask h_dot >= margin - gamma h > 0, driving h
+  back up.  A CBF guarantees safety only from inside its safe set, so this is flagged,
+  never reported as ``ok``.
 * ``slack``: the QP is infeasible; solve it again with one shared slack
   s >= 0 on every (unit-norm) row (weight ``slack_weight``), input bounds kept
   hard.
@@ -97,6 +101,7 @@ class FilterStatus(str, enum.Enum):
     """What the filter did on a step."""
 
     OK = 'ok'
+    RECOVERING = 'recovering'
     SLACK = 'slack'
     BRAKE = 'brake'
     ESCAPE = 'escape'
@@ -435,7 +440,11 @@ class SafetyFilter:
                 return self._brake(state, FilterStatus.BRAKE, start, 'QP and slack QP failed',
                                    h, min_h, evaluation)
             u, slack, status, message, active = solved
-        if self._braking and status in (FilterStatus.OK, FilterStatus.SLACK):
+        if status == FilterStatus.OK and min_h < 0.0:
+            status = FilterStatus.RECOVERING
+            message = f'outside the safe set: min h = {min_h:.3g}; driving h back up'
+        if self._braking and status in (FilterStatus.OK, FilterStatus.RECOVERING,
+                                        FilterStatus.SLACK):
             if self._must_brake(state, u, prepared, obstacle_age):
                 u, status = self.model.clip_input(self.model.braking_input(state)), \
                     FilterStatus.BACKUP
