@@ -97,6 +97,8 @@ FILTER_PARAMETERS = {
                       'to rest clear of every obstacle afterwards, else brake now '
                       '(core/braking_check.py)'),
     'braking_margin': ((0.0, 1.0), 'braking check: clearance kept beyond robot_radius [m]'),
+    'ground_z': (None, '3-D models: height of the ground [m], an obstacle like any other '
+                 '(core/ground.py); -.inf: no ground'),
 }
 
 class ParameterError(ValueError):

@@ -4,8 +4,8 @@
 ``sim_bridge``, and per robot namespace ``<ns>`` a ``nominal_controller`` and,
 unless ``barrier`` is ``'none'``, a ``safety_filter`` with the robot type's
 parameter file and topics (``sim_bridge.robots``), the lockstep overrides below
-and what the robot's body implies (``body_parameters``: a diff-drive disc of
-radius r guarded l ahead of its axle needs ``filter.robot_radius`` = r + l).  Without a filter the
+and what the robot's body implies (``body_parameters``: a diff-drive disc's radius r is
+``filter.robot_radius``; the filter adds the guarded point's offset l).  Without a filter the
 nominal command is remapped straight onto the robot's safe-command topic.
 ``launch/demo.launch.py`` turns the same plan into ``launch_ros`` Node actions.
 
@@ -140,16 +140,12 @@ def params_file(robot_type):
 def body_parameters(spec):
     """Return the filter overrides ``spec``'s body implies (none but for a disc body).
 
-    The barrier guards the point ``model_params.offset_l`` ahead of the axle (from the
-    type's parameter file), so ``filter.robot_radius`` = disc radius + offset_l covers the
-    disc from there.
+    ``filter.robot_radius`` is the disc's radius around the axle; the filter adds the
+    model's offset_l for the guarded point (``RobotModel.guard_offset``).
     """
-    if not robots.ROBOT_TYPES[spec.type].radius_from_offset:
+    if not robots.ROBOT_TYPES[spec.type].disc_body:
         return {}
-    # Imported here: it brings rclpy, which planning a run does not otherwise need.
-    from polyc2bf_ros.filter_parameters import load_parameters
-    offset = load_parameters([params_file(spec.type)], (), spec.name)['model_params.offset_l']
-    return {'filter.robot_radius': spec.radius + float(offset)}
+    return {'filter.robot_radius': float(spec.radius)}
 
 
 def scenario_reference(scenario):

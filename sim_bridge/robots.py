@@ -20,8 +20,8 @@ class RobotType:
     ('velocity' [v, omega] or 'wrench' [T, tau]) as ``command_type`` on the filter's
     ``nominal_topic`` (in) and ``safe_topic`` (out), with ``filter_parameters`` added;
     ``radius``: default footprint radius [m]; ``start_fields`` / ``goal_fields``: the
-    scenario layouts; ``yaw_index``: the yaw's place in the state; ``radius_from_offset``:
-    the body is a disc guarded ``model_params.offset_l`` ahead of its centre;
+    scenario layouts; ``yaw_index``: the yaw's place in the state; ``disc_body``:
+    the body is a disc of the scenario's ``radius`` (its ``filter.robot_radius``);
     ``input_units``: what the filter's input u is, for the evaluation's intervention
     column.
     """
@@ -42,7 +42,7 @@ class RobotType:
     input_units: str
     filter_parameters: MappingProxyType = dataclasses.field(
         default_factory=lambda: MappingProxyType({}))
-    radius_from_offset: bool = False
+    disc_body: bool = False
 
     @property
     def unicycle(self):
@@ -74,7 +74,7 @@ DIFF_DRIVE_RADIUS = 0.2  # m: BARN's reference paths keep >= 0.225 m from 99 % o
 ROBOT_TYPES = MappingProxyType({robot.name: robot for robot in (
     RobotType('quadruped', params_file='quadruped.yaml', radius=0.4, **_TWIST),
     RobotType('diff_drive', params_file='diff_drive.yaml', radius=DIFF_DRIVE_RADIUS,
-              radius_from_offset=True, **_TWIST),
+              disc_body=True, **_TWIST),
     RobotType('crazyflie', model='quadrotor', params_file='crazyflie_thrust.yaml',
               command_kind='wrench', command_type='geometry_msgs/msg/WrenchStamped',
               safe_topic='wrench_out', nominal_topic='wrench_in', radius=cf.BODY_RADIUS,

@@ -12,10 +12,13 @@ Gurriet et al., 2018).  With x+ the state after holding the filter's input u for
 T, and B(x) the reference point's path under the model's braking input from x
 (``RobotModel.braking_path``, one Euler step per period), u is kept when
 
-    dist(B(x+)_k, O_n(t_k)) >= R + margin     for every path point k and obstacle part n,
+    dist(B(x+)_k, O_n(t_k)) >= margin     for every path point k and obstacle part n,
 
-with O_n(t_k) the footprint moved at its velocity to the time of point k and R the robot
-radius (the exact disc, not an inflated polygon).  Otherwise the filter brakes now.  If B(x)
+with O_n(t_k) the footprint grown by the guard radius (the inflated polygon of
+``cones.InflatedCone``, whose edges are tangent to the robot's disc: it contains the exact
+grown footprint) and moved at its velocity to the time of point k.  That is the region the
+cones end in, so a robot braked to rest just clear of it still has its cones.  Otherwise
+the filter brakes now.  If B(x)
 is clear, so is what follows: either u is kept and B(x+) is clear, or the robot brakes, and
 the brake from x+ = B(x)_0 continues along the rest of B(x).  By induction the robot stays
 clear of every obstacle that is static or moves as its stated velocity says, as long as the

@@ -85,7 +85,8 @@ import numpy as np
 from polyc2bf_ros.core.barrier import BarrierTerms
 from polyc2bf_ros.core.braking_check import path_is_clear
 from polyc2bf_ros.core.cone_models import CONE_AXES, CONE_MODELS, make_cone_model
-from polyc2bf_ros.core.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K, PLANE_ROWS
+from polyc2bf_ros.core.cones import Cones, InflatedCone, PLANE_CONES, PLANE_K, PLANE_ROWS
+from polyc2bf_ros.core.ground import ground_offsets, grounded
 from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
@@ -113,13 +114,14 @@ class FilterStatus(str, enum.Enum):
 class FilterConfig:
     """Filter parameters; ``validate`` explains any bad value.
 
-    The default barrier is the inflated-silhouette PolyC2BF: in the clutter
-    benchmark (30 random polygons, 50 seeds) the paper's w/2 width rule let the
-    unicycle graze an obstacle (seed 18, clearance -0.039 m), the inflated
-    variant never.
+    The default barrier is the horizon-aware PolyC2BF on the exact cone with the braking
+    check (design.md 3.9-3.10): on the 200 BARN worlds it reaches the goal in all of them
+    with a path-following nominal and collides in none, where the inflated-silhouette
+    PolyC2BF (eq. 7) stalled in 26 % and grazed 1.5 %.  ``robot_radius`` is the body's
+    radius around its centre; the filter adds the model's ``guard_offset``.
     """
 
-    barrier: str = 'polyc2bf_inflated'
+    barrier: str = 'polyc2bf_horizon'
     robot_radius: float = 0.3
     gamma: float = 1.0
     control_period: float = 0.01
@@ -133,8 +135,9 @@ class FilterConfig:
     inflation_segments: int = 16
     horizon: float = 1.0
     cone_axis: str = 'bisector'
-    braking_check: bool = False
-    braking_margin: float = 0.01
+    braking_check: bool = True
+    braking_margin: float = 0.002
+    ground_z: float = -math.inf
 
     @property
     def margin(self):
@@ -160,6 +163,9 @@ class FilterConfig:
                              f'got {self.cone_axis!r}')
         if not (self.horizon > 0.0):
             raise ValueError(f'horizon must be positive (inf: none), got {self.horizon!r}')
+        if math.isnan(self.ground_z) or self.ground_z == math.inf:
+            raise ValueError(f'ground_z must be a height or -inf (no ground), '
+                             f'got {self.ground_z!r}')
         if not 3 <= self.inflation_segments <= 256:
             raise ValueError('inflation_segments must be in [3, 256], '
                              f'got {self.inflation_segments!r}')
@@ -233,8 +239,9 @@ class Evaluation:
 class _Prepared:
     """Everything per obstacle set that does not change between steps, and row buffers.
 
-    ``count`` obstacle parts; ``footprints`` their polygons for the braking check (planar
-    models with ``braking_check``, else None); ``velocities`` (N, d) are their c_dot in the
+    ``count`` obstacle parts; ``footprints`` their polygons grown by the guard radius for
+    the braking check (``cones.PlanarPolygons``; planar models with ``braking_check``, else
+    None); ``velocities`` (N, d) are their c_dot in the
     robot's d dimensions and ``offsets`` (N, d) how far they moved from where ``views`` has them
     (zero unless the set is a translation, see ``polyc2bf_ros.core.views``); ``rows_a``
     (N, m), ``rows_b`` and ``index`` (N,) are scratch space for the QP rows (the first
@@ -249,7 +256,7 @@ class _Prepared:
     rows_a: np.ndarray
     rows_b: np.ndarray
     index: np.ndarray
-    footprints: Optional[PlanarPolygons] = None
+    footprints: Optional[object] = None
 
     def translated(self, offsets, velocities):
         """Return the same views and buffers with obstacles moved by ``offsets`` (N, d)."""
@@ -362,7 +369,10 @@ class SafetyFilter:
         """Bind a model and a (validated) configuration, and compile the hot path."""
         self.model = model
         self.config = (config or FilterConfig()).validate()
-        self.cone_model = make_cone_model(self.config.barrier, self.config.robot_radius,
+        # The body's radius grown by the model's offset l: the guarded point r keeps R + l,
+        # so the body around its centre keeps R (``RobotModel.guard_offset``).
+        self.guard_radius = float(self.config.robot_radius + model.guard_offset)
+        self.cone_model = make_cone_model(self.config.barrier, self.guard_radius,
                                           self.config.inflation_segments, self.config.horizon,
                                           self.config.cone_axis)
         self.solver = make_solver(self.config.solver)
@@ -375,13 +385,15 @@ class SafetyFilter:
                               self._lower, self._upper, bool(self.config.prune))
         self._epsilon = float(self.config.velocity_epsilon)
         self._braking = bool(self.config.braking_check) and model.position_dim == 2
-        self._clearance = float(self.config.robot_radius + self.config.braking_margin)
+        self._ground = (float(self.config.ground_z) if model.position_dim == 3
+                        and math.isfinite(self.config.ground_z) else None)
+        self._clearance = float(self.config.braking_margin)
         # The step's reference kinematics, refilled each step (it never leaves the step).
         self._reference = ReferenceKinematics.empty(model.position_dim, model.input_dim)
         # What prepared views depend on: the cone model's settings, dimension and radius.
         self._geometry_key = (type(self.cone_model).__name__,
                               tuple(sorted(vars(self.cone_model).items())),
-                              model.position_dim, self.config.robot_radius)
+                              model.position_dim, self.guard_radius)
         self._cache_key = self._cache = None
         self._base_key = self._base = None
         self.warm_up()
@@ -487,10 +499,12 @@ class SafetyFilter:
     def _must_brake(self, state, u, prepared, age):
         """Return True when braking now is clear and holding ``u`` for one period is not.
 
-        ``polyc2bf_ros.core.braking_check``: x+ = x + T (f(x) + g(x) u).
+        ``polyc2bf_ros.core.braking_check``: x+ by the midpoint rule over the period with
+        u held (exact for the point mass; an Euler step misplaced it by T^2 a / 2).
         """
         period = self.config.control_period
-        after = state + period * self.model.state_derivative(state, u)
+        middle = state + 0.5 * period * self.model.state_derivative(state, u)
+        after = state + period * self.model.state_derivative(middle, u)
         return (not self._path_is_clear(after, prepared, age + period)
                 and self._path_is_clear(state, prepared, age))
 
@@ -580,7 +594,7 @@ class SafetyFilter:
         if obstacles.base is not None:
             obstacles = obstacles.base
         if obstacles.is_finite():
-            self._views(obstacles)
+            self._views(self._grounded(obstacles))
 
     def _prepare(self, obstacles):
         """Build (and cache per obstacle set) the planar views of the obstacles.
@@ -596,14 +610,25 @@ class SafetyFilter:
             # base + finite offsets is finite, so the base's geometry is (its velocities
             # are replaced).
             if obstacles.base is not self._base_key:
-                self._base_key, self._base = obstacles.base, self._fresh(obstacles.base, True)
+                self._base_key = obstacles.base
+                self._base = self._fresh(self._grounded(obstacles.base), True)
+            offsets, velocities = obstacles.offsets[:, :dim], obstacles.velocities[:, :dim]
+            if self._ground is not None:
+                offsets, velocities = ground_offsets(offsets, velocities)
             prepared = self._base.translated(
-                np.ascontiguousarray(obstacles.offsets[:, :dim], dtype=np.float64),
-                np.ascontiguousarray(obstacles.velocities[:, :dim], dtype=np.float64))
+                np.ascontiguousarray(offsets, dtype=np.float64),
+                np.ascontiguousarray(velocities, dtype=np.float64))
         else:
-            prepared = self._fresh(obstacles if finite else ObstacleSet.empty(), finite)
+            prepared = self._fresh(self._grounded(obstacles if finite else ObstacleSet.empty()),
+                                   finite)
         self._cache_key, self._cache = (obstacles if finite else None), prepared
         return prepared
+
+    def _grounded(self, obstacles):
+        """Return ``obstacles`` standing on the ground (``polyc2bf_ros.core.ground``), if any."""
+        if self._ground is None:
+            return obstacles
+        return grounded(obstacles, self._ground, self.guard_radius)
 
     def _fresh(self, obstacles, finite):
         """Prepare the views of ``obstacles`` and row buffers for as many parts."""
@@ -614,8 +639,18 @@ class SafetyFilter:
             offsets=np.zeros((count, dim)), finite=finite,
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
             index=np.empty(count, dtype=np.intp),
-            footprints=PlanarPolygons.from_batch(obstacles.footprints) if self._braking
-            else None)
+            footprints=self._braking_polygons(obstacles) if self._braking else None)
+
+    def _braking_polygons(self, obstacles):
+        """Return the footprints grown by the guard radius, as the inflated cones see them.
+
+        The braking check keeps its paths out of the same region where the cones end (the
+        escape region), so a robot braked to rest just clear of it still has its cones.
+        """
+        if isinstance(self.cone_model, InflatedCone):
+            return self._views(obstacles)[0].prepared
+        return InflatedCone(self.guard_radius, self.config.inflation_segments).prepare(
+            obstacles.footprints)
 
     def _views(self, obstacles):
         """Return the views of ``obstacles``, prepared once per set and geometry settings."""
@@ -623,6 +658,6 @@ class SafetyFilter:
         views = obstacles.geometry.get(key)
         if views is None:
             views = prepare_views(obstacles, self.cone_model, self.model.position_dim,
-                                  self.config.robot_radius)
+                                  self.guard_radius)
             obstacles.geometry[key] = views
         return views

@@ -39,14 +39,16 @@ class Rollout:
 
 
 def clearance(model, state, obstacles, robot_radius):
-    """Return min over obstacles of signed distance(reference point, footprint) - radius.
+    """Return min over obstacles of signed distance(body centre, footprint) - radius.
 
-    For 3-D models a prism is only hit when the point is also within its z range
-    (grown by the radius); otherwise that obstacle does not count.
+    The body is the disc (3-D: sphere) of ``robot_radius`` around ``model.body_centre``,
+    not around the guarded point.  For 3-D models a prism is only hit when the centre is
+    also within its z range grown by the radius; above or below it the vertical gap counts
+    (max of the two gaps: never more than the true distance).
     """
     if not len(obstacles):
         return float('inf')
-    position = model.reference(state).position
+    position = model.body_centre(state)
     distances = signed_distance_batch(position[:2], obstacles.footprints) - robot_radius
     if position.size == 3:
         below = obstacles.z_ranges[:, 0] - robot_radius - position[2]

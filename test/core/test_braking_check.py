@@ -28,11 +28,11 @@ def test_unicycle_braking_path_stops_straight_at_the_braking_distance(speed):
 
 
 def test_unicycle_braking_path_starts_one_period_ahead_and_curves_with_omega():
-    """Row 0 is the point after one period; a turning robot brakes along an arc."""
-    model = make_model('unicycle', offset_l=0.0)
+    """Row 0 is the point after one period of the brake; a turning robot brakes on an arc."""
+    model = make_model('unicycle', offset_l=0.0, max_accel=2.0)
     state = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
     path = model.braking_path(state, PERIOD)
-    assert np.allclose(path[0], [PERIOD, 0.0])
+    assert np.allclose(path[0], [PERIOD * (1.0 - 0.5 * PERIOD * 2.0), 0.0], atol=1e-4)
     assert path[-1, 1] > 0.01  # turned left while stopping
 
 
@@ -80,25 +80,36 @@ def test_path_clearance_matches_brute_force(polygons, seed, clearance):
 def _wall_ahead_filter(check):
     wall = Obstacle(polygon=np.array([[1.0, -2.0], [1.2, -2.0], [1.2, 2.0], [1.0, 2.0]]))
     filt = SafetyFilter(make_model('unicycle', offset_l=0.01, max_accel=2.0), FilterConfig(
-        barrier='polyc2bf_horizon', robot_radius=0.21, horizon=0.1, gamma=5.0, braking_check=check,
-        control_period=PERIOD))
+        barrier='polyc2bf_horizon', robot_radius=0.2, horizon=0.1, gamma=5.0,
+        braking_check=check, control_period=PERIOD))
     return filt, ObstacleSet.from_obstacles([wall])
 
 
 def test_filter_brakes_when_the_input_would_leave_no_clear_stop():
-    """Closing on a wall at the speed that brakes to rest just clear of it.
+    """Closing on a wall at the fastest speed that can still brake to rest clear of it.
 
-    A short horizon (0.1 s) and gamma = 5 let the barrier accept accelerating on; one more
-    period at that speed leaves too little room to stop, so the check brakes now.
+    The wall grown by the guard radius (0.2 m + offset 0.01 m, as the inflated cones see
+    it) starts at x ~ 0.79.  A short horizon (0.1 s) and gamma = 5 let the barrier accept
+    accelerating on; one more period at that speed leaves too little room to stop, so the
+    check brakes now.
     """
     model = make_model('unicycle', offset_l=0.01, max_accel=2.0)
     filt, obstacles = _wall_ahead_filter(True)
-    # Find the speed at which braking now stops 1-4 mm before the disc touches the wall.
-    gap = 1.0 - 0.21
-    speed = next(v for v in np.arange(0.3, 3.0, 0.001)
-                 if model.braking_path(np.array([0.0, 0.0, 0.0, v, 0.0]), PERIOD)[-1, 0]
-                 > gap - 0.001 - 0.01)
-    state = np.array([-0.002, 0.0, 0.0, speed, 0.0])
+    grown = filt.cone_model.prepare(obstacles.footprints)
+    face = grown.x[0, :grown.counts[0]].min()
+    assert 0.78 < face < 0.79
+    limit = face - FilterConfig().braking_margin
+
+    def stops_clear(state):
+        return model.braking_path(state, PERIOD)[-1, 0] < limit
+
+    def after_accelerating(state):
+        return state + PERIOD * model.state_derivative(state, np.array([2.0, 0.0]))
+
+    speeds = np.arange(0.5, 3.0, 0.001)
+    speed = max(v for v in speeds if stops_clear(np.array([0.0, 0.0, 0.0, v, 0.0])))
+    state = np.array([0.0, 0.0, 0.0, speed, 0.0])
+    assert not stops_clear(after_accelerating(state))
     u, info = filt.step(state, obstacles, np.array([2.0, 0.0]))
     assert info.status == FilterStatus.BACKUP
     assert np.allclose(u, model.clip_input(model.braking_input(state)))

@@ -27,11 +27,18 @@ def _unicycle_start(speed, heading):
     return np.array([-model.offset_l, 0.0, heading, speed, 0.0])
 
 
-@pytest.mark.parametrize('barrier', ['polyc2bf_paper', 'polyc2bf_inflated'])
+@pytest.mark.parametrize('barrier', ['polyc2bf_paper', 'polyc2bf_inflated', 'polyc2bf_horizon'])
 @pytest.mark.parametrize('speed', [0.5, 1.0, 1.5])
 @pytest.mark.parametrize('heading', [0.0, 0.35, -0.6])
 def test_long_wall_keeps_clearance(barrier, speed, heading):
-    """A unicycle heading at a 20 m wall from 3 m away never touches it in 20 s."""
+    """A unicycle heading at a 20 m wall from 3 m away never touches it in 20 s.
+
+    Never inside the grown wall (no ``escape``, ``brake``): every step is ``ok``,
+    ``recovering`` where it started inside a cone (the start heads into the wall; the
+    midpoint cones' h also jumps at vertex switches), or, for eq. 7, ``slack`` and
+    ``backup`` where the braking check stopped it in time (without the check, eq. 7 at
+    1.5 m/s head on leaves the QP infeasible too late and grazes the wall by 3 cm).
+    """
     model = make_model('unicycle')
     filt = SafetyFilter(model, FilterConfig(barrier=barrier, robot_radius=RADIUS))
     obstacles = ObstacleSet.from_obstacles([Obstacle(polygon=LONG_WALL)])
@@ -39,7 +46,10 @@ def test_long_wall_keeps_clearance(barrier, speed, heading):
     run = rollout(model, filt, controller, _unicycle_start(speed, heading),
                   np.array([8.0, 0.0]), obstacles, duration=20.0, physics_step=0.002)
     assert run.min_clearance > 0.0
-    assert set(run.statuses) <= {FilterStatus.OK}
+    allowed = {FilterStatus.OK, FilterStatus.RECOVERING}
+    if barrier != 'polyc2bf_horizon':
+        allowed |= {FilterStatus.SLACK, FilterStatus.BACKUP}
+    assert set(run.statuses) <= allowed
     # The nominal command drove into the wall; the filter had to intervene.
     assert np.abs(run.inputs - run.nominal).max() > 0.1
 
@@ -60,7 +70,8 @@ def test_c3bf_fails_where_the_paper_says():
                   obstacles, duration=5.0)
     assert run.statuses.count(FilterStatus.ESCAPE) > 100
     poly = SafetyFilter(model, FilterConfig(barrier='polyc2bf_paper', robot_radius=RADIUS))
-    assert poly.step(start, obstacles, np.array([0.5, 0.0]))[1].status == FilterStatus.OK
+    assert poly.step(start, obstacles, np.array([0.5, 0.0]))[1].status in (
+        FilterStatus.OK, FilterStatus.RECOVERING)
 
 
 CLUTTER_MODELS = {

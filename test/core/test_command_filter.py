@@ -55,16 +55,21 @@ def test_point_mass_commands_are_in_the_heading_frame(model_name):
 
 
 def test_wall_ahead_holds_the_unicycle_back():
-    """At rest facing a wall 1 m ahead, a 1.5 m/s command does not accelerate it forward.
+    """At rest facing a wall 1 m ahead, a 1.5 m/s command: eq. 7 holds the unicycle back.
 
-    Without the wall the same command gives v = a_max T > 0 (previous test).
+    Without the wall the same command gives v = a_max T > 0 (previous test).  Eq. 7 forbids
+    any velocity into the wall's cone; the horizon-aware default lets it creep forward, by
+    less than the full acceleration (contact would be more than tau away).
     """
-    safe, info = _filter('unicycle').filter(np.zeros(5), 0.0, [1.5, 0.0], WALL)
+    paper = _filter('unicycle', barrier='polyc2bf_inflated')
+    safe, info = paper.filter(np.zeros(5), 0.0, [1.5, 0.0], WALL)
     assert info.status == FilterStatus.OK
     assert safe[0] <= 0.0
     # The node hands over its state as a tuple of floats: the same decision.
-    from_tuple, _ = _filter('unicycle').filter((0.0,) * 5, 0.0, (1.5, 0.0), WALL)
+    from_tuple, _ = paper.filter((0.0,) * 5, 0.0, (1.5, 0.0), WALL)
     np.testing.assert_array_equal(from_tuple, safe)
+    creep, _ = _filter('unicycle').filter(np.zeros(5), 0.0, [1.5, 0.0], WALL)
+    assert 0.0 < creep[0] < 0.5 * make_model('unicycle').input_upper[0] * PERIOD
 
 
 def test_quadrotor_wrench_round_trip_without_obstacles():

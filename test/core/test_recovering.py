@@ -20,7 +20,8 @@ def test_start_inside_the_cone_is_flagged_and_recovered(barrier):
     model = make_model('point_mass_2d', max_accel=3.0)
     period = 0.01
     filt = SafetyFilter(model, FilterConfig(barrier=barrier, robot_radius=0.2,
-                                            control_period=period, horizon=2.0))
+                                            control_period=period, horizon=2.0,
+                                            braking_check=False))
     obstacles = ObstacleSet.from_obstacles([Obstacle(polygon=BOX)])
     state = np.array([0.0, 0.05, 1.0, 0.0])
     nominal = np.zeros(2)  # the nominal holds the velocity: only the filter turns it

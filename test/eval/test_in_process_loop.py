@@ -90,7 +90,8 @@ def test_the_deadlock_report_flags_the_popup_box_and_not_the_long_wall(long_wall
 
     Slowed and steered along the long wall, then through to the goal: never reported.
     """
-    run = run_in_process('popup_obstacle', 'polyc2bf_inflated')
+    run = run_in_process('popup_obstacle', 'polyc2bf_inflated',
+                         parameters={'deadlock_resolution': 'none'})
     record = summarise(run, {'a1': 10.0})
     assert record['outcome'] == 'deadlock'
     assert record['deadlocked_at_end'] and record['deadlock_detections'] == 1

@@ -5,8 +5,9 @@ import numpy as np
 import pybullet as pb
 import pytest
 
+from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge.closed_loop import run_in_process
-from sim_bridge.launcher import body_parameters, closed_loop_plan
+from sim_bridge.launcher import body_parameters, closed_loop_plan, params_file
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.scenario import cylinder_polygon, scenario_from_dict
 from sim_bridge.world import (
@@ -130,13 +131,19 @@ def test_cylinders_in_scenario_files():
 
 
 def test_filter_radius_covers_the_disc_from_the_guarded_point():
-    """robot_radius = disc radius + offset_l, in process and in the launcher's plan."""
+    """robot_radius = the disc radius; the filter guards offset_l ahead with radius + offset_l.
+
+    In process and in the launcher's plan.
+    """
     scenario = _scenario(0.3)
     overrides = body_parameters(scenario.robots[0])
-    assert overrides == {'filter.robot_radius': pytest.approx(0.31)}
+    assert overrides == {'filter.robot_radius': pytest.approx(0.3)}
     run = run_in_process(scenario, 'polyc2bf_inflated', duration=0.5)
-    assert run.robot_radius == pytest.approx(0.31)
+    assert run.robot_radius == pytest.approx(0.3)
+    settings = build_filter({**load_parameters([params_file('diff_drive')], (), ''),
+                             **overrides})
+    assert settings.command_filter.safety_filter.guard_radius == pytest.approx(0.31)
     (filter_spec,) = [p for p in closed_loop_plan(scenario, 'polyc2bf_inflated')
                       if p.executable == 'safety_filter']
     assert filter_spec.params_file.name == 'diff_drive.yaml'
-    assert filter_spec.parameters['filter.robot_radius'] == pytest.approx(0.31)
+    assert filter_spec.parameters['filter.robot_radius'] == pytest.approx(0.3)

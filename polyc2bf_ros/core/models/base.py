@@ -78,6 +78,16 @@ class RobotModel(abc.ABC):
     def braking_input(self, x):
         """Return the input that brings the robot to rest fastest (defined for any x)."""
 
+    #: Distance from the body's centre to the guarded reference point (the offset l of the
+    #: unicycle and the quadrotor): the filter keeps the point ``robot_radius`` + this from
+    #: every obstacle, so the body's disc (sphere) of ``robot_radius`` around its centre is
+    #: clear: dist(c, O) >= dist(r, O) - |r - c| >= robot_radius.
+    guard_offset = 0.0
+
+    def body_centre(self, x):
+        """Return the body's centre (position_dim,) at state x: what ``robot_radius`` is around."""
+        return np.asarray(x, dtype=float)[:self.position_dim]
+
     def braking_path(self, x, period):
         """Return the reference point's positions (K, position_dim) under ``braking_input``.
 

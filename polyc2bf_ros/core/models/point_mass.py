@@ -17,15 +17,19 @@ from polyc2bf_ros.core.models.base import (
 
 @kernel(signature('i8', F1, 'f8', 'f8', 'f8', F2))
 def _braking_path(x, limit, time_constant, period, out):
-    """Write the positions along the per-axis damped brake into ``out``; return the rows."""
+    """Write the positions along the per-axis damped brake into ``out``; return the rows.
+
+    Each period holds the brake's acceleration, as the node holds its input: exact steps.
+    """
     dim = out.shape[1]
     position, velocity = x[:dim].copy(), x[dim:].copy()
     rows = 0
     for k in range(out.shape[0]):
         moving = False
         for d in range(dim):
-            position[d] += period * velocity[d]
-            velocity[d] += period * min(max(-velocity[d] / time_constant, -limit), limit)
+            accel = min(max(-velocity[d] / time_constant, -limit), limit)
+            position[d] += period * (velocity[d] + 0.5 * period * accel)  # exact, a held
+            velocity[d] += period * accel
             moving = moving or abs(velocity[d]) >= 1e-6
             out[k, d] = position[d]
         rows = k + 1

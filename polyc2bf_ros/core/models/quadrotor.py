@@ -102,6 +102,7 @@ class Quadrotor(RobotModel):
                  max_rotor_thrust=cf.MAX_ROTOR_THRUST, attitude_gain=20.0):
         """Set the body-point offset l [m] along body z, mass, inertia and thrust limit."""
         self.offset_l = float(offset_l)
+        self.guard_offset = abs(self.offset_l)
         self.mass = float(mass)
         self.inertia = np.asarray(inertia, dtype=float)
         self.inertia_inv = np.linalg.inv(self.inertia)

@@ -48,16 +48,22 @@ def _offset_point(x, offset, position, velocity, drift, input_matrix):
 def _braking_path(x, offset, limits, time_constant, period, out):
     """Write the reference point's positions along the brake into ``out``; return the rows.
 
-    One Euler step of the dynamics per period, the damped brake held over it
-    (``damped_brake``); ends at rest (|v|, |omega| < 1e-6) or when ``out`` is full.
+    One midpoint step of the dynamics per period, the damped brake held over it
+    (``damped_brake``; exact for a straight stop); ends at rest (|v|, |omega| < 1e-6)
+    or when ``out`` is full.
     """
     px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
     rows = 0
     for k in range(out.shape[0]):
-        c, s = math.cos(theta), math.sin(theta)
-        px, py, theta = px + period * v * c, py + period * v * s, theta + period * omega
-        v += period * min(max(-v / time_constant, -limits[0]), limits[0])
-        omega += period * min(max(-omega / time_constant, -limits[1]), limits[1])
+        a = min(max(-v / time_constant, -limits[0]), limits[0])
+        alpha = min(max(-omega / time_constant, -limits[1]), limits[1])
+        # Midpoint rule over the period, the brake held: second order in T.
+        heading = theta + 0.5 * period * (omega + 0.25 * period * alpha)
+        travel = period * (v + 0.5 * period * a)
+        px, py = px + travel * math.cos(heading), py + travel * math.sin(heading)
+        theta += period * (omega + 0.5 * period * alpha)
+        v += period * a
+        omega += period * alpha
         out[k, 0], out[k, 1] = px + offset * math.cos(theta), py + offset * math.sin(theta)
         rows = k + 1
         if abs(v) < 1e-6 and abs(omega) < 1e-6:
@@ -78,6 +84,7 @@ class Unicycle(RobotModel):
                  brake_time_constant=0.05):
         """Set the offset l [m], |a| <= max_accel, |alpha| <= max_angular_accel."""
         self.offset_l = float(offset_l)
+        self.guard_offset = abs(self.offset_l)
         self.input_upper = np.array([max_accel, max_angular_accel], dtype=float)
         self.input_lower = -self.input_upper
         self.brake_time_constant = float(brake_time_constant)
