@@ -413,6 +413,18 @@ class _Crazyflie(_Robot):
         rotation = np.reshape(pb.getMatrixFromQuaternion(quaternion), (3, 3))
         return tuple((rotation.T @ np.array([velocity, omega]).T).T.ravel().tolist())
 
+    def floor_gap(self):
+        """Return the height [m] of the body's lowest point above the ground plane (z = 0).
+
+        The collision cylinder (radius r, half-height h) tilted by phi from upright reaches
+        down to z_c - h cos(phi) - r sin(phi); at or below 0 it touches the floor.
+        """
+        position, quaternion = pb.getBasePositionAndOrientation(self.body,
+                                                                physicsClientId=self.client)
+        up = abs(pb.getMatrixFromQuaternion(quaternion)[8])  # cos(phi): R[2, 2]
+        return (position[2] - CRAZYFLIE_HALF_HEIGHT * up
+                - cf.BODY_RADIUS * math.sqrt(max(0.0, 1.0 - up * up)))
+
     def extent(self):
         """Return position (3,), world velocity (3,) and z range of the body."""
         position = np.array(pb.getBasePositionAndOrientation(
@@ -626,11 +638,17 @@ class SimWorld:
     def min_clearance(self, robot, max_distance=CLEARANCE_RANGE):
         """Return ``min(clearances(robot, max_distance))`` (inf if empty), with fewer queries.
 
+        For a Crazyflie the floor counts too (``floor_gap``): touching it is a collision.
+
         Obstacles are queried in the order of their lower bounds, and none once the
         bound exceeds the best distance found: no such obstacle can be closer.
         """
         plant = self._robots[robot]
         best = min(self._robot_distances(robot, max_distance), default=math.inf)
+        if isinstance(plant, _Crazyflie):  # a flying body: the floor is an obstacle too
+            gap = plant.floor_gap()
+            if gap < max_distance:
+                best = min(best, gap)
         for bound, index in sorted(zip(*self._near_obstacles(robot, max_distance)[::-1])):
             reach = min(best, max_distance)
             if bound > reach:

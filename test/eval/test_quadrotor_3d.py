@@ -1,0 +1,23 @@
+"""The Crazyflie in PyBullet among 3-D obstacles: the body, not a point, and the floor, clear.
+
+Lockstep, in process (``run_in_process``), the shipped quadrotor config (``ground_z`` 0,
+``robot_radius`` around the centre of mass).  The simulator measures the body's collision
+cylinder, and counts touching the floor as a collision (``SimWorld.min_clearance``).
+"""
+import pytest
+
+from sim_bridge.closed_loop import run_in_process
+from sim_bridge.evaluate import summarise
+
+
+@pytest.mark.parametrize('scenario', ['quadrotor_slab', 'quadrotor_floor_wall',
+                                      'quadrotor_window'])
+def test_no_collision_and_no_floor_contact(scenario):
+    """Slab across the way, wall on the floor, window: never touched, floor included."""
+    run = run_in_process(scenario, 'polyc2bf_horizon')
+    record = summarise(run, {'cf': 10.0})
+    assert not record['collision']
+    assert record['min_clearance_m'] is None or record['min_clearance_m'] > 0.0
+    heights = run.robots['cf'].states[:, 2]
+    assert heights.min() > 0.065  # the body's radius above the floor, at any tilt
+
