@@ -10,20 +10,25 @@ too late (BARN: h < 0 with the QP still ``ok``, then grazes of 1-6 mm).
 This is a backup-policy check (the gatekeeper of Agrawal & Panagou, 2024; backup CBFs,
 Gurriet et al., 2018).  With x+ the state after holding the filter's input u for one period
 T, and B(x) the reference point's path under the model's braking input from x
-(``RobotModel.braking_path``, one Euler step per period), u is kept when
+(``RobotModel.braking_path``, one step per period), the clearance of a path is
 
-    dist(B(x+)_k, O_n(t_k)) >= margin     for every path point k and obstacle part n,
+    c(B) = min over path points k and obstacle parts n of dist(B_k, O_n(t_k)) - R
 
-with O_n(t_k) the footprint grown by the guard radius (the inflated polygon of
-``cones.InflatedCone``, whose edges are tangent to the robot's disc: it contains the exact
-grown footprint) and moved at its velocity to the time of point k.  That is the region the
-cones end in, so a robot braked to rest just clear of it still has its cones.  Otherwise
-the filter brakes now.  If B(x)
-is clear, so is what follows: either u is kept and B(x+) is clear, or the robot brakes, and
-the brake from x+ = B(x)_0 continues along the rest of B(x).  By induction the robot stays
-clear of every obstacle that is static or moves as its stated velocity says, as long as the
-plant follows the model.  When B(x) itself is not clear (an obstacle appeared, or the robot
-started too close) braking guarantees nothing, and the filter's input stands.
+(negative inside), with O_n(t_k) the footprint moved at its velocity to the time of point k
+and R the guard radius: the exact disc, not the cones' inflated polygon.  That polygon
+circumscribes the disc (up to R (1 / cos(pi / segments) - 1) beyond it, 4 mm for R = 0.21 m
+and 16 segments), so the check leaves the barrier that band to approach in: measured against
+the inflated polygon itself, it braked a robot sliding along a cylinder within its margin
+again and again (BARN go-to-goal with circulation: 76 % -> 20 % of the first 50 worlds).
+u is kept when c(B(x+)) >= margin, or when c(B(x+)) >= c(B(x)), no worse than braking now
+(a robot at rest within the margin may still slide along the boundary or leave it);
+otherwise the filter brakes, unless c(B(x)) <= 0 (an obstacle appeared, or the robot
+started inside: braking promises nothing, and the filter's input stands).
+
+Once c(B(x)) > 0 it stays >= min(margin, its first value): a kept u hands the next step a
+path B(x+) at least that clear, and a brake continues along the rest of B(x).  By induction
+the robot stays clear of every obstacle that is static or moves as its stated velocity says,
+as long as the plant follows the model.
 
 Cost: the path (|v| / a_max / T + 8 brake time constants / T rows) is computed in one
 kernel; an obstacle part is only measured against it when its bounding box comes within
@@ -35,27 +40,29 @@ from polyc2bf_ros.core.cones import nearest_edge
 from polyc2bf_ros.core.jit import F2, I1, kernel, signature
 
 
-@kernel(signature('b1', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8', 'f8'))
-def path_is_clear(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, age, path,
-                  period, clearance):
-    """Return True when every row k of ``path`` (K, 2) keeps ``clearance`` from every polygon.
+@kernel(signature('f8', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8', 'f8'))
+def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, age, path,
+                   period, cutoff):
+    """Return min(cutoff, the smallest signed distance of a ``path`` (K, 2) row to a polygon).
 
-    Polygon n (CCW, rows of ``x``, ``y`` as ``cones.PlanarPolygons``) has moved by
-    ``offsets[n]`` and moves at ``velocities[n]``; path row k is at age + (k + 1) period.
+    Negative inside.  Polygon n (CCW, rows of ``x``, ``y`` as ``cones.PlanarPolygons``) has
+    moved by ``offsets[n]`` and moves at ``velocities[n]``; path row k is at
+    age + (k + 1) period.  A polygon whose bounding box stays farther than ``cutoff`` from
+    the path's is not measured.
     """
     rows = path.shape[0]
     if rows == 0:
-        return True
+        return cutoff
     low_x = high_x = path[0, 0]
     low_y = high_y = path[0, 1]
     for k in range(rows):
         low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
         low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
     last = age + rows * period
-    square_clearance = clearance * clearance
+    best = cutoff
     for n in range(counts.shape[0]):
         vx, vy = velocities[n, 0], velocities[n, 1]
-        reach = clearance + max(abs(age), abs(last)) * math.sqrt(vx * vx + vy * vy)
+        reach = cutoff + max(abs(age), abs(last)) * math.sqrt(vx * vx + vy * vy)
         box_low_x = box_high_x = x[n, 0]
         box_low_y = box_high_y = y[n, 0]
         for j in range(counts[n]):
@@ -70,6 +77,6 @@ def path_is_clear(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, age
             square, _, _, _, inside = nearest_edge(
                 x, y, edge_x, edge_y, inv_sq, counts[n], n, path[k, 0] - t * vx - ox,
                 path[k, 1] - t * vy - oy)
-            if inside or square < square_clearance:
-                return False
-    return True
+            distance = -math.sqrt(square) if inside else math.sqrt(square)
+            best = min(best, distance)
+    return best

@@ -70,8 +70,8 @@ Fallbacks, always flagged in ``FilterInfo.status``:
   over the parts the point is inside: over a wall's top edge the vertical plane
   gives straight up, not a crawl sideways along the wall.
 * ``backup``: ``braking_check`` (planar models with a ``braking_path``): the input
-  found would leave the robot no way to brake to rest clear of the obstacles, while
-  braking now still does; brake now (``polyc2bf_ros.core.braking_check``).
+  found (also an escape's) would leave the robot a less clear way to brake to rest than
+  braking now; brake now (``polyc2bf_ros.core.braking_check``).
 * ``invalid_input``: NaN/Inf in state, nominal input or obstacles; brake.
 """
 import enum
@@ -83,9 +83,9 @@ from typing import Optional
 import numpy as np
 
 from polyc2bf_ros.core.barrier import BarrierTerms
-from polyc2bf_ros.core.braking_check import path_is_clear
+from polyc2bf_ros.core.braking_check import path_clearance
 from polyc2bf_ros.core.cone_models import CONE_AXES, CONE_MODELS, make_cone_model
-from polyc2bf_ros.core.cones import Cones, InflatedCone, PLANE_CONES, PLANE_K, PLANE_ROWS
+from polyc2bf_ros.core.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K, PLANE_ROWS
 from polyc2bf_ros.core.ground import ground_offsets, grounded
 from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
@@ -239,13 +239,12 @@ class Evaluation:
 class _Prepared:
     """Everything per obstacle set that does not change between steps, and row buffers.
 
-    ``count`` obstacle parts; ``footprints`` their polygons grown by the guard radius for
-    the braking check (``cones.PlanarPolygons``; planar models with ``braking_check``, else
-    None); ``velocities`` (N, d) are their c_dot in the
-    robot's d dimensions and ``offsets`` (N, d) how far they moved from where ``views`` has them
-    (zero unless the set is a translation, see ``polyc2bf_ros.core.views``); ``rows_a``
-    (N, m), ``rows_b`` and ``index`` (N,) are scratch space for the QP rows (the first
-    rows of a step are valid).
+    ``count`` obstacle parts; ``footprints`` their polygons for the braking check
+    (``cones.PlanarPolygons``; planar models with ``braking_check``, else None);
+    ``velocities`` (N, d) are their c_dot in the robot's d dimensions and ``offsets``
+    (N, d) how far they moved from where ``views`` has them (zero unless the set is a
+    translation, see ``polyc2bf_ros.core.views``); ``rows_a`` (N, m), ``rows_b`` and
+    ``index`` (N,) are scratch space for the QP rows (the first rows of a step are valid).
     """
 
     count: int
@@ -387,7 +386,9 @@ class SafetyFilter:
         self._braking = bool(self.config.braking_check) and model.position_dim == 2
         self._ground = (float(self.config.ground_z) if model.position_dim == 3
                         and math.isfinite(self.config.ground_z) else None)
-        self._clearance = float(self.config.braking_margin)
+        # The braking check measures paths against the footprints themselves: the robot's
+        # disc keeps braking_margin, i.e. the guarded point guard_radius + braking_margin.
+        self._clearance = self.guard_radius + float(self.config.braking_margin)
         # The step's reference kinematics, refilled each step (it never leaves the step).
         self._reference = ReferenceKinematics.empty(model.position_dim, model.input_dim)
         # What prepared views depend on: the cone model's settings, dimension and radius.
@@ -456,7 +457,7 @@ class SafetyFilter:
             status = FilterStatus.RECOVERING
             message = f'outside the safe set: min h = {min_h:.3g}; driving h back up'
         if self._braking and status in (FilterStatus.OK, FilterStatus.RECOVERING,
-                                        FilterStatus.SLACK):
+                                        FilterStatus.SLACK, FilterStatus.ESCAPE):
             if self._must_brake(state, u, prepared, obstacle_age):
                 u, status = self.model.clip_input(self.model.braking_input(state)), \
                     FilterStatus.BACKUP
@@ -497,21 +498,26 @@ class SafetyFilter:
         return u, slack, status, message, active
 
     def _must_brake(self, state, u, prepared, age):
-        """Return True when braking now is clear and holding ``u`` for one period is not.
+        """Return True when holding ``u`` leaves a less clear way to stop than braking now.
 
-        ``polyc2bf_ros.core.braking_check``: x+ by the midpoint rule over the period with
-        u held (exact for the point mass; an Euler step misplaced it by T^2 a / 2).
+        ``polyc2bf_ros.core.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x));
+        braked only while c(B(x)) > 0 (distances to the footprints less the guard radius).
+        x+ by the midpoint rule over the period with u held (exact for the point mass; an
+        Euler step misplaced it by T^2 a / 2).
         """
         period = self.config.control_period
         middle = state + 0.5 * period * self.model.state_derivative(state, u)
-        after = state + period * self.model.state_derivative(middle, u)
-        return (not self._path_is_clear(after, prepared, age + period)
-                and self._path_is_clear(state, prepared, age))
+        after = self._path_clearance(state + period * self.model.state_derivative(middle, u),
+                                     prepared, age + period)
+        if after >= self._clearance:
+            return False
+        now = self._path_clearance(state, prepared, age)
+        return after < now and now > self.guard_radius
 
-    def _path_is_clear(self, state, prepared, age):
-        """Return True when the braking path from ``state`` keeps the robot's disc clear."""
+    def _path_clearance(self, state, prepared, age):
+        """Return c(B(state)), capped at the margin (``braking_check.path_clearance``)."""
         footprints = prepared.footprints
-        return path_is_clear(
+        return path_clearance(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
             float(age), self.model.braking_path(state, self.config.control_period),
@@ -639,18 +645,8 @@ class SafetyFilter:
             offsets=np.zeros((count, dim)), finite=finite,
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
             index=np.empty(count, dtype=np.intp),
-            footprints=self._braking_polygons(obstacles) if self._braking else None)
-
-    def _braking_polygons(self, obstacles):
-        """Return the footprints grown by the guard radius, as the inflated cones see them.
-
-        The braking check keeps its paths out of the same region where the cones end (the
-        escape region), so a robot braked to rest just clear of it still has its cones.
-        """
-        if isinstance(self.cone_model, InflatedCone):
-            return self._views(obstacles)[0].prepared
-        return InflatedCone(self.guard_radius, self.config.inflation_segments).prepare(
-            obstacles.footprints)
+            footprints=PlanarPolygons.from_batch(obstacles.footprints) if self._braking
+            else None)
 
     def _views(self, obstacles):
         """Return the views of ``obstacles``, prepared once per set and geometry settings."""

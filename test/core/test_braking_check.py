@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.braking_check import path_is_clear
+from polyc2bf_ros.core.braking_check import path_clearance
 from polyc2bf_ros.core.cones import PlanarPolygons
 from polyc2bf_ros.core.geometry import PolygonBatch, signed_distance
 from polyc2bf_ros.core.models import make_model
@@ -45,19 +45,17 @@ def test_point_mass_braking_path_ends_at_rest():
     assert make_model('point_mass_3d').braking_path(np.zeros(6), PERIOD).shape == (1, 3)
 
 
-def _clear_by_brute_force(polygons, velocities, path, age, clearance):
-    for polygon, velocity in zip(polygons, velocities):
-        for k, point in enumerate(path):
-            moved = polygon + (age + (k + 1) * PERIOD) * velocity
-            if signed_distance(point, moved) < clearance:
-                return False
-    return True
+def _clearance_by_brute_force(polygons, velocities, path, age, cutoff):
+    distances = [signed_distance(point, polygon + (age + (k + 1) * PERIOD) * velocity)
+                 for polygon, velocity in zip(polygons, velocities)
+                 for k, point in enumerate(path)]
+    return min(cutoff, min(distances))
 
 
 @settings(max_examples=examples(150), deadline=None)
 @given(polygons=st.lists(convex_polygons(centre_range=3.0), min_size=1, max_size=4),
-       seed=st.integers(0, 2 ** 32 - 1), clearance=st.floats(0.0, 0.5))
-def test_path_clearance_matches_brute_force(polygons, seed, clearance):
+       seed=st.integers(0, 2 ** 32 - 1), cutoff=st.floats(0.0, 0.5))
+def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     """The kernel (bounding-box pruning included) agrees with point-polygon distances."""
     rng = np.random.default_rng(seed)
     start, heading = rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)
@@ -67,14 +65,11 @@ def test_path_clearance_matches_brute_force(polygons, seed, clearance):
     velocities = rng.uniform(-0.5, 0.5, (len(polygons), 2)) * rng.integers(0, 2)
     age = float(rng.uniform(0.0, 0.2))
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
-    answer = path_is_clear(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
-                           prepared.inv_sq, prepared.counts, velocities,
-                           np.zeros_like(velocities), age, path, PERIOD, clearance)
-    expected = _clear_by_brute_force(polygons, velocities, path, age, clearance)
-    distances = [signed_distance(p, poly + (age + (k + 1) * PERIOD) * v)
-                 for poly, v in zip(polygons, velocities) for k, p in enumerate(path)]
-    if abs(min(distances) - clearance) > 1e-9:  # not on the boundary of the test
-        assert answer == expected
+    answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                            prepared.inv_sq, prepared.counts, velocities,
+                            np.zeros_like(velocities), age, path, PERIOD, cutoff)
+    expected = _clearance_by_brute_force(polygons, velocities, path, age, cutoff)
+    assert answer == pytest.approx(expected, abs=1e-9)
 
 
 def _wall_ahead_filter(check):
@@ -88,17 +83,14 @@ def _wall_ahead_filter(check):
 def test_filter_brakes_when_the_input_would_leave_no_clear_stop():
     """Closing on a wall at the fastest speed that can still brake to rest clear of it.
 
-    The wall grown by the guard radius (0.2 m + offset 0.01 m, as the inflated cones see
-    it) starts at x ~ 0.79.  A short horizon (0.1 s) and gamma = 5 let the barrier accept
-    accelerating on; one more period at that speed leaves too little room to stop, so the
-    check brakes now.
+    The disc about the guarded point (0.2 m + offset 0.01 m) touches the wall's face at
+    x = 0.79.  A short horizon (0.1 s) and gamma = 5 let the barrier accept accelerating
+    on; one more period at that speed leaves too little room to stop, so the check brakes.
     """
     model = make_model('unicycle', offset_l=0.01, max_accel=2.0)
     filt, obstacles = _wall_ahead_filter(True)
-    grown = filt.cone_model.prepare(obstacles.footprints)
-    face = grown.x[0, :grown.counts[0]].min()
-    assert 0.78 < face < 0.79
-    limit = face - FilterConfig().braking_margin
+    assert filt.guard_radius == pytest.approx(0.21)
+    limit = 1.0 - filt.guard_radius - FilterConfig().braking_margin
 
     def stops_clear(state):
         return model.braking_path(state, PERIOD)[-1, 0] < limit

@@ -1,0 +1,70 @@
+"""LaserScans in the obstacle pipeline, without DDS: checks, frames, and marker + scan sets."""
+import math
+
+import pytest
+from rclpy.serialization import serialize_message
+
+from node_harness import markers, wall
+from polyc2bf_ros.core.safety_filter import FilterConfig
+from polyc2bf_ros.obstacle_intake import (
+    IntakeSettings,
+    ObstacleJob,
+    ObstaclePipeline,
+    scan_obstacles,
+)
+from test_node_scan import _scan
+
+SPEC = ('unicycle', FilterConfig())
+POSE = (0.0, 0.0, 0.0)
+
+
+def _data(**kwargs):
+    return serialize_message(_scan(**kwargs))
+
+
+def test_bad_scans_are_refused_with_the_reason():
+    """No odometry, NaN angles, mismatched intensities, all-NaN ranges: ValueError."""
+    settings = IntakeSettings()
+    with pytest.raises(ValueError, match='no odometry'):
+        scan_obstacles(_data(wall_x=1.0), None, 'base_link', settings, 0.3)
+    msg = _scan(wall_x=1.0)
+    msg.angle_increment = math.nan
+    with pytest.raises(ValueError, match='angle_increment'):
+        scan_obstacles(serialize_message(msg), POSE, 'base_link', settings, 0.3)
+    msg = _scan(wall_x=1.0)
+    msg.intensities = [1.0, 2.0]
+    with pytest.raises(ValueError, match='intensities'):
+        scan_obstacles(serialize_message(msg), POSE, 'base_link', settings, 0.3)
+    with pytest.raises(ValueError, match='all NaN'):
+        scan_obstacles(_data(nan=True), POSE, 'base_link', settings, 0.3)
+    with pytest.raises(ValueError, match='malformed'):
+        scan_obstacles(b'\x00\x01\x00\x00\x01', POSE, 'base_link', settings, 0.3)
+
+
+def test_sensor_pose_applies_to_scans_in_another_frame():
+    """A scan in the base frame is at the base; in ``laser`` it is at ``sensor_pose``."""
+    settings = IntakeSettings(sensor_pose=(0.5, 0.0, 0.0))
+    at_base = scan_obstacles(_data(wall_x=1.0), POSE, 'base_link', settings, 0.3)
+    at_sensor = scan_obstacles(_data(wall_x=1.0, frame='laser'), POSE, 'base_link', settings,
+                               0.3)
+    assert at_base and at_sensor
+    assert min(o.polygon[:, 0].min() for o in at_base) == pytest.approx(1.0, abs=0.06)
+    assert min(o.polygon[:, 0].min() for o in at_sensor) == pytest.approx(1.5, abs=0.06)
+
+
+def test_pipeline_combines_markers_and_scans_and_keeps_a_topic_on_a_bad_scan():
+    """Keys prefixed by the topic; a rejected scan keeps the topic's obstacles and counts."""
+    pipeline = ObstaclePipeline()
+    marker = serialize_message(markers(wall([(5.0, -1.0), (5.0, 1.0)])))
+    job = ObstacleJob([(marker, 1.0)], 'odom', IntakeSettings(), SPEC, 1.0,
+                      (('scan', _data(wall_x=1.0), 1.0, POSE, 'base_link'),))
+    snapshot = pipeline.run(job)
+    keys = snapshot.obstacles.keys
+    assert 'walls/0' in keys and any(k.startswith('scan:scan/') for k in keys)
+    assert pipeline.scan_status['scan'].accepted == 1.0 and snapshot.usable
+    bad = ObstacleJob([], 'odom', IntakeSettings(), SPEC, 2.0,
+                      (('scan', _data(nan=True), 2.0, POSE, 'base_link'),))
+    again = pipeline.run(bad)
+    assert again.obstacles.keys == keys
+    status = pipeline.scan_status['scan']
+    assert (status.accepted, status.received, status.rejected) == (1.0, 2.0, 1)
