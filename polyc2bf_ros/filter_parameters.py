@@ -72,6 +72,14 @@ NODE_PARAMETERS = {
                             "only) or 'circulate' (unicycle: the nominal is steered along the "
                             'blocking obstacle, core/circulation.py; no constraint is relaxed)',
                             False),
+    'scan_timeout': (1.0, (0.0, 3600.0), 'LaserScan sources (scan_topics) older than this [s] '
+                     '-> stop; 0 = never stale once received', True),
+    'sensor_pose': ([0.0, 0.0, 0.0], None, '[x, y, yaw] of the laser in the odometry child '
+                    'frame (base_link), used for scans in any other frame', False),
+    'scan_cluster_tolerance': (0.15, (0.06, 10.0), 'largest gap [m] between neighbouring scan '
+                               'endpoints of one obstacle (core/scan_obstacles.py)', False),
+    'scan_footprint_radius': (-1.0, (-1.0, 10.0), 'scan endpoints this close [m] to the base '
+                              'are the robot itself; negative: filter.robot_radius', False),
 }
 
 # FilterConfig field: ((min, max) or None, description); control_period comes from rate.

@@ -25,11 +25,19 @@ lock keeps the control thread waiting for a whole time slice on a loaded machine
 process now does only queueing, one unpickle per pass and its control steps, and the
 worker runs at niceness ``WORKER_NICENESS``, so the control thread wins the CPU.
 
+LaserScans (``submit_scan``, the node's ``scan_topics``) take the same path: the newest
+scan per topic is queued serialized with the robot pose of the latest odometry, and the
+worker reads, checks and converts it (``core.scan_obstacles.scan_to_obstacles``, in
+``scan_obstacles``).  A topic's obstacles (keys ``<topic>:scan/<i>``) replace its previous
+ones and join the marker obstacles in one ``ObstacleSet``; a rejected scan keeps them and
+is reported in ``scan_status``.
+
 If the worker process dies, the obstacles it held are lost: the snapshot stays unusable
 (the node brakes, with the reason in its diagnostics) until the node is restarted.
 ``process`` waits until everything submitted before the call (messages, frame, settings)
 has been processed (tests, tools); without ``start`` it runs the pipeline in the caller.
 """
+import dataclasses
 import math
 import os
 import pickle
@@ -39,6 +47,8 @@ import sys
 import threading
 from typing import NamedTuple
 
+import numpy as np
+
 from polyc2bf_ros import cdr_reader, marker_obstacles
 from polyc2bf_ros.core.decision import ObstacleSnapshot
 from polyc2bf_ros.core.models import make_model
@@ -46,6 +56,7 @@ from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import SafetyFilter
+from polyc2bf_ros.core.scan_obstacles import scan_to_obstacles, ScanSettings
 
 MAX_OBSTACLES = 1000
 _PROTOCOL = pickle.HIGHEST_PROTOCOL
@@ -59,12 +70,26 @@ class IntakeSettings(NamedTuple):
     max_vertices: int = MAX_VERTICES
     max_parts: int = MAX_PARTS
     max_obstacles: int = MAX_OBSTACLES
+    sensor_pose: tuple = (0.0, 0.0, 0.0)
+    scan_cluster_tolerance: float = 0.15
+    scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
+
+
+class ScanStatus(NamedTuple):
+    """One scan topic: receipt times of its last accepted and last scan, rejections."""
+
+    accepted: object = None
+    received: object = None
+    rejected: int = 0
+    reason: str = ''
 
 
 class ObstacleJob(NamedTuple):
     """One pass: messages [(data, received)], odometry frame, settings, filter, stamp [s].
 
     ``data`` is a serialized MarkerArray, or a MarkerArray message (offline replay).
+    ``scans``: the newest scan per topic, ``(topic, data, received, robot pose (x, y, yaw) or
+    None, odometry child frame)``.
     """
 
     messages: list
@@ -72,6 +97,7 @@ class ObstacleJob(NamedTuple):
     settings: IntakeSettings
     filter_spec: tuple
     now: float
+    scans: tuple = ()
 
 
 class ObstaclePipeline:
@@ -83,6 +109,8 @@ class ObstaclePipeline:
         self._unreadable = ''
         self._received = None
         self._filter_spec = self._filter = None
+        self._scans = {}  # topic: its obstacles
+        self.scan_status = {}  # topic: ScanStatus
 
     def run(self, job):
         """Process one ``ObstacleJob``; return the ``ObstacleSnapshot``."""
@@ -97,6 +125,8 @@ class ObstaclePipeline:
             self._unreadable, self._received = '', received
         settings, tracker = job.settings, self._tracker
         dim = self._filter_for(job.filter_spec).model.position_dim
+        for scan in job.scans:
+            self._take_scan(*scan, settings, job.filter_spec[1].robot_radius)
         marker_obstacles.apply_markers(
             tracker, cdr_reader.MarkerArrayView(tuple(marker_obstacles.conflate_markers(markers))),
             job.now, settings.wall_thickness, settings.cylinder_sides,
@@ -104,8 +134,11 @@ class ObstaclePipeline:
         obstacles, t_ref, wrong_frame, error = ObstacleSet.empty(), math.nan, {}, ''
         if job.frame is not None:
             try:
-                obstacles, t_ref, wrong_frame = tracker.obstacle_set(
-                    job.frame, dim, settings.max_parts, settings.max_obstacles)
+                if self._scans:
+                    obstacles, t_ref, wrong_frame = self._combined(job.frame, dim, settings)
+                else:
+                    obstacles, t_ref, wrong_frame = tracker.obstacle_set(
+                        job.frame, dim, settings.max_parts, settings.max_obstacles)
                 self._filter.prepare(obstacles)
             except ValueError as exc:
                 obstacles, error = ObstacleSet.empty(), f'obstacle set could not be built: {exc}'
@@ -115,6 +148,29 @@ class ObstaclePipeline:
             unreadable=self._unreadable, error=error, tracked=len(tracker),
             simplified=tracker.simplified, hulled=obstacles.capped)
 
+    def _combined(self, frame, dim, settings):
+        """Return (markers and scans as one ``ObstacleSet``, t_ref, wrong_frame)."""
+        markers, t_ref, wrong_frame = self._tracker.snapshot(frame, dim)
+        obstacles = markers + [o for scan in self._scans.values() for o in scan]
+        result = ObstacleSet.from_obstacles(obstacles, settings.max_parts)
+        if len(result) > settings.max_obstacles:
+            raise ValueError(f'{len(result)} obstacle parts exceed max_obstacles '
+                             f'({settings.max_obstacles})')
+        return result, t_ref, wrong_frame
+
+    def _take_scan(self, topic, data, received, robot_pose, base_frame, settings, radius):
+        """Convert one serialized LaserScan of ``topic``; a bad one is counted, not used."""
+        status = self.scan_status.get(topic, ScanStatus())
+        try:
+            obstacles = scan_obstacles(data, robot_pose, base_frame, settings, radius)
+        except ValueError as exc:
+            self.scan_status[topic] = status._replace(
+                received=received, rejected=status.rejected + 1, reason=str(exc))
+            return
+        self._scans[topic] = [dataclasses.replace(o, key=f'{topic}:{o.key}')
+                              for o in obstacles]
+        self.scan_status[topic] = status._replace(accepted=received, received=received)
+
     def _filter_for(self, spec):
         """Return the filter to prepare sets for: ``spec`` = (model name, config)."""
         if spec != self._filter_spec:
@@ -123,13 +179,48 @@ class ObstaclePipeline:
         return self._filter
 
 
-def _encode(snapshot, last_base):
+def scan_obstacles(data, robot_pose, base_frame, settings, robot_radius):
+    """Return the obstacles of a serialized LaserScan; ValueError says why it is unusable.
+
+    ``robot_pose`` (x, y, yaw): the base in the odometry frame (None: no odometry yet); a
+    scan in another frame than ``base_frame`` (the odometry child frame) was taken at
+    ``settings.sensor_pose``.  Every range NaN is refused (no measurement at all).
+    """
+    # Imported on the first scan: a worker without scan input does not pay for them.
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import LaserScan
+    if robot_pose is None:
+        raise ValueError('no odometry yet: the robot pose at the scan is unknown')
+    try:
+        scan = deserialize_message(data, LaserScan)
+    except Exception as exc:  # noqa: BLE001 - any decoding failure is a malformed message
+        raise ValueError(f'malformed LaserScan: {exc}') from None
+    ranges = scan.ranges
+    if len(ranges) == 0:
+        raise ValueError('LaserScan without ranges')
+    if len(scan.intensities) not in (0, len(ranges)):
+        raise ValueError(f'LaserScan with {len(ranges)} ranges but {len(scan.intensities)} '
+                         'intensities')
+    ranges = np.asarray(ranges, dtype=np.float64)
+    if np.isnan(ranges).all():
+        raise ValueError('LaserScan whose ranges are all NaN')
+    frame = scan.header.frame_id.lstrip('/')
+    sensor_pose = (0.0, 0.0, 0.0) if frame == base_frame else tuple(settings.sensor_pose)
+    radius = settings.scan_footprint_radius
+    scan_settings = ScanSettings(cluster_tolerance=float(settings.scan_cluster_tolerance),
+                                 footprint_radius=float(robot_radius if radius < 0 else radius))
+    return scan_to_obstacles(ranges, scan.angle_min, scan.angle_increment, scan.range_min,
+                             scan.range_max, sensor_pose, robot_pose, scan_settings)
+
+
+def _encode(snapshot, last_base, scan_status=None):
     """Pickle a snapshot; a translation of ``last_base`` goes as its offsets and velocities."""
     obstacles = snapshot.obstacles
     if last_base is not None and obstacles.base is last_base:
         moved = (obstacles.offsets, obstacles.velocities)
-        return pickle.dumps((True, moved, _replace(snapshot, ObstacleSet.empty())), _PROTOCOL)
-    return pickle.dumps((False, None, snapshot), _PROTOCOL)
+        return pickle.dumps((True, moved, _replace(snapshot, ObstacleSet.empty()), scan_status),
+                            _PROTOCOL)
+    return pickle.dumps((False, None, snapshot, scan_status), _PROTOCOL)
 
 
 def _replace(snapshot, obstacles):
@@ -149,7 +240,7 @@ def serve(inbox, outbox):
         except EOFError:
             return 0
         snapshot = pipeline.run(job)
-        payload = _encode(snapshot, last_base)
+        payload = _encode(snapshot, last_base, pipeline.scan_status)
         obstacles = snapshot.obstacles
         last_base = obstacles.base if obstacles.base is not None else obstacles
         try:
@@ -173,6 +264,7 @@ class ObstacleIntake:
         self._settings = settings
         self._frame = None
         self._pending = []
+        self._scans = {}  # topic: the newest scan not yet processed
         self._generation = self._done = 0  # inputs given / processed
         self._dirty = False
         self._failed = ''
@@ -184,6 +276,7 @@ class ObstacleIntake:
         self._feeder = self._worker = None
         self._pipeline = ObstaclePipeline()  # in-line, before ``start``
         self._base = None
+        self.scan_status = {}  # topic: ScanStatus, as of the newest pass
         self.snapshot = ObstacleSnapshot()
 
     def configure(self, settings, filter_spec):
@@ -204,6 +297,17 @@ class ObstacleIntake:
         """Queue one serialized MarkerArray received at monotonic time ``received``."""
         with self._lock:
             self._pending.append((data, received))
+            self._generation += 1
+        self._wake.set()
+
+    def submit_scan(self, topic, data, received, robot_pose, base_frame):
+        """Queue a serialized LaserScan of ``topic`` (replacing one not yet processed).
+
+        ``robot_pose``: (x, y, yaw) of the latest odometry, or None; ``base_frame``: its
+        child frame.
+        """
+        with self._lock:
+            self._scans[topic] = (topic, data, received, robot_pose, base_frame)
             self._generation += 1
         self._wake.set()
 
@@ -248,6 +352,7 @@ class ObstacleIntake:
             job, _ = self._take()
             if job is not None:
                 self.snapshot = self._pipeline.run(job)
+                self.scan_status = dict(self._pipeline.scan_status)
             return self.snapshot
         with self._progress:
             target = self._generation
@@ -258,11 +363,12 @@ class ObstacleIntake:
         """Return (the next ``ObstacleJob``, or None if there is nothing to do; generation)."""
         with self._lock:
             messages, self._pending = self._pending, []
+            scans, self._scans = tuple(self._scans.values()), {}
             dirty, self._dirty = self._dirty, False
-            if not messages and not dirty:
+            if not messages and not scans and not dirty:
                 return None, self._generation
             job = ObstacleJob(messages, self._frame, self._settings, self._filter_spec,
-                              self._now())
+                              self._now(), scans)
             return job, self._generation
 
     def _feed(self):
@@ -272,8 +378,10 @@ class ObstacleIntake:
             job, generation = (None, 0) if self._stopping else self._take()
             if job is None:
                 continue
-            snapshot = self._run_in_worker(job)
+            snapshot, scan_status = self._run_in_worker(job)
             with self._progress:
+                if scan_status is not None:
+                    self.scan_status = scan_status
                 self.snapshot = snapshot
                 self._done = generation
                 self._progress.notify_all()
@@ -281,27 +389,28 @@ class ObstacleIntake:
                 self._on_snapshot()
 
     def _run_in_worker(self, job):
-        """Send one job to the worker process and decode its answer; unusable if it died."""
+        """Send one job to the worker; return (snapshot, scan status); unusable if it died."""
         if self._failed:
-            return ObstacleSnapshot(error=self._failed)
+            return ObstacleSnapshot(error=self._failed), None
         try:
             if self._worker is None:
                 self._start_worker()
             pickle.dump(job, self._worker.stdin, _PROTOCOL)
             self._worker.stdin.flush()
             size = int.from_bytes(_read_exactly(self._worker.stdout, 8), 'little')
-            moved, offsets, snapshot = pickle.loads(_read_exactly(self._worker.stdout, size))
+            moved, offsets, snapshot, scan_status = pickle.loads(
+                _read_exactly(self._worker.stdout, size))
         except Exception as exc:  # noqa: BLE001 - any failure of the worker is the same fault
             self._stop_worker()
             self._failed = (f'obstacle worker process failed ({exc}): the obstacles it held are '
                             'lost; braking until the node is restarted')
-            return ObstacleSnapshot(error=self._failed)
+            return ObstacleSnapshot(error=self._failed), None
         if moved:
             snapshot = _replace(snapshot, self._base.translated(*offsets))
         else:
             obstacles = snapshot.obstacles
             self._base = obstacles.base if obstacles.base is not None else obstacles
-        return snapshot
+        return snapshot, scan_status
 
     def _start_worker(self):
         self._worker = subprocess.Popen(

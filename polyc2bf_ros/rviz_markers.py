@@ -16,13 +16,16 @@ def filter_markers(frame, stamp, footprints, active, apex=None, cones=None):
     """``MarkerArray`` for RViz/Foxglove: obstacle parts (red = active constraint) and cones.
 
     ``footprints`` is the filter's ``PolygonBatch`` (at the obstacles' stamp),
-    ``active`` the indices of the active rows.  Cones are drawn when
+    ``active`` the indices of the active rows (indices past the footprints are parts the
+    filter added itself, the ground of ``FilterConfig.ground_z``: not drawn).  Cones are
+    drawn when
     ``cones`` (axis ``p`` and boundary ray ``k`` as (2, N) planar vectors) and the
     ``apex`` are given: the rays ``k`` and its mirror ``2 <k, p_hat> p_hat - k``.
     The first marker is a DELETEALL, so parts that disappeared vanish.
     """
     is_active = np.zeros(len(footprints), dtype=bool)
-    is_active[np.asarray(active, dtype=int)] = True
+    active = np.asarray(active, dtype=int)
+    is_active[active[active < len(footprints)]] = True
     markers = [Marker(action=Marker.DELETEALL)]
     for i in range(len(footprints)):
         ring = footprints.vertices[i, :footprints.counts[i]]

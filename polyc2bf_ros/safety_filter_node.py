@@ -33,6 +33,9 @@ readable one arrives.  With ``block_if_invalid`` (default, as Nav2's collision
 monitor) rejected obstacles (wrong frame, unusable) are not fresh data: the
 obstacles go stale after ``obstacles_timeout`` and the node stops (at once with
 timeout 0).
+LaserScans on ``scan_topics`` take the same worker (``obstacle_intake``, with the pose of
+the latest odometry): their obstacles join the markers', each topic with its own
+``scan_timeout`` watchdog.
 
 Stall guard: if no control step or tick has run for ``stall_timeout`` (steady
 clock), a separate thread publishes the stop and the node's status at level
@@ -43,6 +46,11 @@ Deadlock: when the filter has held the robot in place against its nominal comman
 (std_msgs/Bool, reliable + transient local, published on every change) turns true and
 ``/diagnostics`` says so at WARN, for a planner or behaviour tree to act on (replan,
 back up).  The node itself keeps filtering: a report changes no command.
+
+State: ``~/state`` (diagnostic_msgs/DiagnosticStatus, reliable + transient local) says
+what the last step did (``filter_state``: pass, limit, stop, fallback, deadlock,
+disabled), at 10 Hz and at once when that changes; the closest-obstacle distance it
+carries is computed only then, not per step.
 
 Hot path: odometry and commands are taken serialized and only the fields used
 are read (``conversions``, CDR section); the answer is a copy of the command's
@@ -64,14 +72,16 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidHandle
+from rclpy.exceptions import InvalidHandle, ParameterUninitializedException
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import LaserScan
 from std_msgs.msg import Bool
 from std_srvs.srv import SetBool
 from visualization_msgs.msg import MarkerArray
 
-from polyc2bf_ros import conversions, diagnostics, rviz_markers
+from polyc2bf_ros import conversions, diagnostics, filter_state, rviz_markers
 from polyc2bf_ros.core.command_interface import VELOCITY_MODELS
 from polyc2bf_ros.core.decision import ControlDecision
 from polyc2bf_ros.core.models import MODEL_NAMES, MODELS
@@ -92,6 +102,7 @@ from polyc2bf_ros.stall_guard import StallGuard
 _STEADY = ClockType.STEADY_TIME
 _DIAGNOSTICS_PERIOD = 1.0
 _MARKERS_PERIOD = 0.1
+_STATE_PERIOD = 0.1
 _STALL_CHECKS_PER_TIMEOUT = 4
 _FALLBACKS = ('slack', 'brake', 'escape', 'backup')
 _INFEASIBLE = ('slack', 'brake')
@@ -113,6 +124,7 @@ class SafetyFilterNode(Node):
                              f'got {self._model_name!r}')
         self._declare_model_and_filter_parameters()
         settings = build_settings(self._parameter_values())
+        self._scan_watchdogs = self._scan_sources(settings)
         self._model = settings.command_filter.model
         self._stamped = self.get_parameter('stamped').value
         self._per_command = settings.per_command
@@ -124,10 +136,12 @@ class SafetyFilterNode(Node):
         # Command messages with a header: TwistStamped (stamped:=true) and WrenchStamped.
         self._has_header = self._stamped or not velocity
 
-        self._decision = ControlDecision(settings.command_filter, settings.timeouts,
+        self._decision = ControlDecision(settings.command_filter, self._timeouts(settings),
                                          settings.block_if_invalid, settings.max_extrapolation,
                                          settings.deadlock, settings.resolution)
         self._deadlocked = None  # last state published on ~/deadlock
+        self._state = None  # (action, status, active constraints) of the last step
+        self._state_published = None  # the action last published on ~/state
         self._obstacles_ready = self.create_guard_condition(self._answer_if_ready)
         self._intake = ObstacleIntake(self._filter_spec(settings),
                                       lambda: self.get_clock().now().nanoseconds * 1e-9,
@@ -138,6 +152,10 @@ class SafetyFilterNode(Node):
         self._apply(settings)
         self._odom_frame = None
         self._odom_frame_raw = None
+        self._child_frame_raw = None
+        self._child_frame = ''
+        self._scan_fed = {}  # topic: receipt time last fed to its watchdog
+        self._scan_rejected = {}  # topic: rejections reported so far
         self._cmd = None  # the last readable nominal command (its bytes carry the answer)
         self._last_info = None
         self._reported = dict(self._decision.counts)
@@ -169,6 +187,11 @@ class SafetyFilterNode(Node):
         self.create_subscription(MarkerArray, 'obstacles', self._on_obstacles, latched_qos,
                                  raw=True)
         self.create_subscription(Odometry, 'odom', self._on_odom, sensor_qos, raw=True)
+        scan_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+        for topic in self._scan_watchdogs:
+            self.create_subscription(
+                LaserScan, topic, lambda data, topic=topic: self._on_scan(topic, data),
+                scan_qos, raw=True)
         self.create_subscription(command_type, command_in, self._on_command, command_qos,
                                  raw=True)
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
@@ -177,12 +200,19 @@ class SafetyFilterNode(Node):
             Bool, '~/deadlock', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self._report_deadlock(False)
+        self._state_pub = self.create_publisher(
+            DiagnosticStatus, '~/state',
+            QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self._state_name = f'{self.get_fully_qualified_name()}: state'
+        self._velocity = velocity
         self.create_service(SetBool, '~/enable', self._on_enable)
 
         callback = self._on_watchdog if self._per_command else self._on_timer
         self._timer = self.create_timer(settings.tick, callback, clock=steady)
         self.create_timer(_DIAGNOSTICS_PERIOD, self._publish_diagnostics, clock=steady)
         self.create_timer(_MARKERS_PERIOD, self._publish_markers, clock=steady)
+        self.create_timer(_STATE_PERIOD, self._publish_state, clock=steady)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._parameters_changed)
         self._intake.start()
@@ -203,6 +233,27 @@ class SafetyFilterNode(Node):
         for name in FILTER_FIELDS:
             bounds, text = FILTER_PARAMETERS[name]
             self._declare(f'filter.{name}', getattr(defaults, name), bounds, text, False)
+
+    def _scan_sources(self, settings):
+        """Declare ``scan_topics`` (read-only); return ``{topic: its watchdog name}``."""
+        self.declare_parameter('scan_topics', Parameter.Type.STRING_ARRAY, ParameterDescriptor(
+            name='scan_topics', read_only=True, description='sensor_msgs/LaserScan topics to '
+            'take obstacles from (empty: none); each has its own scan_timeout watchdog'))
+        try:
+            topics = list(self.get_parameter('scan_topics').value)
+        except ParameterUninitializedException:
+            topics = []
+        topics = list(dict.fromkeys(t for t in topics if t))
+        self._scan_timeout = float(self.get_parameter('scan_timeout').value)
+        if topics and 0.0 < self._scan_timeout <= settings.period:
+            raise ValueError(f'scan_timeout ({self._scan_timeout:g} s) must exceed the control '
+                             f'period ({settings.period:g} s), or be 0')
+        return {topic: 'scan_' + topic.strip('/').replace('/', '_') for topic in topics}
+
+    def _timeouts(self, settings):
+        """Return the watchdog timeouts: odometry, command, obstacles and one per scan topic."""
+        return {**settings.timeouts,
+                **dict.fromkeys(self._scan_watchdogs.values(), self._scan_timeout)}
 
     def _declare(self, name, default, bounds, description, read_only):
         """Declare one parameter with its description and range."""
@@ -230,7 +281,7 @@ class SafetyFilterNode(Node):
         self._filter = settings.command_filter
         self._barrier = self._filter.safety_filter.config.barrier
         self._period = settings.period
-        self._decision.configure(settings.command_filter, settings.timeouts,
+        self._decision.configure(settings.command_filter, self._timeouts(settings),
                                  settings.block_if_invalid, settings.max_extrapolation,
                                  settings.deadlock, settings.resolution)
         self._intake.configure(settings.intake, self._filter_spec(settings))
@@ -275,6 +326,9 @@ class SafetyFilterNode(Node):
             self._odom_frame_raw = frame
             self._odom_frame = frame.decode(errors='replace').lstrip('/')
             self._intake.set_frame(self._odom_frame)
+        if odom.child_frame != self._child_frame_raw:
+            self._child_frame_raw = odom.child_frame
+            self._child_frame = odom.child_frame.decode(errors='replace').lstrip('/')
         if self._waiting:
             # The answer uses this odometry: and the obstacles as of it (a new frame).
             self._obstacles_needed = self._intake.generation
@@ -323,6 +377,28 @@ class SafetyFilterNode(Node):
         """Queue a serialized MarkerArray for the obstacle worker (``obstacle_intake``)."""
         self._intake.submit(data, time.monotonic())
 
+    def _on_scan(self, topic, data):
+        """Queue a serialized LaserScan with the latest odometry's pose (``obstacle_intake``)."""
+        state = self._decision.state
+        pose = None if state is None else (state[0], state[1], self._decision.yaw)
+        self._intake.submit_scan(topic, data, time.monotonic(), pose, self._child_frame)
+
+    def _take_scans(self):
+        """Feed each scan topic's watchdog with its accepted scans; log rejected ones.
+
+        Under ``block_if_invalid`` only accepted scans are fresh data, as for markers.
+        """
+        block = self._decision.block_if_invalid
+        for topic, status in self._intake.scan_status.items():
+            fresh = status.accepted if block else status.received
+            if fresh is not None and fresh != self._scan_fed.get(topic):
+                self._scan_fed[topic] = fresh
+                self._decision.watchdog.feed(self._scan_watchdogs[topic], fresh)
+            if status.rejected != self._scan_rejected.get(topic, 0):
+                self._scan_rejected[topic] = status.rejected
+                self._log.error(f'rejected LaserScan on {topic!r}: {status.reason} (its last '
+                                'obstacles kept; stop once it is stale)', throttle_s=1.0)
+
     def _obstacles_processed(self):
         """Feeder thread, after each pass: wake a command that waits for its obstacles.
 
@@ -341,6 +417,8 @@ class SafetyFilterNode(Node):
         if snapshot is previous:
             return snapshot
         self._decision.obstacles(snapshot)
+        if self._scan_watchdogs:
+            self._take_scans()
         if snapshot.received != previous.received or snapshot.unreadable != previous.unreadable:
             if snapshot.unreadable:
                 self._bad_message(f'obstacles ({snapshot.unreadable})')
@@ -407,10 +485,12 @@ class SafetyFilterNode(Node):
         if action == 'stop':
             self._publish_stop(cmd, decision.command)
             self._report_deadlock(False)
+            self._note_state(decision)
             return
         if action == 'pass':
             self._publish(cmd.data)
             self._report_deadlock(False)
+            self._note_state(decision)
             return
         info = decision.info
         # A refused step returns the stop: nothing of the nominal command is kept then.
@@ -422,6 +502,14 @@ class SafetyFilterNode(Node):
         self._last_info = info
         self._min_h = min(self._min_h, info.min_h)
         self._latency.add(time.perf_counter() - start)
+        self._note_state(decision)
+
+    def _note_state(self, decision):
+        """Keep the step's ``~/state`` (``filter_state``); publish it now if the action changed."""
+        self._state = filter_state.classify(self._decision.enabled, decision,
+                                            self._decision.command_vector, self._velocity)
+        if self._state[0] != self._state_published:
+            self._publish_state()
 
     def _report_deadlock(self, deadlocked):
         """Publish ``~/deadlock`` (latched) when the detector's verdict changes."""
@@ -490,6 +578,7 @@ class SafetyFilterNode(Node):
             'deadlocked': str(bool(self._deadlocked)).lower(),
             'deadlocks': decision.deadlock.onsets,
             'deadlock_held_s': f'{decision.deadlock.held_s(now):.2f}',
+            **self._scan_values(),
             **{f'rejected {key}': reason for key, reason in sorted(rejected.items())},
         }
         self._min_h = math.inf
@@ -531,6 +620,31 @@ class SafetyFilterNode(Node):
         self._diagnostics_pub.publish(diagnostics.diagnostic_array(
             self.get_clock().now().to_msg(), self._status_name, self._model_name, level,
             message, values))
+
+    def _publish_state(self):
+        """Publish ``~/state`` (latched) for the last step; nothing before the first step."""
+        state = self._state
+        if state is None:
+            return
+        action, status, active = state
+        position = None
+        if self._decision.state is not None:
+            position = self._model.reference(np.asarray(self._decision.state)).position
+        closest = filter_state.closest_obstacle(position, self._decision.snapshot.obstacles)
+        self._state_published = action
+        self._state_pub.publish(filter_state.state_status(
+            self._state_name, self._model_name, action, status, active, closest,
+            self._deadlocked))
+
+    def _scan_values(self):
+        """Diagnostics of the scan topics: rejections and the last reason, per topic."""
+        values = {}
+        for topic in self._scan_watchdogs:
+            status = self._intake.scan_status.get(topic)
+            values[f'scans_rejected {topic}'] = 0 if status is None else status.rejected
+            if status is not None and status.reason:
+                values[f'last_scan_rejection {topic}'] = status.reason
+        return values
 
     def destroy_node(self):
         """Stop the obstacle worker and the stall guard, then destroy the node."""

@@ -506,6 +506,10 @@ def test_filter_markers_and_diagnostics():
     outline, cone = drawn.markers[1:]
     assert outline.color.r > 0.5 and len(outline.points) == 5
     assert [(p.x, p.y) for p in cone.points] == [(0, 0), (1, 1), (0, 0), (1, -1)]
+    # The ground part the filter adds (index past the footprints) is active but not drawn.
+    grounded = rviz_markers.filter_markers('odom', odometry().header.stamp,
+                                           obstacles.footprints, active=[1])
+    assert [m.color.r < 0.5 for m in grounded.markers[1:]] == [True]
     array = diagnostics.diagnostic_array(odometry().header.stamp, 'f', 'unicycle', b'\x01',
                                          'msg', {'a': 1, 'b': 'x'})
     [status] = array.status
