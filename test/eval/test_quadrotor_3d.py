@@ -4,16 +4,26 @@ Lockstep, in process (``run_in_process``), the shipped quadrotor config (``groun
 ``robot_radius`` around the centre of mass).  The simulator measures the body's collision
 cylinder, and counts touching the floor as a collision (``SimWorld.min_clearance``).
 """
+import dataclasses
+
 import pytest
 
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluate import summarise
+from sim_bridge.scenario import load_scenario
 
 
-@pytest.mark.parametrize('scenario', ['quadrotor_slab', 'quadrotor_floor_wall',
-                                      'quadrotor_window'])
-def test_no_collision_and_no_floor_contact(scenario):
-    """Slab across the way, wall on the floor, window: never touched, floor included."""
+@pytest.mark.parametrize('rate', [None, 100.0])
+@pytest.mark.parametrize('name', ['quadrotor_slab', 'quadrotor_floor_wall',
+                                  'quadrotor_window'])
+def test_no_collision_and_no_floor_contact(name, rate):
+    """Slab across the way, wall on the floor, window: never touched, floor included.
+
+    At the scenarios' rate (120 Hz) and at 100 Hz (physics at 1 kHz, so that it divides).
+    """
+    scenario = load_scenario(name)
+    if rate is not None:
+        scenario = dataclasses.replace(scenario, physics_rate=1000.0, control_rate=rate)
     run = run_in_process(scenario, 'polyc2bf_horizon')
     record = summarise(run, {'cf': 10.0})
     assert not record['collision']
