@@ -515,9 +515,13 @@ class SafetyFilter:
         return after < now and now > self.guard_radius
 
     def _path_clearance(self, state, prepared, age):
-        """Return c(B(state)), capped at the margin (``braking_check.path_clearance``)."""
+        """Return c(B(state)), capped at the margin (``braking_check.path_clearance``).
+
+        Unchecked kernel: the footprints, velocities and offsets are the filter's own and
+        the path a fresh C-contiguous float64 array.
+        """
         footprints = prepared.footprints
-        return path_clearance(
+        return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
             float(age), self.model.braking_path(state, self.config.control_period),

@@ -104,11 +104,11 @@ def test_the_deadlock_report_flags_the_popup_box_and_not_the_long_wall(long_wall
 
 
 def test_circulation_resolves_the_popup_box_without_collision():
-    """deadlock_resolution circulate: reported once, steered around the box, at the goal.
+    """deadlock_resolution circulate, default barrier: reported, steered round the box, at goal.
 
     The report comes deadlock_time after the robot stood; the filter's rows are the same.
     """
-    run = run_in_process('popup_obstacle', 'polyc2bf_inflated', duration=30.0,
+    run = run_in_process('popup_obstacle', 'polyc2bf_horizon', duration=30.0,
                          parameters={'deadlock_resolution': 'circulate'})
     record = summarise(run, {'a1': 10.0})
     assert record['success'] and not record['collision']

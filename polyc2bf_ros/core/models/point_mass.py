@@ -30,7 +30,7 @@ def _braking_path(x, limit, time_constant, period, out):
             accel = min(max(-velocity[d] / time_constant, -limit), limit)
             position[d] += period * (velocity[d] + 0.5 * period * accel)  # exact, a held
             velocity[d] += period * accel
-            moving = moving or abs(velocity[d]) >= 1e-6
+            moving = moving or abs(velocity[d]) >= 1e-4  # then < 1e-4 time_constant to go
             out[k, d] = position[d]
         rows = k + 1
         if not moving:
@@ -78,8 +78,10 @@ class PointMass(RobotModel):
         d = self.position_dim
         stop = float(np.max(np.abs(x[d:]))) / self.input_upper[0]
         out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2, d))
-        return out[:_braking_path(x, float(self.input_upper[0]), self.brake_time_constant,
-                                  float(period), out)]
+        # Unchecked: as_state and out are C-contiguous float64.
+        rows = _braking_path.unchecked(x, float(self.input_upper[0]), self.brake_time_constant,
+                                       float(period), out)
+        return out[:rows]
 
 
 @register_model

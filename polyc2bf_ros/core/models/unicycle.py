@@ -49,7 +49,7 @@ def _braking_path(x, offset, limits, time_constant, period, out):
     """Write the reference point's positions along the brake into ``out``; return the rows.
 
     One midpoint step of the dynamics per period, the damped brake held over it
-    (``damped_brake``; exact for a straight stop); ends at rest (|v|, |omega| < 1e-6)
+    (``damped_brake``; exact for a straight stop); ends at rest (|v|, |omega| < 1e-4)
     or when ``out`` is full.
     """
     px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
@@ -66,8 +66,8 @@ def _braking_path(x, offset, limits, time_constant, period, out):
         omega += period * alpha
         out[k, 0], out[k, 1] = px + offset * math.cos(theta), py + offset * math.sin(theta)
         rows = k + 1
-        if abs(v) < 1e-6 and abs(omega) < 1e-6:
-            break
+        if abs(v) < 1e-4 and abs(omega) < 1e-4:
+            break  # the rest of the damped stop moves the point by < 1e-4 time_constant
     return rows
 
 
@@ -94,6 +94,11 @@ class Unicycle(RobotModel):
         _, _, theta, v, omega = x
         return np.array([v * np.cos(theta), v * np.sin(theta), omega, 0.0, 0.0])
 
+    def state_derivative(self, x, u):
+        """Return x_dot = f(x) + g(x) u directly (a third of the generic product's cost)."""
+        _, _, theta, v, omega = x
+        return np.array([v * math.cos(theta), v * math.sin(theta), omega, u[0], u[1]])
+
     def g(self, x):
         """Return the constant input matrix: a drives v, alpha drives omega."""
         g = np.zeros((5, 2))
@@ -118,5 +123,7 @@ class Unicycle(RobotModel):
         x = self.as_state(x)
         stop = abs(x[3]) / self.input_upper[0] + abs(x[4]) / self.input_upper[1]
         out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2, 2))
-        return out[:_braking_path(x, self.offset_l, self.input_upper, self.brake_time_constant,
-                                  float(period), out)]
+        # Unchecked: as_state, input_upper and out are C-contiguous float64.
+        rows = _braking_path.unchecked(x, self.offset_l, self.input_upper,
+                                       self.brake_time_constant, float(period), out)
+        return out[:rows]
