@@ -39,23 +39,25 @@ class Rollout:
 
 
 def clearance(model, state, obstacles, robot_radius):
-    """Return min over obstacles of signed distance(body centre, footprint) - radius.
+    """Return min over obstacles of signed distance(body centre, obstacle) - radius.
 
     The body is the disc (3-D: sphere) of ``robot_radius`` around ``model.body_centre``,
-    not around the guarded point.  For 3-D models a prism is only hit when the centre is
-    also within its z range grown by the radius; above or below it the vertical gap counts
-    (max of the two gaps: never more than the true distance).
+    not around the guarded point.  A 3-D obstacle is the prism footprint x [z_min, z_max]:
+    with h the signed distance to the footprint and v = max(z_min - z, z - z_max), the
+    distance to the prism is sqrt(h^2 + v^2) beside and above (or below) it, else
+    max(h, v): exact for a convex prism.
     """
     if not len(obstacles):
         return float('inf')
     position = model.body_centre(state)
-    distances = signed_distance_batch(position[:2], obstacles.footprints) - robot_radius
+    horizontal = signed_distance_batch(position[:2], obstacles.footprints)
     if position.size == 3:
-        below = obstacles.z_ranges[:, 0] - robot_radius - position[2]
-        above = position[2] - obstacles.z_ranges[:, 1] - robot_radius
-        vertical = np.maximum(below, above)
-        distances = np.where(vertical > 0, np.maximum(distances, vertical), distances)
-    return float(distances.min())
+        vertical = np.maximum(obstacles.z_ranges[:, 0] - position[2],
+                              position[2] - obstacles.z_ranges[:, 1])
+        corner = (horizontal > 0) & (vertical > 0)
+        horizontal = np.where(corner, np.hypot(horizontal, vertical),
+                              np.maximum(horizontal, vertical))
+    return float((horizontal - robot_radius).min())
 
 
 def rollout(model, safety_filter, controller, x0, goal, obstacles, duration,

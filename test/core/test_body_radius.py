@@ -39,3 +39,16 @@ def test_clearance_measures_the_body_not_the_guarded_point():
     wall = ObstacleSet.from_obstacles([Obstacle(polygon=np.array(
         [[1.0, -1.0], [1.2, -1.0], [1.2, 1.0], [1.0, 1.0]]))])
     assert clearance(model, np.zeros(5), wall, 0.3) == pytest.approx(0.7)
+
+
+def test_clearance_to_a_prism_is_euclidean_at_its_edges():
+    """Beside and above a slab's front top edge: the distance to the edge, not to its face."""
+    model = make_model('point_mass_3d')
+    slab = ObstacleSet.from_obstacles([Obstacle(polygon=np.array(
+        [[2.5, -3.0], [3.5, -3.0], [3.5, 3.0], [2.5, 3.0]]), z_min=1.4, z_max=1.6)])
+    beside_above = np.array([2.482, 0.0, 1.70, 0.0, 0.0, 0.0])
+    assert clearance(model, beside_above, slab, 0.1) == pytest.approx(np.hypot(0.018, 0.1) - 0.1)
+    over = np.array([3.0, 0.0, 1.75, 0.0, 0.0, 0.0])
+    assert clearance(model, over, slab, 0.1) == pytest.approx(0.05)
+    inside = np.array([3.0, 0.0, 1.5, 0.0, 0.0, 0.0])
+    assert clearance(model, inside, slab, 0.1) == pytest.approx(-0.2)

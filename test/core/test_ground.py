@@ -6,7 +6,7 @@ import pytest
 
 from polyc2bf_ros.core.ground import GROUND_DEPTH, grounded
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.nominal import PointMassGoalController
+from polyc2bf_ros.core.nominal import PointMassGoalController, QuadrotorGoalController
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from polyc2bf_ros.core.simulate import clearance, rollout
@@ -75,3 +75,33 @@ def test_descending_onto_the_floor_stops_above_it():
         u, _ = filt.step(state, empty, np.array([0.0, 0.0, -3.0]))
         state = state + 0.01 * model.state_derivative(state, u)
     assert 0.1 < state[2] < 0.2
+
+
+SLAB = [Obstacle(polygon=np.array([[2.5, -3.0], [3.5, -3.0], [3.5, 3.0], [2.5, 3.0]]),
+                 z_min=1.4, z_max=1.6)]
+WINDOW = [Obstacle(polygon=np.array(polygon), z_min=z_min, z_max=z_max) for polygon, z_min, z_max
+          in (([[3.0, 0.6], [3.2, 0.6], [3.2, 3.0], [3.0, 3.0]], 0.0, 3.0),
+              ([[3.0, -3.0], [3.2, -3.0], [3.2, -0.6], [3.0, -0.6]], 0.0, 3.0),
+              ([[3.0, -0.6], [3.2, -0.6], [3.2, 0.6], [3.0, 0.6]], 0.0, 0.7),
+              ([[3.0, -0.6], [3.2, -0.6], [3.2, 0.6], [3.0, 0.6]], 1.7, 3.0))]
+
+
+@pytest.mark.parametrize('world, height', [(SLAB, 1.5), (WINDOW, 1.2)])
+def test_quadrotor_rollout_keeps_its_body_clear_of_slab_and_window(world, height):
+    """Full 12-state quadrotor (numpy): its body never touches the slab, window or floor.
+
+    The shipped radius about the centre of mass, the ground at 0; the PyBullet runs are in
+    test/eval/test_quadrotor_3d.py.
+    """
+    model = make_model('quadrotor')
+    radius = 0.1
+    filt = SafetyFilter(model, FilterConfig(robot_radius=radius, ground_z=0.0,
+                                            control_period=0.005))
+    start = np.zeros(12)
+    start[2] = height
+    obstacles = ObstacleSet.from_obstacles(world)
+    run = rollout(model, filt, QuadrotorGoalController(), start,
+                  np.array([6.0, 0.0, height]), obstacles, duration=8.0, physics_step=0.001)
+    assert np.isfinite(run.states).all()
+    assert run.min_clearance > 0.0
+    assert run.states[:, 2].min() > radius
