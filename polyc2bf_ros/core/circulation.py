@@ -8,12 +8,18 @@ so the guarantee is the filter's, unchanged; only the wish it is asked to grant 
 
 Per step while circulating, with p the cone axis of the obstacle part with the smallest
 h (from the robot's reference point toward it; the previous step's cones), side
-sigma in {+1 left, -1 right} and the nominal speed v_n > 0::
+sigma in {+1 left, -1 right} and the circulation speed v_n::
 
     t      = R(sigma pi/2) p / |p|                      (tangent, on the latched side)
     e      = wrap(atan2(t) - theta)                     (heading error)
     omega* = clip(k_theta e, +-omega_max)
     v*     = v_n max(0, cos e)                          (turn first when facing away)
+
+v_n is the larger of the nominal's current |v| and its |v| when the deadlock was reported.
+A go-to-goal law asks for v = 0 whenever the goal lies more than 90 degrees off the
+heading, which the tangent of an obstacle straight ahead is: with its current speed alone,
+circulation would only turn the robot sideways and stand there.  A nominal stop (every
+component zero) is passed through unchanged: circulation never moves a robot told to stand.
 
 The side is chosen once, when the deadlock is reported: the side of p the robot's heading
 already lies on (sigma = sign(p x heading), left on a tie), so the robot turns the short
@@ -47,6 +53,7 @@ class Circulation:
         self._start = None
         self._since = math.nan
         self._axis = None      # cone axis of the blocking part, last known
+        self._speed = 0.0      # nominal |v| when the deadlock was reported
 
     @property
     def active(self):
@@ -65,10 +72,14 @@ class Circulation:
             if float(np.hypot(*axis)) > 0.0:
                 self._axis = np.array(axis, dtype=float)
 
-    def engage(self, now, position, yaw):
-        """Start (or, while circulating, flip) circulation at the robot's reference point."""
+    def engage(self, now, position, yaw, nominal):
+        """Start (or, while circulating, flip) circulation at the robot's reference point.
+
+        ``nominal``: the command [v, omega] the robot was held against; its |v| is kept.
+        """
         if self._axis is None:
             return
+        self._speed = max(abs(float(nominal[0])), self._speed if self.active else 0.0)
         if self.active:
             self.side = -self.side
         else:
@@ -86,9 +97,9 @@ class Circulation:
 
     def command(self, yaw, nominal):
         """Return the unicycle command [v, omega] to ask the filter for (module docstring)."""
-        speed = abs(float(nominal[0]))
-        if not self.active or self._axis is None or speed == 0.0:
+        if not self.active or self._axis is None or not any(nominal):
             return nominal
+        speed = max(abs(float(nominal[0])), self._speed)
         ax, ay = self._axis / float(np.hypot(*self._axis))
         tx, ty = -self.side * ay, self.side * ax
         error = _wrap(math.atan2(ty, tx) - yaw)

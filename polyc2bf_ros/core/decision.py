@@ -196,7 +196,7 @@ class ControlDecision:
         if circulation is not None:
             circulation.observe(info)
             if self.deadlock.onsets > onsets:
-                circulation.engage(now, position, self.yaw)
+                circulation.engage(now, position, self.yaw, self.command_vector)
         return Decision('filter', safe, info, deadlocked=deadlocked)
 
     def _position(self):

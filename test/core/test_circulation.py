@@ -20,7 +20,7 @@ def test_the_side_is_the_one_the_heading_already_lies_on(yaw, side):
     """Obstacle straight ahead along +x: heading a bit left -> left, right -> right."""
     circulation = Circulation()
     circulation.observe(info_with_axis((1.0, 0.0)))
-    circulation.engage(0.0, (0.0, 0.0), yaw)
+    circulation.engage(0.0, (0.0, 0.0), yaw, (0.8, 0.0))
     assert circulation.side == side and circulation.engagements == 1
 
 
@@ -28,13 +28,26 @@ def test_the_command_turns_to_the_tangent_then_drives_along_it():
     """Facing the obstacle: turn in place toward the tangent; aligned with it: full speed."""
     circulation = Circulation(turn_gain=2.0, max_turn_rate=1.5)
     circulation.observe(info_with_axis((1.0, 0.0)))
-    circulation.engage(0.0, (0.0, 0.0), 0.1)   # left: tangent along +y
+    circulation.engage(0.0, (0.0, 0.0), 0.1, (0.8, 0.0))   # left: tangent along +y
     v, omega = circulation.command(0.0, (0.8, 0.0))
     assert v == pytest.approx(0.0, abs=1e-12) and omega == 1.5
     v, omega = circulation.command(math.pi / 2, (0.8, 0.0))
     assert v == pytest.approx(0.8) and omega == pytest.approx(0.0, abs=1e-12)
-    v, omega = circulation.command(math.pi / 2 - 0.2, (-0.8, 0.3))  # speed is |v|
-    assert v == pytest.approx(0.8 * math.cos(0.2)) and omega == pytest.approx(0.4)
+    v, omega = circulation.command(math.pi / 2 - 0.2, (-0.9, 0.3))  # speed is |v|
+    assert v == pytest.approx(0.9 * math.cos(0.2)) and omega == pytest.approx(0.4)
+
+
+def test_the_speed_reported_with_the_deadlock_is_kept_when_the_nominal_drops_it():
+    """A go-to-goal law asks v = 0 with the goal 90 degrees off: circulation keeps going."""
+    circulation = Circulation()
+    circulation.observe(info_with_axis((1.0, 0.0)))
+    circulation.engage(0.0, (0.0, 0.0), 0.1, (0.7, 0.0))
+    v, omega = circulation.command(math.pi / 2, (0.0, -1.5))
+    assert v == pytest.approx(0.7) and omega == pytest.approx(0.0, abs=1e-12)
+    circulation.engage(1.0, (0.0, 0.0), math.pi / 2, (0.2, 0.0))  # flipped: keeps 0.7
+    assert circulation.side == -1
+    v, _ = circulation.command(-math.pi / 2, (0.0, 1.5))
+    assert v == pytest.approx(0.7)
 
 
 def test_not_circulating_or_a_nominal_stop_passes_the_nominal_through():
@@ -43,7 +56,7 @@ def test_not_circulating_or_a_nominal_stop_passes_the_nominal_through():
     nominal = np.array([0.8, 0.2])
     assert circulation.command(0.0, nominal) is nominal
     circulation.observe(info_with_axis((1.0, 0.0)))
-    circulation.engage(0.0, (0.0, 0.0), 0.0)
+    circulation.engage(0.0, (0.0, 0.0), 0.0, (0.8, 0.0))
     stop = np.array([0.0, 0.0])
     assert circulation.command(0.0, stop) is stop
 
@@ -52,14 +65,14 @@ def test_release_after_the_distance_or_the_time_and_flip_on_a_second_report():
     """Released 1 m from the start or after max_time; a report while circulating flips."""
     circulation = Circulation(release_distance=1.0, max_time=10.0)
     circulation.observe(info_with_axis((1.0, 0.0)))
-    circulation.engage(0.0, (0.0, 0.0), 0.1)
-    circulation.engage(1.0, (0.0, 0.0), 0.1)
+    circulation.engage(0.0, (0.0, 0.0), 0.1, (0.8, 0.0))
+    circulation.engage(1.0, (0.0, 0.0), 0.1, (0.8, 0.0))
     assert circulation.side == -1 and circulation.engagements == 2
     circulation.release_if_done(2.0, (0.0, 0.9))
     assert circulation.active
     circulation.release_if_done(2.0, (0.0, 1.0))
     assert not circulation.active
-    circulation.engage(3.0, (0.0, 0.0), 0.1)
+    circulation.engage(3.0, (0.0, 0.0), 0.1, (0.8, 0.0))
     circulation.release_if_done(13.0, (0.0, 0.0))
     assert not circulation.active
 
@@ -69,7 +82,7 @@ def test_without_a_valid_cone_nothing_is_engaged():
     circulation = Circulation()
     circulation.observe(SimpleNamespace(h=np.array([np.nan]), evaluation=SimpleNamespace(
         valid=np.array([False]), cones=SimpleNamespace(p=np.zeros((2, 1))))))
-    circulation.engage(0.0, (0.0, 0.0), 0.0)
+    circulation.engage(0.0, (0.0, 0.0), 0.0, (0.8, 0.0))
     assert not circulation.active
 
 
