@@ -12,6 +12,7 @@ CONFIGS = {
     'holonomic_base': ('point_mass_2d', '100'),
     'drone_velocity': ('point_mass_3d', '100'),
     'crazyflie_thrust': ('quadrotor', '500'),
+    'nav2_safety_filter': ('unicycle', '100'),
 }
 
 
