@@ -9,6 +9,7 @@ PACKAGE = 'polyc2bf_ros'
 # Names are the stable ones README.md lists; each is added only once it does real work.
 CONSOLE_SCRIPTS = [
     'safety_filter = polyc2bf_ros.safety_filter_node:main',
+    'safety_filter_lifecycle = polyc2bf_ros.safety_filter_lifecycle:main',
     'sim_bridge = sim_bridge.bridge_node:main',
     'nominal_controller = sim_bridge.nominal_controller_node:main',
     'bag_replay = sim_bridge.bag_replay:main',

@@ -75,7 +75,9 @@ NODE_PARAMETERS = {
     'scan_timeout': (1.0, (0.0, 3600.0), 'LaserScan sources (scan_topics) older than this [s] '
                      '-> stop; 0 = never stale once received', True),
     'sensor_pose': ([0.0, 0.0, 0.0], None, '[x, y, yaw] of the laser in the odometry child '
-                    'frame (base_link), used for scans in any other frame', False),
+                    'frame (base_link), for scans in any other frame that no chain of '
+                    '/tf_static transforms links to it (those use the transforms, in the plane)',
+                    False),
     'scan_cluster_tolerance': (0.15, (0.06, 10.0), 'largest gap [m] between neighbouring scan '
                                'endpoints of one obstacle (core/scan_obstacles.py)', False),
     'scan_footprint_radius': (-1.0, (-1.0, 10.0), 'scan endpoints this close [m] to the base '

@@ -13,10 +13,15 @@ from polyc2bf_ros.lean_executor import LeanExecutor
 CONFIGURATION_ERRORS = (ValueError, TypeError, ParameterException)
 
 
+def configuration_error_text(exc):
+    """Return ``exc`` as one line: ``invalid configuration: <reason>``."""
+    reason = ' '.join(str(exc).split()) or type(exc).__name__
+    return f'invalid configuration: {reason}'
+
+
 def log_configuration_error(name, exc):
     """Log ``exc`` as one fatal line under logger ``name`` (no traceback)."""
-    reason = ' '.join(str(exc).split()) or type(exc).__name__
-    rclpy.logging.get_logger(name).fatal(f'invalid configuration: {reason}')
+    rclpy.logging.get_logger(name).fatal(configuration_error_text(exc))
 
 
 def run_node(node_class, name, args=None):

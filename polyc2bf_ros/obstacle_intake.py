@@ -30,7 +30,10 @@ scan per topic is queued serialized with the robot pose of the latest odometry, 
 worker reads, checks and converts it (``core.scan_obstacles.scan_to_obstacles``, in
 ``scan_obstacles``).  A topic's obstacles (keys ``<topic>:scan/<i>``) replace its previous
 ones and join the marker obstacles in one ``ObstacleSet``; a rejected scan keeps them and
-is reported in ``scan_status``.
+is reported in ``scan_status``.  ``/tf_static`` messages (``submit_transforms``) go to the
+worker too, which keeps the static transform tree (``static_transforms``): a scan in another
+frame than the odometry child frame is placed by the static transforms from that frame to
+the scan's, and at ``sensor_pose`` when none links them.
 
 If the worker process dies, the obstacles it held are lost: the snapshot stays unusable
 (the node brakes, with the reason in its diagnostics) until the node is restarted.
@@ -57,6 +60,7 @@ from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import SafetyFilter
 from polyc2bf_ros.core.scan_obstacles import scan_to_obstacles, ScanSettings
+from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 
 MAX_OBSTACLES = 1000
 _PROTOCOL = pickle.HIGHEST_PROTOCOL
@@ -89,7 +93,8 @@ class ObstacleJob(NamedTuple):
 
     ``data`` is a serialized MarkerArray, or a MarkerArray message (offline replay).
     ``scans``: the newest scan per topic, ``(topic, data, received, robot pose (x, y, yaw) or
-    None, odometry child frame)``.
+    None, odometry child frame)``; ``transforms``: serialized ``/tf_static`` messages, oldest
+    first.
     """
 
     messages: list
@@ -98,6 +103,7 @@ class ObstacleJob(NamedTuple):
     filter_spec: tuple
     now: float
     scans: tuple = ()
+    transforms: tuple = ()
 
 
 class ObstaclePipeline:
@@ -110,6 +116,7 @@ class ObstaclePipeline:
         self._received = None
         self._filter_spec = self._filter = None
         self._scans = {}  # topic: its obstacles
+        self._static = StaticTransforms()
         self.scan_status = {}  # topic: ScanStatus
 
     def run(self, job):
@@ -125,6 +132,8 @@ class ObstaclePipeline:
             self._unreadable, self._received = '', received
         settings, tracker = job.settings, self._tracker
         dim = self._filter_for(job.filter_spec).model.position_dim
+        for data in job.transforms:
+            self._static.update(data)
         for scan in job.scans:
             self._take_scan(*scan, settings, job.filter_spec[1].robot_radius)
         marker_obstacles.apply_markers(
@@ -162,7 +171,8 @@ class ObstaclePipeline:
         """Convert one serialized LaserScan of ``topic``; a bad one is counted, not used."""
         status = self.scan_status.get(topic, ScanStatus())
         try:
-            obstacles = scan_obstacles(data, robot_pose, base_frame, settings, radius)
+            obstacles = scan_obstacles(data, robot_pose, base_frame, settings, radius,
+                                       self._static)
         except ValueError as exc:
             self.scan_status[topic] = status._replace(
                 received=received, rejected=status.rejected + 1, reason=str(exc))
@@ -179,12 +189,14 @@ class ObstaclePipeline:
         return self._filter
 
 
-def scan_obstacles(data, robot_pose, base_frame, settings, robot_radius):
+def scan_obstacles(data, robot_pose, base_frame, settings, robot_radius, transforms=None):
     """Return the obstacles of a serialized LaserScan; ValueError says why it is unusable.
 
-    ``robot_pose`` (x, y, yaw): the base in the odometry frame (None: no odometry yet); a
-    scan in another frame than ``base_frame`` (the odometry child frame) was taken at
-    ``settings.sensor_pose``.  Every range NaN is refused (no measurement at all).
+    ``robot_pose`` (x, y, yaw): the base in the odometry frame (None: no odometry yet).  A
+    scan in another frame than ``base_frame`` (the odometry child frame) was taken where the
+    ``StaticTransforms`` ``transforms`` put that frame, else at ``settings.sensor_pose``; a
+    non-finite transform on the way refuses the scan.  Every range NaN is refused (no
+    measurement at all).
     """
     # Imported on the first scan: a worker without scan input does not pay for them.
     from rclpy.serialization import deserialize_message
@@ -204,13 +216,21 @@ def scan_obstacles(data, robot_pose, base_frame, settings, robot_radius):
     ranges = np.asarray(ranges, dtype=np.float64)
     if np.isnan(ranges).all():
         raise ValueError('LaserScan whose ranges are all NaN')
-    frame = scan.header.frame_id.lstrip('/')
-    sensor_pose = (0.0, 0.0, 0.0) if frame == base_frame else tuple(settings.sensor_pose)
+    sensor_pose = _sensor_pose(scan.header.frame_id.lstrip('/'), base_frame, settings,
+                               transforms)
     radius = settings.scan_footprint_radius
     scan_settings = ScanSettings(cluster_tolerance=float(settings.scan_cluster_tolerance),
                                  footprint_radius=float(robot_radius if radius < 0 else radius))
     return scan_to_obstacles(ranges, scan.angle_min, scan.angle_increment, scan.range_min,
                              scan.range_max, sensor_pose, robot_pose, scan_settings)
+
+
+def _sensor_pose(frame, base_frame, settings, transforms):
+    """Return ``(x, y, yaw)`` of a scan's ``frame`` in the base frame (``scan_obstacles``)."""
+    if frame == base_frame:
+        return IDENTITY
+    pose = None if transforms is None else transforms.pose(base_frame, frame)
+    return tuple(settings.sensor_pose) if pose is None else pose
 
 
 def _encode(snapshot, last_base, scan_status=None):
@@ -265,6 +285,7 @@ class ObstacleIntake:
         self._frame = None
         self._pending = []
         self._scans = {}  # topic: the newest scan not yet processed
+        self._transforms = []  # /tf_static messages not yet processed
         self._generation = self._done = 0  # inputs given / processed
         self._dirty = False
         self._failed = ''
@@ -308,6 +329,13 @@ class ObstacleIntake:
         """
         with self._lock:
             self._scans[topic] = (topic, data, received, robot_pose, base_frame)
+            self._generation += 1
+        self._wake.set()
+
+    def submit_transforms(self, data):
+        """Queue one serialized ``/tf_static`` message (tf2_msgs/TFMessage)."""
+        with self._lock:
+            self._transforms.append(data)
             self._generation += 1
         self._wake.set()
 
@@ -364,11 +392,12 @@ class ObstacleIntake:
         with self._lock:
             messages, self._pending = self._pending, []
             scans, self._scans = tuple(self._scans.values()), {}
+            transforms, self._transforms = tuple(self._transforms), []
             dirty, self._dirty = self._dirty, False
-            if not messages and not scans and not dirty:
+            if not (messages or scans or transforms or dirty):
                 return None, self._generation
             job = ObstacleJob(messages, self._frame, self._settings, self._filter_spec,
-                              self._now(), scans)
+                              self._now(), scans, transforms)
             return job, self._generation
 
     def _feed(self):

@@ -35,7 +35,12 @@ obstacles go stale after ``obstacles_timeout`` and the node stops (at once with
 timeout 0).
 LaserScans on ``scan_topics`` take the same worker (``obstacle_intake``, with the pose of
 the latest odometry): their obstacles join the markers', each topic with its own
-``scan_timeout`` watchdog.
+``scan_timeout`` watchdog.  With scan topics the node also takes ``/tf_static``
+(tf2_msgs/TFMessage, reliable + transient local, depth 100; no tf2 buffer): a scan whose
+frame a chain of static transforms links to the odometry child frame is placed by them (in
+the plane, ``static_transforms``), any other at ``sensor_pose``; a non-finite transform
+refuses the scan.  Without the tf2_msgs Python package (the PyPI ROS wheels) a warning says
+that ``/tf_static`` is not read.
 
 Stall guard: if no control step or tick has run for ``stall_timeout`` (steady
 clock), a separate thread publishes the stop and the node's status at level
@@ -52,11 +57,16 @@ what the last step did (``filter_state``: pass, limit, stop, fallback, deadlock,
 disabled), at 10 Hz and at once when that changes; the closest-obstacle distance it
 carries is computed only then, not per step.
 
+``SafetyFilterMixin`` holds all of this; ``SafetyFilterNode`` (this executable) sets it up
+and starts it at once, the managed ``safety_filter_lifecycle`` from its lifecycle
+transitions.
+
 Hot path: odometry and commands are taken serialized and only the fields used
 are read (``conversions``, CDR section); the answer is a copy of the command's
 bytes with its six numbers replaced, so its header is the input's.
 Diagnostics and markers are built on their own slow timers.
 """
+import functools
 import math
 import sys
 import time
@@ -99,6 +109,11 @@ from polyc2bf_ros.node_main import run_node
 from polyc2bf_ros.obstacle_intake import ObstacleIntake
 from polyc2bf_ros.stall_guard import StallGuard
 
+try:
+    from tf2_msgs.msg import TFMessage
+except ImportError:  # the PyPI ROS wheels have no tf2_msgs: scans use sensor_pose only
+    TFMessage = None
+
 _STEADY = ClockType.STEADY_TIME
 _DIAGNOSTICS_PERIOD = 1.0
 _MARKERS_PERIOD = 0.1
@@ -107,24 +122,32 @@ _STALL_CHECKS_PER_TIMEOUT = 4
 _FALLBACKS = ('slack', 'brake', 'escape', 'backup')
 _INFEASIBLE = ('slack', 'brake')
 _REFUSED = FilterStatus.INVALID_INPUT
+# As tf2's static listener: every static transform ever sent, from every broadcaster.
+_STATIC_TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-class SafetyFilterNode(Node):
-    """ROS shell around ``core.decision.ControlDecision``: messages, timers, diagnostics."""
+class SafetyFilterMixin:
+    """The safety filter on a node: its parameters, topics, timers, service and worker.
 
-    def __init__(self, **kwargs):
-        """Declare parameters, build the decision, wire topics, timers and service."""
-        super().__init__('safety_filter', **kwargs)
-        self._declared = []
-        for name, (default, bounds, text, read_only) in NODE_PARAMETERS.items():
-            self._declare(name, default, bounds, text, read_only)
-        self._model_name = self.get_parameter('model').value
-        if self._model_name not in MODELS:
-            raise ValueError(f"parameter 'model' must be one of {MODEL_NAMES}, "
-                             f'got {self._model_name!r}')
-        self._declare_model_and_filter_parameters()
-        settings = build_settings(self._parameter_values())
-        self._scan_watchdogs = self._scan_sources(settings)
+    Shared by ``SafetyFilterNode`` (set up and stepping from the start) and the managed
+    ``safety_filter_lifecycle`` node, which calls the same four stages from its transitions:
+    ``_configure`` (parameters, subscriptions, outputs, timers, the obstacle worker),
+    ``_activate`` (steps and the stall guard run), ``_deactivate`` (they stop; inputs are
+    still taken) and ``_release`` (everything ``_configure`` created is destroyed).
+    """
+
+    _active = False  # steps publish only while active
+    _undo = ()  # what ``_release`` calls, newest first, to undo ``_configure``
+
+    def _configure(self):
+        """Read and check the parameters, then create everything the filter uses.
+
+        An invalid configuration raises one of ``node_main.CONFIGURATION_ERRORS`` before
+        anything is created.
+        """
+        settings = self._read_parameters()
+        self._undo = []
         self._model = settings.command_filter.model
         self._stamped = self.get_parameter('stamped').value
         self._per_command = settings.per_command
@@ -142,13 +165,13 @@ class SafetyFilterNode(Node):
         self._deadlocked = None  # last state published on ~/deadlock
         self._state = None  # (action, status, active constraints) of the last step
         self._state_published = None  # the action last published on ~/state
-        self._obstacles_ready = self.create_guard_condition(self._answer_if_ready)
+        self._obstacles_ready = self._keep(self.destroy_guard_condition,
+                                           self.create_guard_condition(self._answer_if_ready))
         self._intake = ObstacleIntake(self._filter_spec(settings),
                                       lambda: self.get_clock().now().nanoseconds * 1e-9,
                                       settings.intake, self._obstacles_processed)
         self._log = LoopLogger(self.get_logger())  # for the control path (loop_log)
-        self._stall_guard = StallGuard(settings.stall_timeout, self._on_stall,
-                                       settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT)
+        self._stall_guard = self._new_stall_guard(settings.stall_timeout)
         self._apply(settings)
         self._odom_frame = None
         self._odom_frame_raw = None
@@ -166,63 +189,137 @@ class SafetyFilterNode(Node):
         self._status_name = f'{self.get_fully_qualified_name()}: safety filter'
         self._status_values = {'model': self._model_name}  # of the last status published
         self._latency = LatencyRing()
-        steady = Clock(clock_type=_STEADY)
         self._rate_meter = RateMeter(time.monotonic())
+        self._velocity = velocity
+        self._create_topics()
+        self._create_timers(settings)
+        self._keep(self.destroy_service, self.create_service(SetBool, '~/enable', self._on_enable))
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self._keep(self.remove_on_set_parameters_callback, self._validate_parameters)
+        self.add_post_set_parameters_callback(self._parameters_changed)
+        self._keep(self.remove_post_set_parameters_callback, self._parameters_changed)
+        self._intake.start()
+        self._undo.append(self._intake.stop)
+        self._undo.append(self._deactivate)  # undone first: no step or stall stop after it
+        self.get_logger().info(
+            f'model {self._model_name}, barrier {self._barrier}, trigger '
+            f'{"command" if self._per_command else "timer"} at {1.0 / settings.period:g} Hz, '
+            f'listening on {self._command_in}')
 
-        # Topics (relative names, so namespaces and remapping work).
+    def _create_topics(self):
+        """Create the outputs, then the subscriptions (relative names: namespaces, remapping)."""
         sensor_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
         command_qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
         latched_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        if velocity:
-            command_type = TwistStamped if self._stamped else Twist
-            command_in, command_out = 'cmd_vel_in', 'cmd_vel_out'
+        if self._velocity:
+            self._command_type = TwistStamped if self._stamped else Twist
+            self._command_in, command_out = 'cmd_vel_in', 'cmd_vel_out'
         else:
-            command_type = WrenchStamped
-            command_in, command_out = 'wrench_in', 'wrench_out'
-        self._publisher = self.create_publisher(command_type, command_out, command_qos)
-        # Obstacles, then odometry, then commands: an executor serving them in one wake-up
-        # (in creation order) answers on the newest inputs.  All are taken serialized
-        # (raw): obstacle bytes go to the worker as they came; see the module docstring.
-        self.create_subscription(MarkerArray, 'obstacles', self._on_obstacles, latched_qos,
-                                 raw=True)
-        self.create_subscription(Odometry, 'odom', self._on_odom, sensor_qos, raw=True)
-        scan_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
-        for topic in self._scan_watchdogs:
-            self.create_subscription(
-                LaserScan, topic, lambda data, topic=topic: self._on_scan(topic, data),
-                scan_qos, raw=True)
-        self.create_subscription(command_type, command_in, self._on_command, command_qos,
-                                 raw=True)
-        self._diagnostics_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._markers_pub = self.create_publisher(MarkerArray, '~/markers', 1)
-        self._deadlock_pub = self.create_publisher(
+            self._command_type = WrenchStamped
+            self._command_in, command_out = 'wrench_in', 'wrench_out'
+        self._publisher = self._create_output(self._command_type, command_out, command_qos)
+        self._diagnostics_pub = self._create_output(DiagnosticArray, '/diagnostics', 10)
+        self._markers_pub = self._create_output(MarkerArray, '~/markers', 1)
+        self._deadlock_pub = self._create_output(
             Bool, '~/deadlock', QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                                            durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self._report_deadlock(False)
-        self._state_pub = self.create_publisher(
+        self._state_pub = self._create_output(
             DiagnosticStatus, '~/state',
             QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self._state_name = f'{self.get_fully_qualified_name()}: state'
-        self._velocity = velocity
-        self.create_service(SetBool, '~/enable', self._on_enable)
+        # Obstacles, then odometry, then commands: an executor serving them in one wake-up
+        # (in creation order) answers on the newest inputs.  All are taken serialized
+        # (raw): obstacle bytes go to the worker as they came; see the module docstring.
+        self._subscribe(MarkerArray, 'obstacles', self._on_obstacles, latched_qos)
+        if self._scan_watchdogs:
+            self._subscribe_static_transforms()
+        self._subscribe(Odometry, 'odom', self._on_odom, sensor_qos)
+        scan_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+        for topic in self._scan_watchdogs:
+            self._subscribe(LaserScan, topic,
+                            lambda data, topic=topic: self._on_scan(topic, data), scan_qos)
+        self._subscribe(self._command_type, self._command_in, self._on_command, command_qos)
 
+    def _subscribe_static_transforms(self):
+        """Take ``/tf_static`` for the scans' frames; without tf2_msgs say that it is not read."""
+        if TFMessage is None:
+            self.get_logger().warning(
+                'tf2_msgs is not installed: /tf_static is not read, scans in a frame other '
+                'than the odometry child frame are taken at sensor_pose')
+            return
+        self._subscribe(TFMessage, '/tf_static', self._on_static_transforms, _STATIC_TF_QOS)
+
+    def _create_timers(self, settings):
+        """Create the control (or stale-command) timer and the slow observability timers."""
+        steady = Clock(clock_type=_STEADY)
         callback = self._on_watchdog if self._per_command else self._on_timer
-        self._timer = self.create_timer(settings.tick, callback, clock=steady)
-        self.create_timer(_DIAGNOSTICS_PERIOD, self._publish_diagnostics, clock=steady)
-        self.create_timer(_MARKERS_PERIOD, self._publish_markers, clock=steady)
-        self.create_timer(_STATE_PERIOD, self._publish_state, clock=steady)
-        self.add_on_set_parameters_callback(self._validate_parameters)
-        self.add_post_set_parameters_callback(self._parameters_changed)
-        self._intake.start()
+        self._timer = self._keep(self.destroy_timer,
+                                 self.create_timer(settings.tick, callback, clock=steady))
+        for period, callback in ((_DIAGNOSTICS_PERIOD, self._publish_diagnostics),
+                                 (_MARKERS_PERIOD, self._publish_markers),
+                                 (_STATE_PERIOD, self._publish_state)):
+            self._keep(self.destroy_timer, self.create_timer(period, callback, clock=steady))
+
+    def _keep(self, undo, entity):
+        """Remember ``undo(entity)`` for ``_release``; return ``entity``."""
+        self._undo.append(functools.partial(undo, entity))
+        return entity
+
+    def _subscribe(self, msg_type, topic, callback, qos):
+        """Create a serialized (raw) subscription that ``_release`` destroys."""
+        return self._keep(self.destroy_subscription, self.create_subscription(
+            msg_type, topic, callback, qos, raw=True))
+
+    def _create_output(self, msg_type, topic, qos):
+        """Create a publisher of one of the filter's outputs that ``_release`` destroys."""
+        return self._keep(self.destroy_publisher, self.create_publisher(msg_type, topic, qos))
+
+    def _new_stall_guard(self, timeout):
+        """Return a stall guard (not started) that acts after ``timeout`` s of silence."""
+        return StallGuard(timeout, self._on_stall, timeout / _STALL_CHECKS_PER_TIMEOUT)
+
+    def _activate(self):
+        """Step and publish; a new stall guard watches the loop from its first beat on."""
+        previous = self._stall_guard
+        self._stall_guard = self._new_stall_guard(previous.timeout)
+        self._stall_guard.stalls = previous.stalls
         self._stall_guard.start()
-        self.get_logger().info(
-            f'model {self._model_name}, barrier {self._barrier}, trigger '
-            f'{"command" if self._per_command else "timer"} at {1.0 / settings.period:g} Hz, '
-            f'listening on {command_in}')
+        self._active = True
+        self._deadlocked = None
+        self._report_deadlock(False)
+
+    def _deactivate(self):
+        """Stop stepping and the stall guard; inputs are still taken."""
+        self._active = False
+        self._stall_guard.stop()
+
+    def _release(self):
+        """Undo ``_configure``, newest first: steps and stall guard, worker, topics, timers."""
+        while self._undo:
+            self._undo.pop()()
+
+    def destroy_node(self):
+        """Stop the obstacle worker and the stall guard, then destroy the node."""
+        self._release()
+        return super().destroy_node()
 
     # -- parameters ------------------------------------------------------------------------
+
+    def _read_parameters(self):
+        """Declare the parameters not declared yet, read them; return the ``NodeSettings``."""
+        self._declared = []
+        for name, (default, bounds, text, read_only) in NODE_PARAMETERS.items():
+            self._declare(name, default, bounds, text, read_only)
+        self._model_name = self.get_parameter('model').value
+        if self._model_name not in MODELS:
+            raise ValueError(f"parameter 'model' must be one of {MODEL_NAMES}, "
+                             f'got {self._model_name!r}')
+        self._declare_model_and_filter_parameters()
+        settings = build_settings(self._parameter_values())
+        self._scan_watchdogs = self._scan_sources(settings)
+        return settings
 
     def _declare_model_and_filter_parameters(self):
         """Declare ``model_params.*`` (read-only, the model's constructor) and ``filter.*``."""
@@ -236,9 +333,12 @@ class SafetyFilterNode(Node):
 
     def _scan_sources(self, settings):
         """Declare ``scan_topics`` (read-only); return ``{topic: its watchdog name}``."""
-        self.declare_parameter('scan_topics', Parameter.Type.STRING_ARRAY, ParameterDescriptor(
-            name='scan_topics', read_only=True, description='sensor_msgs/LaserScan topics to '
-            'take obstacles from (empty: none); each has its own scan_timeout watchdog'))
+        if not self.has_parameter('scan_topics'):
+            self.declare_parameter('scan_topics', Parameter.Type.STRING_ARRAY, ParameterDescriptor(
+                name='scan_topics', read_only=True, description='sensor_msgs/LaserScan topics '
+                'to take obstacles from (empty: none); each has its own scan_timeout watchdog; '
+                'scans are placed by /tf_static from the odometry child frame, else at '
+                'sensor_pose'))
         try:
             topics = list(self.get_parameter('scan_topics').value)
         except ParameterUninitializedException:
@@ -256,7 +356,13 @@ class SafetyFilterNode(Node):
                 **dict.fromkeys(self._scan_watchdogs.values(), self._scan_timeout)}
 
     def _declare(self, name, default, bounds, description, read_only):
-        """Declare one parameter with its description and range."""
+        """Declare one parameter with its description and range, unless it already is.
+
+        A managed node configured again keeps the parameters (and values) it has.
+        """
+        self._declared.append(name)
+        if self.has_parameter(name):
+            return
         descriptor = ParameterDescriptor(name=name, description=description, read_only=read_only)
         if bounds is not None and isinstance(default, int):
             descriptor.integer_range = [IntegerRange(from_value=bounds[0], to_value=bounds[1])]
@@ -264,7 +370,6 @@ class SafetyFilterNode(Node):
             descriptor.floating_point_range = [
                 FloatingPointRange(from_value=float(bounds[0]), to_value=float(bounds[1]))]
         self.declare_parameter(name, default, descriptor)
-        self._declared.append(name)
 
     def _parameter_values(self, changes=()):
         """Return ``{name: value}`` of every parameter, overlaid with ``changes``."""
@@ -377,6 +482,10 @@ class SafetyFilterNode(Node):
         """Queue a serialized MarkerArray for the obstacle worker (``obstacle_intake``)."""
         self._intake.submit(data, time.monotonic())
 
+    def _on_static_transforms(self, data):
+        """Queue a serialized ``/tf_static`` message for the scan frames (``obstacle_intake``)."""
+        self._intake.submit_transforms(data)
+
     def _on_scan(self, topic, data):
         """Queue a serialized LaserScan with the latest odometry's pose (``obstacle_intake``)."""
         state = self._decision.state
@@ -476,7 +585,7 @@ class SafetyFilterNode(Node):
         """Publish one safe command (or a stop, or the nominal when disabled)."""
         self._stall_guard.beat(now)
         cmd = self._cmd
-        if cmd is None:
+        if cmd is None or not self._active:
             return
         start = time.perf_counter()
         self._take_obstacles()
@@ -646,12 +755,6 @@ class SafetyFilterNode(Node):
                 values[f'last_scan_rejection {topic}'] = status.reason
         return values
 
-    def destroy_node(self):
-        """Stop the obstacle worker and the stall guard, then destroy the node."""
-        self._stall_guard.stop()
-        self._intake.stop()
-        return super().destroy_node()
-
     def _publish_markers(self):
         """Publish obstacle parts and cones, only while ``~/markers`` has subscribers."""
         if self._odom_frame is None or self._markers_pub.get_subscription_count() == 0:
@@ -666,6 +769,16 @@ class SafetyFilterNode(Node):
             self._odom_frame, self.get_clock().now().to_msg(),
             self._decision.snapshot.obstacles.footprints,
             active, apex, cones))
+
+
+class SafetyFilterNode(SafetyFilterMixin, Node):
+    """The safety filter as a plain node: configured and active from the start."""
+
+    def __init__(self, **kwargs):
+        """Declare the parameters, create the topics, timers and worker, start stepping."""
+        super().__init__('safety_filter', **kwargs)
+        self._configure()
+        self._activate()
 
 
 def main(args=None):

@@ -33,18 +33,20 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 
 
 @contextlib.contextmanager
-def running_filter(*ros_args, params=None):
+def running_filter(*ros_args, params=None, module='polyc2bf_ros.safety_filter_node', env=None):
     """Run ``safety_filter`` with ``--ros-args ros_args`` and ``-p name:=value`` per param.
 
-    Yields the ``Popen``; its combined output is in ``proc.log_path``.  The
-    process gets SIGINT on exit, then SIGKILL if it lingers.
+    ``module``: the executable's module (``polyc2bf_ros.safety_filter_lifecycle`` for the
+    managed node); ``env``: variables to add to the environment.  Yields the ``Popen``; its
+    combined output is in ``proc.log_path``.  The process gets SIGINT on exit, then SIGKILL
+    if it lingers.
     """
-    args = [sys.executable, '-m', 'polyc2bf_ros.safety_filter_node', '--ros-args', *ros_args]
+    args = [sys.executable, '-m', module, '--ros-args', *ros_args]
     for name, value in (params or {}).items():
         args += ['-p', f'{name}:={_ros_value(value)}']
     log_dir = tempfile.mkdtemp(prefix='safety_filter_')
     log_path = Path(log_dir) / 'node.log'
-    env = dict(os.environ, ROS_LOG_DIR=log_dir, PYTHONUNBUFFERED='1')
+    env = dict(os.environ, ROS_LOG_DIR=log_dir, PYTHONUNBUFFERED='1', **(env or {}))
     with open(log_path, 'w') as log:
         proc = subprocess.Popen(args, cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
     proc.log_path = log_path
@@ -194,6 +196,27 @@ def wall(points, ns='walls', marker_id=0, stamp=None, frame='odom', width=0.1, z
 def markers(*items):
     """MarkerArray of ``items``."""
     return MarkerArray(markers=list(items))
+
+
+# ~/state statuses of a step the filter computed (a watchdog's stop has the stale input's).
+FILTERED_STATUSES = ('ok', 'recovering', 'brake', 'backup')
+
+
+def status_values(status):
+    """``{key: value}`` of a ``DiagnosticStatus``."""
+    return {kv.key: kv.value for kv in status.values}
+
+
+def braked_by_filter(out, states, nominal):
+    """Return True when the newest safe command is slower than ``nominal`` by the filter.
+
+    ``out``: collected Twists; ``states``: collected ``~/state``, whose newest must be a
+    filtered step's ``limit`` or ``stop``, not a stop for a stale or invalid input.
+    """
+    if not (out and states) or out[-1][1].linear.x >= nominal - 0.005:
+        return False
+    values = status_values(states[-1][1])
+    return values['action'] in ('limit', 'stop') and values['status'] in FILTERED_STATUSES
 
 
 def diagnostic_values(msg, name_part='safety filter'):
