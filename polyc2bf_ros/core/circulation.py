@@ -23,10 +23,20 @@ component zero) is passed through unchanged: circulation never moves a robot tol
 
 The side is chosen once, when the deadlock is reported: the side of p the robot's heading
 already lies on (sigma = sign(p x heading), left on a tie), so the robot turns the short
-way.  A second report while circulating (held again, e.g. in a corner) flips the side.
-Circulation ends when the reference point is ``release_distance`` from where it began,
-or after ``max_time`` s; the original nominal then takes over again.  Only unicycle
-velocity commands [v, omega] are circulated; other models keep their nominal.
+way.  A second report while circulating (held again, e.g. in a corner) flips the side, and
+so does a deadlock that outlasts a circulation (``max_time`` ran out, still held): the
+next one starts at once, on the other side.
+Circulation ends, and the original nominal takes over again, when the way it asks for is
+free: once the reference point is ``release_distance`` from where it began, and the filter
+would pass the *probe* [max(|v|, v_n / 2), omega] of the nominal [v, omega] without holding
+the robot (``core.deadlock.holds``; ``ControlDecision`` asks the filter, one extra step per
+circulating step past that distance).  The probe drives on while it turns where the
+nominal turns: a nominal that only turns in place (a go-to-goal law facing away from its
+goal) would pass even with the obstacle still in the way.  So the robot follows the
+obstacle until it has rounded it far enough to head where the nominal wants, not for a
+fixed distance after which the nominal drives it back into the same obstacle.  It also
+ends after ``max_time`` s.  Only unicycle velocity commands [v, omega] are circulated;
+other models keep their nominal.
 """
 import math
 
@@ -40,8 +50,8 @@ def _wrap(angle):
 class Circulation:
     """The rule of the module docstring; ``ControlDecision`` drives it."""
 
-    def __init__(self, release_distance=1.0, max_time=10.0, turn_gain=2.0, max_turn_rate=1.5):
-        """Circulate until ``release_distance`` [m] from the start or ``max_time`` [s]."""
+    def __init__(self, release_distance=0.5, max_time=10.0, turn_gain=2.0, max_turn_rate=1.5):
+        """Circulate at least ``release_distance`` [m] from the start, at most ``max_time`` [s]."""
         if not (release_distance > 0.0 and max_time > 0.0 and turn_gain > 0.0
                 and max_turn_rate > 0.0):
             raise ValueError('circulation: release_distance, max_time, turn_gain and '
@@ -54,6 +64,7 @@ class Circulation:
         self._since = math.nan
         self._axis = None      # cone axis of the blocking part, last known
         self._speed = 0.0      # nominal |v| when the deadlock was reported
+        self._last_side = 0    # the side of the last circulation
 
     @property
     def active(self):
@@ -72,28 +83,45 @@ class Circulation:
             if float(np.hypot(*axis)) > 0.0:
                 self._axis = np.array(axis, dtype=float)
 
-    def engage(self, now, position, yaw, nominal):
+    def engage(self, now, position, yaw, nominal, renew=False):
         """Start (or, while circulating, flip) circulation at the robot's reference point.
 
         ``nominal``: the command [v, omega] the robot was held against; its |v| is kept.
+        ``renew``: the deadlock outlasted the last circulation; start on its other side.
         """
         if self._axis is None:
             return
-        self._speed = max(abs(float(nominal[0])), self._speed if self.active else 0.0)
+        self._speed = max(abs(float(nominal[0])),
+                          self._speed if self.active or renew else 0.0)
         if self.active:
             self.side = -self.side
+        elif renew and self._last_side:
+            self.side = -self._last_side
         else:
             heading = (math.cos(yaw), math.sin(yaw))
             cross = self._axis[0] * heading[1] - self._axis[1] * heading[0]
             self.side = 1 if cross >= 0.0 else -1
         self.engagements += 1
+        self._last_side = self.side
         self._start, self._since = np.array(position, dtype=float), now
 
-    def release_if_done(self, now, position):
-        """End circulation once far enough from its start or after ``max_time``."""
-        if self.active and (now - self._since >= self.max_time or np.linalg.norm(
-                np.asarray(position, dtype=float) - self._start) >= self.release_distance):
+    def release_if_done(self, now, position, passes):
+        """End circulation after ``max_time``, or once the way of the nominal is free.
+
+        ``passes()``: True when the filter would grant the nominal's ``probe`` without
+        holding the robot; called only once ``release_distance`` is covered.
+        """
+        if not self.active:
+            return
+        if now - self._since >= self.max_time or (np.linalg.norm(
+                np.asarray(position, dtype=float) - self._start) >= self.release_distance
+                and passes()):
             self.side = 0
+
+    def probe(self, nominal):
+        """Return [max(|v|, v_n / 2), omega] (sign of v kept): the nominal, driving on."""
+        speed = max(abs(float(nominal[0])), 0.5 * self._speed)
+        return np.array([math.copysign(speed, float(nominal[0])), float(nominal[1])])
 
     def command(self, yaw, nominal):
         """Return the unicycle command [v, omega] to ask the filter for (module docstring)."""

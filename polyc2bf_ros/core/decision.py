@@ -182,7 +182,9 @@ class ControlDecision:
         command, circulation, position = self.command_vector, self.circulation, None
         if circulation is not None and circulation.active:
             position = self._position()
-            circulation.release_if_done(now, position)
+            circulation.release_if_done(
+                now, position,
+                lambda: self._passes(circulation.probe(command), snapshot, age))
             command = circulation.command(self.yaw, command)
         safe, info = self.filter.filter(self.state, self.yaw, command, snapshot.obstacles, age)
         self.counts[info.status.value] += 1
@@ -197,7 +199,15 @@ class ControlDecision:
             circulation.observe(info)
             if self.deadlock.onsets > onsets:
                 circulation.engage(now, position, self.yaw, self.command_vector)
+            elif deadlocked and not circulation.active:
+                # Still held after a circulation ran out of time: try the other side.
+                circulation.engage(now, position, self.yaw, self.command_vector, renew=True)
         return Decision('filter', safe, info, deadlocked=deadlocked)
+
+    def _passes(self, command, snapshot, age):
+        """Return True when the filter would grant ``command`` without holding the robot."""
+        safe, info = self.filter.filter(self.state, self.yaw, command, snapshot.obstacles, age)
+        return not holds(info, command, safe)
 
     def _position(self):
         return self.filter.model.reference(self.state).position

@@ -459,9 +459,8 @@ class SafetyFilter:
         if self._braking and status in (FilterStatus.OK, FilterStatus.RECOVERING,
                                         FilterStatus.SLACK, FilterStatus.ESCAPE):
             if self._must_brake(state, u, prepared, obstacle_age):
-                u, status = self.model.clip_input(self.model.braking_input(state)), \
-                    FilterStatus.BACKUP
-                message = 'braking check: the input leaves no clear way to stop; braking'
+                u, message = self._backup_input(state, u, prepared, obstacle_age)
+                status = FilterStatus.BACKUP
         return u, FilterInfo(
             status=status, h=h, min_h=min_h, active=active,
             solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
@@ -513,6 +512,22 @@ class SafetyFilter:
             return False
         now = self._path_clearance(state, prepared, age)
         return after < now and now > self.guard_radius
+
+    def _backup_input(self, state, u, prepared, age):
+        """Return (input, message) once the braking check refused ``u``.
+
+        The brake with the model's steering inputs taken from ``u``, if the check keeps
+        that (a unicycle at rest at the band's edge turns away instead of standing);
+        otherwise the brake.
+        """
+        brake = self.model.clip_input(self.model.braking_input(state))
+        steering = list(self.model.steering_inputs)
+        if steering:
+            steered = brake.copy()
+            steered[steering] = u[steering]
+            if not self._must_brake(state, steered, prepared, age):
+                return steered, 'braking check: braking the speed, keeping the steering'
+        return brake, 'braking check: the input leaves no clear way to stop; braking'
 
     def _path_clearance(self, state, prepared, age):
         """Return c(B(state)), capped at the margin (``braking_check.path_clearance``).

@@ -72,11 +72,11 @@ def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     assert answer == pytest.approx(expected, abs=1e-9)
 
 
-def _wall_ahead_filter(check):
+def _wall_ahead_filter(check, margin=FilterConfig.braking_margin):
     wall = Obstacle(polygon=np.array([[1.0, -2.0], [1.2, -2.0], [1.2, 2.0], [1.0, 2.0]]))
     filt = SafetyFilter(make_model('unicycle', offset_l=0.01, max_accel=2.0), FilterConfig(
         barrier='polyc2bf_horizon', robot_radius=0.2, horizon=0.1, gamma=5.0,
-        braking_check=check, control_period=PERIOD))
+        braking_check=check, braking_margin=margin, control_period=PERIOD))
     return filt, ObstacleSet.from_obstacles([wall])
 
 
@@ -118,3 +118,22 @@ def test_filter_leaves_the_input_alone_when_braking_cannot_help_either():
     filt, obstacles = _wall_ahead_filter(True)
     _, info = filt.step(np.array([0.775, 0.0, 0.0, 0.5, 0.0]), obstacles, np.array([0.0, 0.0]))
     assert info.status != FilterStatus.BACKUP
+
+
+def test_refused_input_keeps_its_steering_when_only_the_speed_must_go():
+    """At rest on the band's edge, heading 30 degrees into the wall: driving on is refused.
+
+    Turning left swings the guarded point (offset 0.01 m) away from the wall, so the brake
+    keeps that turn; turning right swings it closer, so the robot only brakes.  A 5 cm
+    margin puts the band's edge outside the inflated polygon (the cones exist there).
+    """
+    filt, obstacles = _wall_ahead_filter(True, margin=0.05)
+    yaw = 0.5
+    guarded_x = 1.0 - filt.guard_radius - 0.05 - 1e-6
+    state = np.array([guarded_x - 0.01 * np.cos(yaw), 0.0, yaw, 0.0, 0.0])
+    u, info = filt.step(state, obstacles, np.array([2.0, 4.0]))
+    assert info.status == FilterStatus.BACKUP and 'steering' in info.message
+    assert u[0] == pytest.approx(0.0, abs=1e-12) and u[1] > 1.0
+    u, info = filt.step(state, obstacles, np.array([2.0, -4.0]))
+    assert info.status == FilterStatus.BACKUP and 'steering' not in info.message
+    assert np.allclose(u, 0.0)

@@ -61,20 +61,40 @@ def test_not_circulating_or_a_nominal_stop_passes_the_nominal_through():
     assert circulation.command(0.0, stop) is stop
 
 
-def test_release_after_the_distance_or_the_time_and_flip_on_a_second_report():
-    """Released 1 m from the start or after max_time; a report while circulating flips."""
+def test_release_once_the_nominal_is_free_or_after_the_time_and_flip_on_a_second_report():
+    """Released past release_distance once the filter would pass the probe, or on time."""
     circulation = Circulation(release_distance=1.0, max_time=10.0)
     circulation.observe(info_with_axis((1.0, 0.0)))
     circulation.engage(0.0, (0.0, 0.0), 0.1, (0.8, 0.0))
     circulation.engage(1.0, (0.0, 0.0), 0.1, (0.8, 0.0))
     assert circulation.side == -1 and circulation.engagements == 2
-    circulation.release_if_done(2.0, (0.0, 0.9))
-    assert circulation.active
-    circulation.release_if_done(2.0, (0.0, 1.0))
-    assert not circulation.active
+    asked = []
+
+    def passes():
+        asked.append(True)
+        return True
+
+    circulation.release_if_done(2.0, (0.0, 0.9), passes)
+    assert circulation.active and not asked          # not far enough: the filter not asked
+    circulation.release_if_done(2.0, (0.0, 1.0), lambda: False)
+    assert circulation.active                        # the filter would hold it: keep going
+    circulation.release_if_done(2.0, (0.0, 1.0), passes)
+    assert not circulation.active and asked
     circulation.engage(3.0, (0.0, 0.0), 0.1, (0.8, 0.0))
-    circulation.release_if_done(13.0, (0.0, 0.0))
-    assert not circulation.active
+    circulation.release_if_done(13.0, (0.0, 0.0), lambda: False)
+    assert not circulation.active                    # max_time
+    circulation.engage(13.0, (0.0, 0.0), 0.1, (0.8, 0.0), renew=True)
+    assert circulation.side == -1                    # still held: the other side (was +1)
+
+
+def test_the_probe_drives_on_where_the_nominal_turns():
+    """A nominal turning in place is probed at half the held speed, its turn kept."""
+    circulation = Circulation()
+    circulation.observe(info_with_axis((1.0, 0.0)))
+    circulation.engage(0.0, (0.0, 0.0), 0.1, (0.8, 0.0))
+    assert circulation.probe((0.0, -1.5)) == pytest.approx([0.4, -1.5])
+    assert circulation.probe((0.9, 0.2)) == pytest.approx([0.9, 0.2])
+    assert circulation.probe((-0.1, 0.0)) == pytest.approx([-0.4, 0.0])
 
 
 def test_without_a_valid_cone_nothing_is_engaged():

@@ -78,6 +78,12 @@ class RobotModel(abc.ABC):
     def braking_input(self, x):
         """Return the input that brings the robot to rest fastest (defined for any x)."""
 
+    #: Indices of the inputs that steer rather than speed up or slow down (the unicycle's
+    #: angular acceleration).  When the braking check refuses the filter's input it first
+    #: tries the brake with these taken from that input, so a robot held at the edge of
+    #: an obstacle's band can still turn away from it (``SafetyFilter``, design.md 3.10).
+    steering_inputs = ()
+
     #: Distance from the body's centre to the guarded reference point (the offset l of the
     #: unicycle and the quadrotor): the filter keeps the point ``robot_radius`` + this from
     #: every obstacle, so the body's disc (sphere) of ``robot_radius`` around its centre is

@@ -79,6 +79,7 @@ class Unicycle(RobotModel):
     state_dim = 5
     input_dim = 2
     position_dim = 2
+    steering_inputs = (1,)   # alpha
 
     def __init__(self, offset_l=0.2, max_accel=2.0, max_angular_accel=4.0,
                  brake_time_constant=0.05):
