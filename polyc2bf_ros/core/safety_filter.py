@@ -517,16 +517,17 @@ class SafetyFilter:
         """Return (input, message) once the braking check refused ``u``.
 
         The brake with the model's steering inputs taken from ``u``, if the check keeps
-        that (a unicycle at rest at the band's edge turns away instead of standing);
-        otherwise the brake.
+        that, else with them reversed (a unicycle at rest at the band's edge turns away
+        instead of standing for good); otherwise the brake.
         """
         brake = self.model.clip_input(self.model.braking_input(state))
         steering = list(self.model.steering_inputs)
         if steering:
-            steered = brake.copy()
-            steered[steering] = u[steering]
-            if not self._must_brake(state, steered, prepared, age):
-                return steered, 'braking check: braking the speed, keeping the steering'
+            for sign, how in ((1.0, 'keeping'), (-1.0, 'reversing')):
+                steered = brake.copy()
+                steered[steering] = sign * u[steering]
+                if not self._must_brake(state, steered, prepared, age):
+                    return steered, f'braking check: braking the speed, {how} the steering'
         return brake, 'braking check: the input leaves no clear way to stop; braking'
 
     def _path_clearance(self, state, prepared, age):

@@ -124,7 +124,7 @@ def test_refused_input_keeps_its_steering_when_only_the_speed_must_go():
     """At rest on the band's edge, heading 30 degrees into the wall: driving on is refused.
 
     Turning left swings the guarded point (offset 0.01 m) away from the wall, so the brake
-    keeps that turn; turning right swings it closer, so the robot only brakes.  A 5 cm
+    keeps that turn; turning right swings it closer, so the brake turns left instead.  A 5 cm
     margin puts the band's edge outside the inflated polygon (the cones exist there).
     """
     filt, obstacles = _wall_ahead_filter(True, margin=0.05)
@@ -134,6 +134,9 @@ def test_refused_input_keeps_its_steering_when_only_the_speed_must_go():
     u, info = filt.step(state, obstacles, np.array([2.0, 4.0]))
     assert info.status == FilterStatus.BACKUP and 'steering' in info.message
     assert u[0] == pytest.approx(0.0, abs=1e-12) and u[1] > 1.0
+    kept = u[1]
     u, info = filt.step(state, obstacles, np.array([2.0, -4.0]))
-    assert info.status == FilterStatus.BACKUP and 'steering' not in info.message
-    assert np.allclose(u, 0.0)
+    assert info.status == FilterStatus.BACKUP and 'reversing the steering' in info.message
+    assert u[0] == pytest.approx(0.0, abs=1e-12) and u[1] > 1.0
+    unchecked, _ = _wall_ahead_filter(False, margin=0.05)
+    assert unchecked.step(state, obstacles, np.array([2.0, -4.0]))[0][1] < 0.0 < kept
