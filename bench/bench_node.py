@@ -4,7 +4,10 @@ Three processes per measurement, so the driver cannot be the bottleneck:
 
 - the **subject**: ``safety_filter`` (unicycle, ``stamped:=true``, 50 latched
   obstacles), with ``trigger:=command`` (one step per command) or
-  ``trigger:=timer`` (steps at ``rate`` from its steady timer); or a bare
+  ``trigger:=timer`` (steps at ``rate`` from its steady timer), both with the default
+  filter; ``command_eq7``: ``trigger:=command`` with the filter the package had before
+  the horizon barrier (eq. 7 on inflated polygons, midpoint axis, no braking check), the
+  reference for what the default's extra work costs; or a bare
   **echo** node that republishes each command (the floor: DDS plus Python),
   spun by this package's ``LeanExecutor`` (``echo``) or by ``rclpy.spin``
   (``echo_rclpy``);
@@ -85,7 +88,14 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SEQ_DIGITS = 10  # fixed-width sequence numbers keep the serialized layout fixed
 STAMP = struct.Struct('<iI')
-SUBJECTS = ('echo', 'echo_rclpy', 'command', 'timer')
+SUBJECTS = ('echo', 'echo_rclpy', 'command', 'timer', 'command_eq7')
+#: subject -> (trigger, extra node parameters)
+FILTER_SUBJECTS = {
+    'command': ('command', ()),
+    'timer': ('timer', ()),
+    'command_eq7': ('command', ('filter.barrier:=polyc2bf_inflated', 'filter.cone_axis:=midpoint',
+                                'filter.braking_check:=false')),
+}
 CDF_PERCENTILES = np.linspace(0.0, 100.0, 201)  # the latency distribution kept per record
 TARGET_P50_MS, TARGET_P99_MS = 0.5, 1.5
 
@@ -137,10 +147,12 @@ def subject_args(subject, rate):
     """Command line of the process under test."""
     if subject.startswith('echo'):
         return [sys.executable, __file__, '--role', subject]
+    trigger, extra = FILTER_SUBJECTS[subject]
     return [sys.executable, '-m', 'polyc2bf_ros.safety_filter_node', '--ros-args',
-            '-r', f'__ns:={NAMESPACE}', '-p', 'model:=unicycle', '-p', f'trigger:={subject}',
+            '-r', f'__ns:={NAMESPACE}', '-p', 'model:=unicycle', '-p', f'trigger:={trigger}',
             '-p', 'stamped:=true', '-p', f'rate:={float(rate)}',
-            '-p', 'obstacles_timeout:=0.0', '-p', 'cmd_timeout:=0.5', '--log-level', 'warn']
+            '-p', 'obstacles_timeout:=0.0', '-p', 'cmd_timeout:=0.5',
+            *[arg for value in extra for arg in ('-p', value)], '--log-level', 'warn']
 
 
 def run_echo(lean):
@@ -327,7 +339,7 @@ def run(subject, rate, obstacles, duration, warmup):
     return {
         'bench': 'node', 'subject': subject, 'rate_hz': int(rate) if rate.is_integer() else rate,
         'obstacles': 0 if subject.startswith('echo') else obstacles, 'model': 'unicycle',
-        'trigger': subject if not subject.startswith('echo') else None,
+        'trigger': FILTER_SUBJECTS[subject][0] if not subject.startswith('echo') else None,
         'duration_s': duration,
         'p50_ms': round(float(p50), 4), 'p99_ms': round(float(p99), 4),
         'max_ms': round(float(answered.max()), 4) if answered.size else None,

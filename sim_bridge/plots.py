@@ -30,7 +30,7 @@ from sim_bridge.world import CLEARANCE_RANGE
 
 C3BF_STYLE = {'fill': False, 'edgecolor': 'tab:red', 'linestyle': ':', 'linewidth': 1.2}
 FILTER_COLORS = {'polyc2bf_paper': 'tab:blue', 'polyc2bf_inflated': 'tab:green',
-                 'c3bf': 'tab:red', 'none': 'black'}
+                 'c3bf': 'tab:red', 'polyc2bf_horizon': 'tab:orange', 'none': 'black'}
 ROBOT_COLORS = ('tab:blue', 'tab:purple', 'tab:olive', 'tab:cyan', 'tab:brown', 'tab:pink')
 # The view spans the paths, starts and goals, grown to include obstacles and circles
 # but by at most this much [m] (a 60 m wall would shrink the paths to nothing).
