@@ -7,8 +7,12 @@ it.  A world's Scenario is built once and runs all its filter x nominal
 combinations in one task; tasks go out over ``jobs`` processes (one progress
 bar, counted in runs).
 
+With ``obstacle_source`` 'scan' the robot carries the simulated lidar and its filter
+sees only the scans (``closed_loop``; ``evaluate --obstacle-source``).
+
 Per run (one record in ``results.json``; the keys of doc/design.md, result records, first):
-``suite`` ('barn'), ``world`` (its id), ``filter``, ``nominal``, ``success``,
+``suite`` ('barn'), ``world`` (its id), ``filter``, ``nominal``, ``obstacle_source``
+(``markers`` or ``scan``; ``lidar``, the settings, among the extras), ``success``,
 ``collision``, ``timeout``, ``deadlock`` (exactly one of the last four is true:
 ``outcome`` names it), ``time_s`` (sim time when the run ended: at the goal for
 a success), ``barn_metric`` (``barn.barn_metric``), ``min_clearance_m`` (null:
@@ -51,6 +55,9 @@ from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluate import (
     filter_statistics,
     group_records,
+    lidar_from_args,
+    lidar_record,
+    obstacle_sources,
     override_parameters,
     Progress,
     resolve_filters,
@@ -58,9 +65,9 @@ from sim_bridge.evaluate import (
 )
 from sim_bridge.world import CLEARANCE_RANGE
 
-BARN_KEYS = ('suite', 'world', 'filter', 'nominal', 'success', 'collision', 'timeout',
-             'deadlock', 'time_s', 'barn_metric', 'min_clearance_m', 'mean_intervention',
-             'fallback_rate')
+BARN_KEYS = ('suite', 'world', 'filter', 'nominal', 'obstacle_source', 'success', 'collision',
+             'timeout', 'deadlock', 'time_s', 'barn_metric', 'min_clearance_m',
+             'mean_intervention', 'fallback_rate')
 OUTCOMES = ('success', 'collision', 'deadlock', 'timeout')
 # BARN's DWA (move_base) over 50 worlds x 10 runs, from the benchmark's README.
 DWA_BASELINE = {'success': 0.88, 'collision': 0.048, 'timeout': 0.072, 'barn_metric': 0.1693}
@@ -85,8 +92,9 @@ def barn_record(world, run):
     stats = filter_statistics(run)
     return {
         'suite': 'barn', 'world': world.world, 'filter': run.barrier, 'nominal': run.nominal,
-        'success': success, 'collision': outcome == 'collision',
-        'timeout': outcome == 'timeout', 'deadlock': outcome == 'deadlock',
+        'obstacle_source': run.obstacle_source, 'success': success,
+        'collision': outcome == 'collision', 'timeout': outcome == 'timeout',
+        'deadlock': outcome == 'deadlock',
         'time_s': _round(time_s, 3),
         'barn_metric': _round(barn_metric(success, time_s, world.optimal_time)),
         'min_clearance_m': metrics['min_clearance_m'],
@@ -104,7 +112,7 @@ def barn_record(world, run):
         'negative_h_rate': stats['negative_h_rate'], 'deepest_h': stats['deepest_h'],
         'penetration_m': _round(max(0.0, -metrics['min_clearance_m']))
         if metrics['min_clearance_m'] is not None else None,
-        'wall_time_s': round(run.wall_time_s, 2),
+        'wall_time_s': round(run.wall_time_s, 2), 'lidar': lidar_record(run),
     }
 
 
@@ -116,23 +124,28 @@ def _trajectory(run):
     return {'positions': kept, 'collision': positions[-1] if run.ended == 'collision' else None}
 
 
-def run_world(world, combos, parameters=None):
+def run_world(world, combos, parameters=None, obstacle_source='markers', lidar=None):
     """Run ``world`` (BarnWorld) with every (filter, nominal) of ``combos``.
 
     Return [(record, trajectory)] in ``combos`` order; the Scenario is built once.
-    ``parameters``: node parameters that override the parameter file's.
+    ``parameters``: node parameters that override the parameter file's;
+    ``obstacle_source``, ``lidar``: as for ``run_in_process``.
     """
     scenario = world.scenario()
     results = []
     for barrier, nominal in combos:
         run = run_in_process(scenario, barrier, nominal=nominal, until=BarnReferee(),
-                             parameters=parameters)
+                             parameters=parameters, obstacle_source=obstacle_source,
+                             lidar=lidar)
         results.append((barn_record(world, run), _trajectory(run)))
     return results
 
 
-def run_barn(worlds, combos, jobs=None, progress=True, parameters=None):
+def run_barn(worlds, combos, jobs=None, progress=True, parameters=None,
+             obstacle_source='markers', lidar=None):
     """Run every world x combo over ``jobs`` processes (default: the CPU count).
+
+    ``parameters``, ``obstacle_source``, ``lidar``: as for ``run_world``.
 
     Return (records, trajectories) in world, then combo order; trajectories are keyed
     by (world id, filter, nominal).  With one job everything runs in this process.
@@ -150,13 +163,13 @@ def run_barn(worlds, combos, jobs=None, progress=True, parameters=None):
 
     if jobs == 1:
         for world in worlds:
-            finished(world, run_world(world, combos, parameters))
+            finished(world, run_world(world, combos, parameters, obstacle_source, lidar))
     else:
         # spawn: a fresh interpreter per worker, whatever this process holds (PyBullet, DDS).
         pool = ProcessPoolExecutor(min(jobs, len(worlds)), mp_context=get_context('spawn'))
         try:
-            futures = {pool.submit(run_world, world, combos, parameters): world
-                       for world in worlds}
+            futures = {pool.submit(run_world, world, combos, parameters, obstacle_source,
+                                   lidar): world for world in worlds}
             for future in as_completed(futures):
                 finished(futures[future], future.result())
         finally:
@@ -176,7 +189,8 @@ def run_barn(worlds, combos, jobs=None, progress=True, parameters=None):
 def aggregate_barn(records):
     """Return one row per (filter, nominal) in record order: rates over worlds and means."""
     rows = []
-    for (name, nominal), group in group_records(records, 'filter', 'nominal').items():
+    for (name, nominal, source), group in group_records(records, 'filter', 'nominal',
+                                                         'obstacle_source').items():
         successes = [r['time_s'] for r in group if r['success']]
         clearances = [r['min_clearance_m'] for r in group if r['min_clearance_m'] is not None]
         interventions = [r['mean_intervention'] for r in group
@@ -184,7 +198,8 @@ def aggregate_barn(records):
         fallbacks = [r['fallback_rate'] for r in group if r['fallback_rate'] is not None]
         negative = [r.get('negative_h_rate') for r in group
                     if r.get('negative_h_rate') is not None]
-        row = {'filter': name, 'nominal': nominal, 'runs': len(group)}
+        row = {'filter': name, 'nominal': nominal, 'obstacle_source': source,
+               'runs': len(group)}
         row.update({outcome: sum(r[outcome] for r in group) / len(group)
                     for outcome in OUTCOMES})
         row.update({
@@ -206,20 +221,22 @@ def aggregate_barn(records):
 
 def barn_table(rows):
     """Return the Markdown table of aggregated rows, with BARN's DWA baseline last."""
-    lines = ['| filter | nominal | worlds | success | collision | deadlock | timeout | '
-             'metric | time of successes [s] | min clearance [m] | mean intervention | '
-             'fallback rate | h < 0 steps | deepest penetration [m] |', '|' + '---|' * 14]
+    lines = ['| filter | nominal | obstacles | worlds | success | collision | deadlock | '
+             'timeout | metric | time of successes [s] | min clearance [m] | '
+             'mean intervention | fallback rate | h < 0 steps | deepest penetration [m] |',
+             '|' + '---|' * 15]
     for r in rows:
         clearance = (f'> {CLEARANCE_RANGE:g}' if r['min_clearance_m'] is None
                      else f'{r["min_clearance_m"]:.3f}')
         lines.append(
-            f'| {r["filter"]} | {r["nominal"]} | {r["runs"]} | {r["success"]:.3f} | '
+            f'| {r["filter"]} | {r["nominal"]} | {r["obstacle_source"]} | {r["runs"]} | '
+            f'{r["success"]:.3f} | '
             f'{r["collision"]:.3f} | {r["deadlock"]:.3f} | {r["timeout"]:.3f} | '
             f'{r["barn_metric"]:.3f} | {table_cell(r["mean_success_time_s"], 1)} | {clearance} | '
             f'{table_cell(r["mean_intervention"], 3)} | {table_cell(r["fallback_rate"], 3)} | '
             f'{table_cell(r["negative_h_rate"], 4)} | {r["penetration_m"]:.3f} |')
     base = DWA_BASELINE
-    lines.append(f'| DWA (move_base, BARN) | – | 50 x 10 runs | {base["success"]:.3f} | '
+    lines.append(f'| DWA (move_base, BARN) | – | – | 50 x 10 runs | {base["success"]:.3f} | '
                  f'{base["collision"]:.3f} | – | {base["timeout"]:.3f} | '
                  f'{base["barn_metric"]:.3f} | – | – | – | – | – | – |')
     return '\n'.join(lines)
@@ -258,6 +275,7 @@ def write_barn_outputs(out, records, trajectories, worlds, command, wall_time_s,
             f'Date: {datetime.now().isoformat(timespec="seconds")}; wall time '
             f'{wall_time_s:.0f} s over {jobs} process(es); load average after the run: '
             f'{load}.  ',
+            f'Obstacles: {obstacle_sources(records)}.  ',
             f'{len(records)} runs over {len(worlds)} worlds (from `{worlds_label}`); '
             'per run JSON in `results.json`.  Definitions: `sim_bridge/barn.py` and '
             '`sim_bridge/barn_suite.py` docstrings.  Rates are shares of the worlds; the '
@@ -297,9 +315,11 @@ def main_barn(parser, args, command):
         parameters = override_parameters(args)
     except ValueError as exc:
         parser.error(str(exc))
+    lidar = lidar_from_args(parser, args)
     start = time.monotonic()
     try:
-        records, trajectories = run_barn(worlds, combos, jobs, parameters=parameters)
+        records, trajectories = run_barn(worlds, combos, jobs, parameters=parameters,
+                                         obstacle_source=args.obstacle_source, lidar=lidar)
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130

@@ -19,6 +19,18 @@ Per robot namespace ``<ns>`` (the scenario's robot names), in frame ``frame_id``
   per period with a full set every 0.2 s, 0.6 ms with one every 5 s).
   A filter's ``obstacles_timeout`` (wall) must exceed ``obstacles_refresh`` /
   real-time factor and, in lockstep, ``obstacles_refresh_wall``, or be 0;
+- with ``lidar.enabled``, per robot that carries one (``lidar.robots``; empty: all)
+  publishes ``<ns>/scan`` (sensor_msgs/LaserScan, frame ``<ns>/laser``): the
+  simulated 2-D lidar of ``sim_bridge.lidar`` (``lidar.beams``, ``field_of_view``,
+  ``range_min``, ``range_max``, ``noise_std``, ``height``, ``mount`` [x, y, yaw] in
+  the base frame), a scan every ``physics_rate / lidar.rate`` physics steps (a
+  whole number, else refused like a control rate), stamped with the step's sim
+  time and sent with the next period's topics, after the odometry; and once, at
+  the start, the base -> laser transforms on ``/tf_static`` (reliable +
+  transient local; published when ``tf2_msgs`` is importable, recorded either
+  way).  With ``obstacle_markers`` off the obstacle topics carry empty
+  MarkerArrays only (the filter's obstacle watchdog still needs them), so a
+  filter knows the world only from its scans;
 - publishes ``/clock`` (rosgraph_msgs/Clock) once per control period;
 - ``/tf`` (world -> ``<ns>/base_link``): published when ``tf2_msgs`` is
   importable; the PyPI ROS wheels lack it, so here ``/tf`` is only recorded,
@@ -107,6 +119,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import LaserScan
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -116,6 +129,16 @@ from polyc2bf_ros.loop_log import LoopLogger
 from polyc2bf_ros.node_main import CONFIGURATION_ERRORS, log_configuration_error
 from sim_bridge.bag_reader import message_class
 from sim_bridge.cdr import OdometryCdr, tf_message_cdr, TF_MESSAGE_TYPE
+from sim_bridge.lidar import (
+    laser_scan,
+    lidar_settings,
+    LidarSettings,
+    MAX_BEAMS,
+    mount_transform,
+    PARAMETER_FIELDS,
+    RobotLidars,
+    SCAN_TOPIC,
+)
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.recorder import BagRecorder, close_on_signals
 from sim_bridge.robots import ROBOT_TYPES
@@ -127,6 +150,7 @@ try:
 except ImportError:
     TFMessage = None
 
+LIDAR = LidarSettings()
 # name: (default, (min, max) or None, description).  Negative numbers mean "from the scenario".
 PARAMETERS = {
     'scenario': ('', None, 'scenario name (config/scenarios/<name>.yaml) or YAML path; required'),
@@ -149,6 +173,19 @@ PARAMETERS = {
                               'safety_filter/markers; off spares every filter rendering them'),
     'bag_path': ('', None, 'bag directory; empty = runs/<timestamp>/run'),
     'metrics_path': ('', None, 'metrics JSON; empty = metrics.json beside the bag (if any)'),
+    'obstacle_markers': (True, None, 'publish the obstacles as markers; false: empty marker '
+                         'arrays only (the filters then sense them, e.g. by lidar)'),
+    'lidar.enabled': (False, None, 'simulate a 2-D lidar: <ns>/scan and /tf_static'),
+    'lidar.robots': ('', None, 'comma-separated robots that carry a lidar; empty: every robot'),
+    'lidar.beams': (LIDAR.beams, (1, MAX_BEAMS), 'beams per scan'),
+    'lidar.field_of_view': (LIDAR.field_of_view, (0.0, LIDAR.field_of_view),
+                            'field of view [rad], centred on the sensor x axis'),
+    'lidar.range_min': (LIDAR.range_min, (0.0, 1000.0), 'shortest range [m] reported valid'),
+    'lidar.range_max': (LIDAR.range_max, (0.0, 1000.0), 'longest range [m]; beyond: +inf'),
+    'lidar.rate': (LIDAR.rate, (0.0, 10000.0), 'scans per sim second, dividing physics_rate'),
+    'lidar.noise_std': (LIDAR.noise_std, (0.0, 10.0), 'Gaussian range noise [m] (seeded)'),
+    'lidar.height': (LIDAR.height, (-10.0, 10.0), 'scan plane above the base [m]'),
+    'lidar.mount': (list(LIDAR.mount), None, '[x, y, yaw] of the sensor in the base frame'),
 }
 PUBLISHED_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
@@ -230,6 +267,7 @@ class _Robot:
     obstacles_pub: object
     child_frame: str
     odom_cdr: OdometryCdr
+    scan_pub: object = None
     command: tuple = None
     command_time: float = -math.inf
     answered_ns: int = -1
@@ -262,6 +300,12 @@ class BridgeNode(Node):
         self.params = params
         self.lockstep = params['lockstep']
         self.world = SimWorld(scenario)
+        self.lidars = None
+        if params['lidar.enabled']:
+            carriers = [n.strip() for n in params['lidar.robots'].split(',') if n.strip()]
+            settings = lidar_settings(**{f: params[f'lidar.{f}'] for f in PARAMETER_FIELDS})
+            self.lidars = RobotLidars(self.world, settings, carriers or None, scenario.seed)
+        self._scans = []  # (robot, serialized LaserScan) to send with the next period
         self.metrics = RunMetrics(self.world)
         self.steps_per_period = scenario.substeps
         self.period = self.steps_per_period * self.world.dt
@@ -288,6 +332,16 @@ class BridgeNode(Node):
         elif self.recorder is not None:
             self.recorder.add_topic('/tf', TF_MESSAGE_TYPE, PUBLISHED_QOS)
         self.robots = [self._add_robot(name) for name in self.world.robot_names]
+        self._by_name = {robot.name: robot for robot in self.robots}
+        self._tf_static_pub = self._tf_static = None
+        if self.lidars is not None:
+            self._tf_static = tf_message_cdr([
+                mount_transform(lidar.settings, self._by_name[name].child_frame)
+                for name, lidar in self.lidars.lidars.items()])
+            if TFMessage is not None:
+                self._tf_static_pub = self._publisher(TFMessage, '/tf_static', LATCHED_QOS)
+            elif self.recorder is not None:
+                self.recorder.add_topic('/tf_static', TF_MESSAGE_TYPE, LATCHED_QOS)
         self._markers = {}  # (footprint.robot, footprint.index) -> (Marker, dynamic)
         self._obstacle_version = self.world.obstacle_version
         self._record_only(DIAGNOSTICS_QOS, 'diagnostic_msgs/msg/DiagnosticArray', '/diagnostics')
@@ -300,6 +354,9 @@ class BridgeNode(Node):
             f'physics {scenario.physics_rate:g} Hz, control every {self.steps_per_period} steps '
             f'({1.0 / self.period:g} Hz), {"lockstep" if self.lockstep else "real time"}, '
             f'duration {scenario.duration:g} s'
+            + (f', lidar on {", ".join(self.lidars.lidars)} every {self.lidars.steps} steps'
+               if self.lidars else '')
+            + ('' if params['obstacle_markers'] else ', no obstacle markers')
             + (f', recording to {self.bag_path}' if self.recorder else ''))
 
     # -- setup --------------------------------------------------------------------------------
@@ -348,11 +405,14 @@ class BridgeNode(Node):
         child_frame = f'{name}/base_link'
         odom_pub = self._publisher(Odometry, f'{name}/odom', PUBLISHED_QOS)
         obstacles_pub = self._publisher(MarkerArray, f'{name}/obstacles', LATCHED_QOS)
+        scan_pub = None
+        if self.lidars is not None and name in self.lidars.lidars:
+            scan_pub = self._publisher(LaserScan, f'{name}/{SCAN_TOPIC}', PUBLISHED_QOS)
         robot = _Robot(name=name, type=spec.type, kind=robot_type.command_kind,
                        odom_topic=odom_pub.topic_name, obstacles_topic=obstacles_pub.topic_name,
                        command_topic=f'{name}/{safe}', odom_pub=odom_pub,
                        obstacles_pub=obstacles_pub, child_frame=child_frame,
-                       odom_cdr=OdometryCdr(self.frame, child_frame))
+                       odom_cdr=OdometryCdr(self.frame, child_frame), scan_pub=scan_pub)
         type_name = robot_type.command_type
         self._record_only(COMMAND_QOS, type_name, f'{name}/{safe}',
                           lambda data: self._on_command(robot, data))
@@ -469,7 +529,7 @@ class BridgeNode(Node):
         if self.world.obstacle_version != self._obstacle_version:
             self._obstacle_version = self.world.obstacle_version
             full = True
-        markers = self._current_markers(time_msg, full)
+        markers = self._current_markers(time_msg, full) if self.params['obstacle_markers'] else []
         transforms = []
         for robot in self.robots:
             position, quaternion = self.world.robot_pose(robot.name)
@@ -480,6 +540,8 @@ class BridgeNode(Node):
                 self._send(robot.obstacles_pub, robot.obstacles_topic,
                            serialize_message(MarkerArray(markers=own)), record)
             self._send_odometry(robot, time_msg, position, quaternion, record)
+        for robot, data in self._scans:  # after the odometry the node pairs them with
+            self._send(robot.scan_pub, robot.scan_pub.topic_name, data, record)
         self._send(self._clock_pub, '/clock', serialize_message(Clock(clock=time_msg)), record)
         if self._tf_pub is not None or self.recorder is not None:
             self._send(self._tf_pub, '/tf', tf_message_cdr(transforms), record)
@@ -510,6 +572,12 @@ class BridgeNode(Node):
                                    (*position.tolist(), *quaternion.tolist()),
                                    self.world.body_twist(robot.name))
         self._send(robot.odom_pub, robot.odom_topic, data, record)
+
+    def _take_scans(self):
+        """Queue the scans due at the current physics step, serialized, for the next period."""
+        for name, scan in self.lidars.scans():
+            message = laser_scan(scan, stamp(round(self.world.time * 1e9)))
+            self._scans.append((self._by_name[name], serialize_message(message)))
 
     # -- loop ---------------------------------------------------------------------------------
 
@@ -583,6 +651,9 @@ class BridgeNode(Node):
         pace = self.period / self.params['real_time_factor']
         self._wall_start = time.monotonic()
         period = last_full = 0
+        if self.lidars is not None:
+            self._send(self._tf_static_pub, '/tf_static', self._tf_static, True)
+            self._take_scans()
         self._publish_period(full=True)
         if self.lockstep:
             self._wait_startup()
@@ -596,8 +667,11 @@ class BridgeNode(Node):
                 self._spin_until(lambda: False, deadline)
                 self._inbox.wait(0.0)
             self._apply_commands()
+            self._scans.clear()
             for _ in range(self.steps_per_period):
                 world.step()
+                if self.lidars is not None:
+                    self._take_scans()
             period += 1
             self._now_ns = round(world.time * 1e9)
             full = period - last_full >= refresh_every

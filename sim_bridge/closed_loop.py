@@ -22,7 +22,13 @@ straight to the robot.  Metrics come from the bridge's own ``RunMetrics``
 whether the run is over (the BARN protocol ends runs early); the traces then
 end there.
 
-Obstacles are what the bridge publishes, built as the node builds them:
+``obstacle_source`` says where a filter's obstacles come from: ``markers``
+(default), what the bridge publishes as markers, or ``scan``, a simulated lidar
+(``lidar``, a ``sim_bridge.lidar.LidarSettings``; default its defaults) on every
+filtered robot, converted as the node converts its ``scan_topics`` (``_ScanView``):
+no ground-truth polygon reaches the filter then.
+
+Marker obstacles are what the bridge publishes, built as the node builds them:
 static and moving prisms from their footprint polygons and z ranges; other
 robots as the node's polygon for the bridge's CYLINDER marker
 (``marker_obstacles.marker_geometry``: ``cylinder_sides`` = 12, circumscribing the
@@ -35,7 +41,10 @@ the exact information:
 - the state is the plant's, not the odometry message's (equal up to the
   quaternion round trip of the Crazyflie's attitude);
 - obstacles are never stale and their age is 0 (lockstep markers are stamped
-  with the period's time).
+  with the period's time);
+- in scan mode a scan always serves the period it is delivered to; over DDS the
+  node may answer that period's command before the scan has arrived, one period
+  late (1.4 mm apart over 6 s of ``long_wall``).
 
 Recorded per robot and period: time, state, nominal and safe commands, the
 model input ``u`` and ``u_nom`` (accelerations, or rotor thrusts), the filter
@@ -51,7 +60,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from visualization_msgs.msg import Marker
+from builtin_interfaces.msg import Time
+from rclpy.serialization import serialize_message
+from visualization_msgs.msg import Marker, MarkerArray
 
 from polyc2bf_ros import marker_obstacles
 from polyc2bf_ros.core import crazyflie
@@ -60,7 +71,16 @@ from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters, NODE_PARAMETERS
-from sim_bridge.launcher import body_parameters, control_rate, FILTER_CHOICES, params_file
+from polyc2bf_ros.obstacle_intake import ObstacleJob, ObstaclePipeline
+from sim_bridge.launcher import (
+    body_parameters,
+    control_rate,
+    FILTER_CHOICES,
+    OBSTACLE_SOURCES,
+    params_file,
+    scan_parameters,
+)
+from sim_bridge.lidar import laser_scan, LidarSettings, RobotLidars, SCAN_TOPIC
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.scenario import load_scenario
@@ -136,13 +156,18 @@ class ClosedLoopRun:
     robot_radius: float = None
     nominal: str = 'goal'
     ended: object = None
+    obstacle_source: str = 'markers'
+    lidar: LidarSettings = None
 
 
 class _Robot:
     """One robot's controller, filter and trace buffers."""
 
     def __init__(self, spec, barrier, nominal, period, steps, world, overrides=None):
-        """Build the nominal law and (unless ``barrier`` is 'none') the node's CommandFilter."""
+        """Build the nominal law and (unless ``barrier`` is 'none') the node's CommandFilter.
+
+        ``intake`` and ``filter_spec`` are what the node's obstacle worker gets.
+        """
         robot = ROBOT_TYPES[spec.type]
         self.kind, self.yaw_index = robot.command_kind, robot.yaw_index
         self.spec = spec
@@ -154,12 +179,14 @@ class _Robot:
             self.controller, self.target = UnicyclePathController(), ReferencePath(spec.path)
         parameters = {**load_parameters([params_file(spec.type)], (), spec.name),
                       'rate': 1.0 / period, **body_parameters(spec), **(overrides or {})}
-        self.filter = self.decision = None
+        self.filter = self.decision = self.intake = self.filter_spec = None
         # The model gives u and u_nom for the intervention metric even without a filter.
         self.reference = build_filter(parameters).command_filter
         if barrier != 'none':
             settings = build_filter({**parameters, 'filter.barrier': barrier})
             self.filter = settings.command_filter
+            self.intake = settings.intake
+            self.filter_spec = (robot.model, self.filter.safety_filter.config)
             self.decision = ControlDecision(self.filter, dict.fromkeys(settings.timeouts, 0.0),
                                             settings.block_if_invalid, 0.0, settings.deadlock,
                                             settings.resolution)
@@ -178,8 +205,8 @@ class _Robot:
         self.deadlocked = np.zeros(steps, dtype=bool)
         self.min_h = np.full(steps, np.inf)  # the step's smallest barrier (inf: none)
 
-    def command(self, k, state, obstacles):
-        """Return the safe command of period ``k`` and record it."""
+    def command(self, k, state, snapshot):
+        """Return the safe command of period ``k`` (obstacles: ``snapshot``) and record it."""
         if self.kind == 'velocity':
             nominal = self.controller.velocity_command(state, self.target)
         else:
@@ -190,7 +217,7 @@ class _Robot:
             start = time.perf_counter()
             decision.odometry(now, state, float(state[self.yaw_index]), now)
             decision.command(now, nominal)
-            decision.obstacles(ObstacleSnapshot(obstacles=obstacles, t_ref=now, received=now))
+            decision.obstacles(snapshot)
             result = decision.step(now)
             self.latency[k] = time.perf_counter() - start
             command = result.command
@@ -309,6 +336,10 @@ class _ObstacleView:
         moves = any(footprints[i].robot or np.any(footprints[i].velocity) for i in select)
         return _Layout(self.world.obstacle_version, base, moves, index, rows[index, :3])
 
+    def snapshot(self, robot, state, yaw, now):
+        """Return ``robot``'s obstacles as a snapshot received and stamped at ``now``."""
+        return ObstacleSnapshot(obstacles=self.obstacles(robot), t_ref=now, received=now)
+
     def obstacles(self, robot):
         """Return ``robot``'s ObstacleSet at the world's current time."""
         layout = self._layouts.get(robot)
@@ -324,23 +355,80 @@ class _ObstacleView:
         return layout.current
 
 
+class _ScanView:
+    """Per filtered robot, the obstacles the node makes of its lidar's scans.
+
+    ``RobotLidars`` scans the world's ray scene every physics_rate / rate physics steps
+    (``sense``, after each step and once at the start).  A scan is serialized as the
+    bridge publishes it and, at the start of the next control period, goes with the
+    pose (x, y, yaw) of that period's odometry (the node pairs a scan with its latest
+    odometry) to the node's own obstacle pipeline (``obstacle_intake.ObstaclePipeline``:
+    ``scan_obstacles``, then the ``ObstacleSet``, prepared for the filter), which has had
+    the empty marker set the bridge sends in scan mode.  The snapshot holds until the next
+    scan; its obstacles have velocity 0.
+    """
+
+    def __init__(self, world, robots, settings):
+        """Mount a lidar on every filtered robot and take the scans of step 0."""
+        self.world = world
+        self._robots = {name: robot for name, robot in robots.items() if robot.filter is not None}
+        self.lidars = RobotLidars(world, settings, list(self._robots), world.scenario.seed)
+        self._pipelines = {name: ObstaclePipeline() for name in self._robots}
+        self._snapshots = {name: self._run(name, [(MarkerArray(), 0.0)], ())
+                           for name in self._robots}
+        self._pending = {}  # robot: (serialized LaserScan, sim time taken)
+        self.sense()
+
+    def _run(self, name, messages, scans):
+        """Run one pass of ``name``'s pipeline; return its ObstacleSnapshot."""
+        robot = self._robots[name]
+        return self._pipelines[name].run(ObstacleJob(messages, 'world', robot.intake,
+                                                     robot.filter_spec, self.world.time, scans))
+
+    def sense(self):
+        """Keep the scans due at the world's current physics step for the next period."""
+        for name, scan in self.lidars.scans():
+            sec, nanosec = divmod(round(self.world.time * 1e9), 1_000_000_000)
+            message = laser_scan(scan, Time(sec=sec, nanosec=nanosec))
+            self._pending[name] = (serialize_message(message), self.world.time)
+
+    def snapshot(self, robot, state, yaw, now):
+        """Return ``robot``'s snapshot, after converting its pending scan with pose ``state``."""
+        pending = self._pending.pop(robot, None)
+        if pending is not None:
+            data, taken = pending
+            pose = (float(state[0]), float(state[1]), float(yaw))
+            self._snapshots[robot] = self._run(robot, [], (
+                (SCAN_TOPIC, data, taken, pose, f'{robot}/base_link'),))
+        return self._snapshots[robot]
+
+
 def obstacle_free(scenario):
     """Return ``scenario`` without its obstacles (listed and random): the nominal reference."""
     return dataclasses.replace(scenario, obstacles=(), random_obstacles=None)
 
 
 def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=None,
-                   progress=None, nominal='goal', until=None, parameters=None):
+                   progress=None, nominal='goal', until=None, parameters=None,
+                   obstacle_source='markers', lidar=None):
     """Run ``scenario`` (Scenario or name) in lockstep in this process; return ClosedLoopRun.
 
     ``progress(sim_time, duration)`` is called about once per simulated second;
     ``until(sim_time, world, metrics)`` after every period: anything true ends the run;
-    ``parameters``: node parameters that override the parameter file's.
+    ``parameters``: node parameters that override the parameter file's;
+    ``obstacle_source``: 'markers' or 'scan' (by ``lidar``, default ``LidarSettings()``).
     """
     if barrier not in FILTER_CHOICES:
         raise ValueError(f'filter must be one of {", ".join(FILTER_CHOICES)}, got {barrier!r}')
     if nominal not in NOMINALS:
         raise ValueError(f'nominal must be one of {", ".join(NOMINALS)}, got {nominal!r}')
+    if obstacle_source not in OBSTACLE_SOURCES:
+        raise ValueError(f'obstacle source must be one of {", ".join(OBSTACLE_SOURCES)}, '
+                         f'got {obstacle_source!r}')
+    scanning = obstacle_source == 'scan'
+    lidar = (lidar or LidarSettings()).validate() if scanning else None
+    if scanning:
+        parameters = {**scan_parameters(lidar), **(parameters or {})}
     scenario = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
     if seed is not None:
         scenario = scenario.with_seed(seed)
@@ -354,19 +442,23 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
         metrics = RunMetrics(world)
         robots = {spec.name: _Robot(spec, barrier, nominal, period, steps, world, parameters)
                   for spec in scenario.robots}
-        view = _ObstacleView(world)
+        view = _ScanView(world, robots, lidar) if scanning else _ObstacleView(world)
         report_every = max(1, round(1.0 / period))
         start, ended = time.perf_counter(), None
         for k in range(steps):
             commands = {}
             for name, robot in robots.items():
                 # The state recorded after the last period's physics (nothing moved since).
-                obstacles = view.obstacles(name) if robot.filter is not None else None
-                commands[name] = robot.command(k, robot.states[k], obstacles)
+                state = robot.states[k]
+                snapshot = (view.snapshot(name, state, state[robot.yaw_index], robot.times[k])
+                            if robot.filter is not None else None)
+                commands[name] = robot.command(k, state, snapshot)
             for name, command in commands.items():
                 world.set_command(name, command, robots[name].kind)
             for _ in range(substeps):
                 world.step()
+                if scanning:
+                    view.sense()
             metrics.update()
             for name, robot in robots.items():
                 robot.states[k + 1] = world.robot_state(name)
@@ -382,6 +474,7 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
         return ClosedLoopRun(scenario=scenario, barrier=barrier, period=period,
                              robots={n: r.trace() for n, r in robots.items()},
                              metrics=metrics.to_json(), wall_time_s=wall, robot_radius=radius,
-                             nominal=nominal, ended=ended or None)
+                             nominal=nominal, ended=ended or None,
+                             obstacle_source=obstacle_source, lidar=lidar)
     finally:
         world.close()

@@ -3,11 +3,14 @@
 Usage::
 
     demo [--scenario long_wall] [--filter polyc2bf_inflated] [--duration S] [--seed N]
-         [--out runs]
+         [--out runs] [--obstacle-source markers|scan] [--lidar FIELD=VALUE ...]
 
 Runs ``sim_bridge``, and per robot ``nominal_controller`` and ``safety_filter``,
 as separate processes in lockstep (``sim_bridge.launcher``), showing sim time
-as it goes.  Everything lands in ``<out>/<timestamp>/``:
+as it goes.  With ``--obstacle-source scan`` the bridge publishes no obstacle
+markers but each robot's simulated lidar (``<ns>/scan``, ``/tf_static``;
+``--lidar FIELD=VALUE`` as for ``evaluate``), and each filter builds its obstacles
+from the scans (``scan_topics``).  Everything lands in ``<out>/<timestamp>/``:
 
 - ``run/`` the rosbag2 bag (``run_0.mcap`` + ``metadata.yaml``) and ``run.mcap``,
   a link to the MCAP file (Foxglove and ``rosbags`` open it on its own);
@@ -38,6 +41,7 @@ from sim_bridge.launcher import (
     domain_id,
     FILTER_CHOICES,
     format_progress,
+    OBSTACLE_SOURCES,
     params_file,
     run_closed_loop,
 )
@@ -159,7 +163,20 @@ def main(argv=None):
     parser.add_argument('--duration', type=float, default=None, help='sim seconds')
     parser.add_argument('--seed', type=int, default=None, help='random-obstacle seed')
     parser.add_argument('--out', default='runs', help='parent of the run directory (runs)')
+    parser.add_argument('--obstacle-source', choices=OBSTACLE_SOURCES, default='markers',
+                        help="the filters' obstacles: markers (default) or scan (lidar)")
+    parser.add_argument('--lidar', action='append', default=[], metavar='FIELD=VALUE',
+                        help='with --obstacle-source scan: a lidar setting, as for evaluate')
     args = parser.parse_args(argv)
+    lidar = None
+    if args.obstacle_source == 'scan':
+        from sim_bridge.lidar import lidar_settings  # loads PyBullet: only for scans
+        try:
+            lidar = lidar_settings(args.lidar)
+        except ValueError as exc:
+            parser.error(str(exc))
+    elif args.lidar:
+        parser.error('--lidar needs --obstacle-source scan')
     try:
         scenario = load_scenario(args.scenario)
     except ScenarioError as exc:
@@ -173,14 +190,16 @@ def main(argv=None):
     run_dir = new_run_dir(args.out)
     robots = ', '.join(f'{r.name} ({r.type})' for r in scenario.robots)
     print(f'demo: {scenario.name} ({scenario.duration:g} s), filter {args.filter}, '
-          f'robots {robots}\n  processes: sim_bridge, per robot nominal_controller'
+          f'obstacles from {args.obstacle_source}, robots {robots}\n'
+          '  processes: sim_bridge, per robot nominal_controller'
           + (' + safety_filter' if args.filter != 'none' else '')
           + f'; lockstep over DDS on localhost, ROS_DOMAIN_ID {domain_id()}\n'
           f'  run directory: {run_dir}', flush=True)
     try:
         result = run_closed_loop(args.scenario, run_dir, barrier=args.filter,
                                  duration=scenario.duration, seed=scenario.seed,
-                                 progress=_printer(sys.stderr))
+                                 progress=_printer(sys.stderr),
+                                 obstacle_source=args.obstacle_source, lidar=lidar)
     except KeyboardInterrupt:
         print(f'\ndemo: interrupted; every process stopped (a bag, if begun, closed) in {run_dir}')
         return 130

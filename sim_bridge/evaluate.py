@@ -4,16 +4,25 @@ Usage::
 
     evaluate [--scenarios long_wall ...] [--filters c3bf none ...] [--seeds 0 1 2]
              [--random-seeds 3] [--duration S] [--out runs/eval] [--no-plots]
+             [--obstacle-source markers|scan] [--lidar FIELD=VALUE ...]
     evaluate --suite barn [--worlds FILE] [--nominal path|goal ...] [--filters ...]
-             [--jobs N] [--limit K] [--out runs/barn] [--no-plots]
+             [--jobs N] [--limit K] [--out runs/barn] [--no-plots] [--obstacle-source ...]
 
 ``--filters`` takes ``polyc2bf_paper``, ``polyc2bf_inflated``, ``c3bf``, ``none``
 and ``default`` (the barrier the robot type's shipped parameter file runs).  The
 BARN suite (``sim_bridge.barn``, ``sim_bridge.barn_suite``) runs the worlds of
 ``--worlds`` (default: the shipped ``bench/data/barn/barn_worlds.json``; ``--limit``:
 the first K) with each nominal (default ``path``) and filter (default
-``default``) over ``--jobs`` processes (default: the CPU count).  What follows
-describes the scenario suite.
+``default``) over ``--jobs`` processes (default: the CPU count).
+
+``--obstacle-source`` (both suites): ``markers`` (default), the ground-truth
+polygons the bridge publishes, or ``scan``: each filtered robot carries the
+simulated 2-D lidar of ``sim_bridge.lidar`` (``LidarSettings`` defaults: 360
+beams over 360 deg, 10 m, 10 Hz, no noise, the scan plane through the base
+origin; ``--lidar FIELD=VALUE`` changes one) and its filter gets only what the
+node makes of the scans (``closed_loop``).  Every record carries
+``obstacle_source`` (and ``lidar``, the settings, in scan mode); the tables have
+an ``obstacles`` column.  What follows describes the scenario suite.
 
 Each run is the in-process lockstep loop of ``sim_bridge.closed_loop`` (the
 PyBullet world, the ``nominal_controller`` law and the node's ``CommandFilter``),
@@ -77,7 +86,8 @@ import yaml
 from polyc2bf_ros.core.decision import RESOLUTIONS
 from sim_bridge import plots
 from sim_bridge.closed_loop import default_barrier, NOMINALS, obstacle_free, run_in_process
-from sim_bridge.launcher import FILTER_CHOICES
+from sim_bridge.launcher import FILTER_CHOICES, OBSTACLE_SOURCES
+from sim_bridge.lidar import lidar_settings, PARAMETER_FIELDS as LIDAR_FIELDS
 from sim_bridge.metrics import GOAL_TOLERANCE
 from sim_bridge.robots import robot_type
 from sim_bridge.scenario import load_scenario, scenario_names
@@ -90,9 +100,9 @@ GRAZE = 0.01          # m: clearances below this are reported as near-contacts
 DEFAULT_RANDOM_SEEDS = 3
 FILTER_NAMES = FILTER_CHOICES + ('default',)
 SUITES = ('scenarios', 'barn')
-KEYS = ('scenario', 'filter', 'seed', 'success', 'collision', 'deadlock', 'min_clearance_m',
-        'time_to_goal_ratio', 'mean_intervention', 'fallback_rate', 'latency_p50_us',
-        'latency_p99_us')
+KEYS = ('scenario', 'filter', 'seed', 'obstacle_source', 'success', 'collision', 'deadlock',
+        'min_clearance_m', 'time_to_goal_ratio', 'mean_intervention', 'fallback_rate',
+        'latency_p50_us', 'latency_p99_us')
 POLYC2BF = ('polyc2bf_paper', 'polyc2bf_inflated')
 PAPER_CLAIM = ('long_wall', 'semi_infinite_wall')  # where the paper says C3BF fails
 
@@ -181,7 +191,8 @@ def summarise(run, reference_times):
                if success else 'deadlock' if deadlock else 'timeout')
     record = {
         'scenario': run.scenario.name, 'filter': run.barrier, 'seed': run.scenario.seed,
-        'success': success, 'collision': collision, 'deadlock': deadlock,
+        'obstacle_source': run.obstacle_source, 'success': success, 'collision': collision,
+        'deadlock': deadlock,
         'min_clearance_m': min(clearances) if clearances else None,
         'time_to_goal_ratio': _round(float(np.mean(ratios))) if None not in ratios else None,
         'mean_intervention': stats['mean_intervention'],
@@ -198,9 +209,14 @@ def summarise(run, reference_times):
         'negative_h_rate': stats['negative_h_rate'], 'deepest_h': stats['deepest_h'],
         'penetration_m': _round(max(0.0, -min(clearances))) if clearances else None,
         'steps': stats['steps'], 'duration_s': run.scenario.duration,
-        'wall_time_s': round(run.wall_time_s, 2), 'robots': robots,
+        'wall_time_s': round(run.wall_time_s, 2), 'robots': robots, 'lidar': lidar_record(run),
     }
     return record
+
+
+def lidar_record(run):
+    """Return the run's lidar settings as a dict (None unless its obstacles came from scans)."""
+    return None if run.lidar is None else dataclasses.asdict(run.lidar)
 
 
 def _units(run):
@@ -275,10 +291,13 @@ def plan_runs(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
 
 
 def run_suite(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
-              duration=None, progress=True, parameters=None):
+              duration=None, progress=True, parameters=None, obstacle_source='markers',
+              lidar=None):
     """Run the obstacle-free references and every planned run; return (records, runs).
 
-    ``parameters``: node parameters that override the parameter files' (``run_in_process``).
+    ``parameters``: node parameters that override the parameter files'; ``obstacle_source``
+    and ``lidar``: where the filters' obstacles come from (``run_in_process``).  The
+    references have no obstacles and no filter, so no lidar.
     """
     planned = plan_runs(scenarios, filters, seeds, random_seeds, duration)
     # References run for the scenario file's own duration, whatever ``duration`` says.
@@ -300,7 +319,9 @@ def run_suite(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
             if bar is not None:
                 bar.update(base + sim_time * weight, label)
 
-        run = run_in_process(scenario, barrier, progress=report, parameters=parameters)
+        source = 'markers' if is_reference else obstacle_source
+        run = run_in_process(scenario, barrier, progress=report, parameters=parameters,
+                             obstacle_source=source, lidar=lidar)
         done += scenario.duration * weight
         if is_reference:
             reference_times[scenario.name] = {name: m['time_to_goal_s']
@@ -328,14 +349,16 @@ def group_records(records, *keys):
 def aggregate(records):
     """Return one row per (scenario, filter), aggregated over seeds, in record order."""
     rows = []
-    for (scenario, name), group in group_records(records, 'scenario', 'filter').items():
+    for (scenario, name, source), group in group_records(records, 'scenario', 'filter',
+                                                          'obstacle_source').items():
         def values(key, group=group):
             return [r[key] for r in group if r[key] is not None]
 
         clearances = values('min_clearance_m')
         ratios = values('time_to_goal_ratio')
         rows.append({
-            'scenario': scenario, 'filter': name, 'runs': len(group),
+            'scenario': scenario, 'filter': name, 'obstacle_source': source,
+            'runs': len(group),
             'success': sum(r['success'] for r in group),
             'collision': sum(r['collision'] for r in group),
             'deadlock': sum(r['deadlock'] for r in group),
@@ -366,9 +389,9 @@ def table_cell(value, digits=2, suffix=''):
 
 def markdown_table(rows):
     """Return the Markdown table of aggregated rows."""
-    lines = ['| scenario | filter | success | collision | deadlock | timeout | no cone at t=0 | '
-             'min clearance [m] | time to goal ratio | mean intervention | fallback rate | '
-             'h < 0 steps | latency p50 / p99 [us] |', '|' + '---|' * 13]
+    lines = ['| scenario | filter | obstacles | success | collision | deadlock | timeout | '
+             'no cone at t=0 | min clearance [m] | time to goal ratio | mean intervention | '
+             'fallback rate | h < 0 steps | latency p50 / p99 [us] |', '|' + '---|' * 14]
     for r in rows:
         n = r['runs']
         clearance = (f'> {CLEARANCE_RANGE:g}' if r['min_clearance_m'] is None
@@ -378,7 +401,8 @@ def markdown_table(rows):
         fallback = None if r['fallback_rate'] is None else 100 * r['fallback_rate']
         negative = None if r['negative_h_rate'] is None else 100 * r['negative_h_rate']
         lines.append(
-            f'| {r["scenario"]} | {r["filter"]} | {r["success"]}/{n} | {r["collision"]}/{n} | '
+            f'| {r["scenario"]} | {r["filter"]} | {r["obstacle_source"]} | '
+            f'{r["success"]}/{n} | {r["collision"]}/{n} | '
             f'{r["deadlock"]}/{n} | {r["timeout"]}/{n} | {r["fallback_at_start"]}/{n} | '
             f'{clearance} | '
             f'{table_cell(r["time_to_goal_ratio"])} | {table_cell(r["mean_intervention"], 3)} | '
@@ -479,6 +503,17 @@ def _why(record):
     return outcome
 
 
+def obstacle_sources(records):
+    """Return where the records' obstacles came from, with the lidar settings of scans."""
+    texts = {}
+    for record in records:
+        lidar = record.get('lidar')
+        settings = '' if lidar is None else ' (lidar ' + ', '.join(
+            f'{name} {value}' for name, value in lidar.items() if name != 'frame_id') + ')'
+        texts.setdefault(record['obstacle_source'] + settings, None)
+    return '; '.join(texts)
+
+
 def write_outputs(out, records, runs, command, plots_too=True):
     """Write results.json, results.md and (unless ``plots_too`` is False) the PNGs."""
     out = Path(out)
@@ -491,6 +526,7 @@ def write_outputs(out, records, runs, command, plots_too=True):
             f'Command: `{command}`  ',
             f'Date: {datetime.now().isoformat(timespec="seconds")}, load average after the run: '
             f'{load}.  ',
+            f'Obstacles: {obstacle_sources(records)}.  ',
             f'{len(records)} runs; per run JSON in `results.json`.  Definitions: '
             '`sim_bridge/evaluate.py` docstring.  Counts are runs (seeds) with that property; '
             '"no cone at t=0": the filter fell back (escape: the robot starts inside the '
@@ -546,6 +582,12 @@ def _parser():
     parser.add_argument('--deadlock-resolution', choices=RESOLUTIONS, default=None,
                         help="the filter's deadlock_resolution (default: the parameter "
                         "file's, 'none' as shipped)")
+    parser.add_argument('--obstacle-source', choices=OBSTACLE_SOURCES, default='markers',
+                        help="the filters' obstacles: markers (ground truth, default) or scan "
+                        '(a simulated lidar on each robot, converted as the node does)')
+    parser.add_argument('--lidar', action='append', default=[], metavar='FIELD=VALUE',
+                        help='with --obstacle-source scan: a lidar setting (value read as '
+                        f'YAML), FIELD one of {", ".join(LIDAR_FIELDS)}; repeatable')
     parser.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
                         help='set a node parameter of every filtered robot, as ros2 run -p '
                         '(value read as YAML), e.g. -p filter.horizon:=2.0; repeatable')
@@ -587,6 +629,18 @@ def override_parameters(args):
     return parameters
 
 
+def lidar_from_args(parser, args):
+    """Return the LidarSettings of ``--lidar`` in scan mode (None with markers); exit 2 if bad."""
+    if args.obstacle_source != 'scan':
+        if args.lidar:
+            parser.error('--lidar needs --obstacle-source scan')
+        return None
+    try:
+        return lidar_settings(args.lidar)
+    except ValueError as exc:
+        parser.error(str(exc))
+
+
 SUITE_OPTIONS = {'scenarios': ('scenarios', 'seeds', 'random_seeds', 'duration'),
                  'barn': ('worlds', 'nominal', 'jobs', 'limit')}
 
@@ -619,9 +673,11 @@ def main(argv=None):
         parameters = override_parameters(args)
     except ValueError as exc:
         parser.error(str(exc))
+    lidar = lidar_from_args(parser, args)
     try:
         records, runs = run_suite(scenarios, args.filters or list(FILTER_CHOICES), args.seeds,
-                                  random_seeds, args.duration, parameters=parameters)
+                                  random_seeds, args.duration, parameters=parameters,
+                                  obstacle_source=args.obstacle_source, lidar=lidar)
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130

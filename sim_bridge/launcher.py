@@ -19,6 +19,14 @@ obstacles never stale (``obstacles_timeout: 0``: the bridge sends static
 obstacles only every ``obstacles_refresh`` s of sim time, which a slow run
 stretches in wall time).
 
+With ``obstacle_source='scan'`` the filters see no ground truth: the bridge
+publishes empty obstacle MarkerArrays (``obstacle_markers: false``; the filter's
+obstacle watchdog still needs them) and each robot's simulated lidar on
+``<ns>/scan`` (``lidar.*``: the given ``sim_bridge.lidar.LidarSettings``), and each
+filter takes its obstacles from that scan (``scan_parameters``: ``scan_topics``,
+``sensor_pose`` = the mount, ``scan_timeout: 0``, for the reason obstacles never go
+stale in lockstep).
+
 ``run_closed_loop(...)`` starts the plan (``sys.executable -m <module>``, so a
 source checkout and an install both work), each process logging to
 ``<run_dir>/<name>.log`` with ``ROS_LOG_DIR`` in the run directory, waits for
@@ -48,6 +56,7 @@ CONFIG_DIR = SCENARIO_DIR.parent
 SOURCE_ROOT = Path(__file__).resolve().parents[1]
 BARRIERS = ('polyc2bf_paper', 'polyc2bf_inflated', 'c3bf', 'polyc2bf_horizon')
 FILTER_CHOICES = BARRIERS + ('none',)
+OBSTACLE_SOURCES = ('markers', 'scan')
 LOCKSTEP_FILTER = {'trigger': 'command', 'match_stamps': True, 'odom_timeout': 10.0,
                    'cmd_timeout': 10.0, 'obstacles_timeout': 0.0}
 # Wall seconds the bridge waits for first answers and per period: generous for a loaded
@@ -148,6 +157,28 @@ def body_parameters(spec):
     return {'filter.robot_radius': float(spec.radius)}
 
 
+# sim_bridge.lidar is imported where scans are planned: it loads PyBullet, which a plan
+# with markers (and the launch file) does without.
+
+def scan_parameters(lidar):
+    """Return the filter parameters that take obstacles from the robot's lidar ``lidar``.
+
+    The scan topic, the sensor's pose in the base frame (its mount: the scan's frame is
+    ``<ns>/laser``) and ``scan_timeout`` 0 (never stale once received, as lockstep needs).
+    """
+    from sim_bridge.lidar import SCAN_TOPIC
+    return {'scan_topics': [SCAN_TOPIC], 'sensor_pose': [float(v) for v in lidar.mount],
+            'scan_timeout': 0.0}
+
+
+def lidar_bridge_parameters(lidar):
+    """Return the bridge parameters that put ``lidar`` on every robot and drop the markers."""
+    from sim_bridge.lidar import PARAMETER_FIELDS
+    values = {f'lidar.{name}': getattr(lidar, name) for name in PARAMETER_FIELDS}
+    values['lidar.mount'] = [float(v) for v in lidar.mount]
+    return {'lidar.enabled': True, 'obstacle_markers': False, **values}
+
+
 def scenario_reference(scenario):
     """Return what the bridge's ``scenario`` parameter needs: a shipped name, or an absolute path.
 
@@ -160,7 +191,7 @@ def scenario_reference(scenario):
 
 
 def closed_loop_plan(scenario, barrier='polyc2bf_inflated', bridge_parameters=None,
-                     filter_parameters=None):
+                     filter_parameters=None, obstacle_source='markers', lidar=None):
     """Return the ProcessSpecs of one closed-loop run of ``scenario``.
 
     ``scenario`` is a shipped name or a YAML path, or a loaded shipped Scenario.
@@ -168,9 +199,20 @@ def closed_loop_plan(scenario, barrier='polyc2bf_inflated', bridge_parameters=No
     ``barrier`` is a ``filter.barrier`` value or ``'none'`` (nominal command straight
     to the robot).  ``bridge_parameters`` (e.g. ``duration``, ``seed``, ``record``,
     ``bag_path``) and ``filter_parameters`` override or add node parameters.
+    ``obstacle_source``: 'markers' or 'scan' (module docstring; ``lidar`` defaults to
+    ``LidarSettings()``).
     """
     if barrier not in FILTER_CHOICES:
         raise ValueError(f'filter must be one of {", ".join(FILTER_CHOICES)}, got {barrier!r}')
+    if obstacle_source not in OBSTACLE_SOURCES:
+        raise ValueError(f'obstacle source must be one of {", ".join(OBSTACLE_SOURCES)}, '
+                         f'got {obstacle_source!r}')
+    sensed = {}
+    if obstacle_source == 'scan':
+        from sim_bridge.lidar import LidarSettings
+        lidar = (lidar or LidarSettings()).validate()
+        bridge_parameters = {**lidar_bridge_parameters(lidar), **(bridge_parameters or {})}
+        sensed = scan_parameters(lidar)
     if hasattr(scenario, 'name'):
         reference = scenario.name  # a loaded shipped scenario
     else:
@@ -192,7 +234,7 @@ def closed_loop_plan(scenario, barrier='polyc2bf_inflated', bridge_parameters=No
         plan.append(ProcessSpec(f'{robot.name}_nominal', 'nominal_controller',
                                 'sim_bridge.nominal_controller_node', robot.name, controller))
         parameters = {**robot_type.filter_parameters, **LOCKSTEP_FILTER, 'rate': rate,
-                      'filter.barrier': barrier, **body_parameters(robot),
+                      'filter.barrier': barrier, **body_parameters(robot), **sensed,
                       **(filter_parameters or {})}
         plan.append(ProcessSpec(f'{robot.name}_filter', 'safety_filter',
                                 'polyc2bf_ros.safety_filter_node', robot.name, parameters,
@@ -282,15 +324,16 @@ def stop_processes(procs, timeout):
 
 def run_closed_loop(scenario, run_dir, barrier='polyc2bf_inflated', duration=None, seed=None,
                     record=True, bridge_parameters=None, filter_parameters=None,
-                    timeout=None, stop_timeout=10.0, progress=None):
+                    timeout=None, stop_timeout=10.0, progress=None, obstacle_source='markers',
+                    lidar=None):
     """Run ``scenario`` in closed loop as processes; return a RunResult.
 
-    ``scenario`` is as for ``closed_loop_plan``; ``duration`` [s of sim] and ``seed``
-    override the scenario's.  ``timeout`` (wall s, default 60 + 20 x sim duration per
-    robot) bounds the wait for the bridge, which is then stopped with SIGINT (its bag is
-    closed cleanly).  ``progress(sim_time, duration)``, if given, is called from a
-    /clock subscriber thread as the run advances, and once with the full duration when
-    the bridge completes the run.
+    ``scenario``, ``obstacle_source`` and ``lidar`` are as for ``closed_loop_plan``;
+    ``duration`` [s of sim] and ``seed`` override the scenario's.  ``timeout`` (wall s,
+    default 60 + 20 x sim duration per robot) bounds the wait for the bridge, which is
+    then stopped with SIGINT (its bag is closed cleanly).  ``progress(sim_time,
+    duration)``, if given, is called from a /clock subscriber thread as the run
+    advances, and once with the full duration when the bridge completes the run.
     """
     reference = scenario.name if hasattr(scenario, 'name') else scenario_reference(scenario)
     scenario = load_scenario(reference)
@@ -304,7 +347,8 @@ def run_closed_loop(scenario, run_dir, barrier='polyc2bf_inflated', duration=Non
     if seed is not None:
         bridge['seed'] = int(seed)
     bridge.update(bridge_parameters or {})
-    plan = closed_loop_plan(reference, barrier, bridge, filter_parameters)
+    plan = closed_loop_plan(reference, barrier, bridge, filter_parameters, obstacle_source,
+                            lidar)
     sim_duration = float(bridge.get('duration', scenario.duration))
     if timeout is None:
         timeout = 60.0 + 20.0 * sim_duration * len(scenario.robots)

@@ -9,9 +9,9 @@ Gaussian noise of ``noise_std`` (seeded; drawn for every beam each scan, so the
 stream does not depend on the scene), clipped at 0.  Returns closer than
 ``range_min`` are reported as measured: consumers drop them, as LaserScan says.
 Beam angles follow sensor_msgs/LaserScan (``LidarSettings``).  ``laser_scan``
-and ``mount_transform`` build the LaserScan and the static base -> laser
-TransformStamped; they import the message packages when called, so ray casting
-needs neither rclpy nor sensor_msgs.
+builds the LaserScan (importing sensor_msgs when called, so ray casting needs
+neither rclpy nor sensor_msgs) and ``mount_transform`` the static base -> laser
+transform for ``sim_bridge.cdr.tf_message_cdr``.
 
 The robot's own body: rays start at the sensor origin and a hit on an
 ``ignore``-d body (any of its links) is discarded: those beams are re-cast from
@@ -40,12 +40,18 @@ quantisation.
 Rays see only the bodies that exist, take part in collisions and have a
 collision margin: Bullet's ray test misses most shapes of margin 0 (random
 boxes and convex meshes: ~60 % of the beams that should hit them; cylinders
-now and then).  A ``sim_bridge.world.SimWorld`` as it stands is therefore
-mostly invisible to this lidar: its obstacle bodies have margin 0 (for exact
-closest points; in ``long_wall`` no beam hits the wall), they are made only
-when a closest-point query first comes near them, and the unicycle plants'
-bodies (quadruped, diff drive) have collision group and mask 0, so no ray hits
-them, neither one's own nor another robot's.
+now and then).  A ``sim_bridge.world.SimWorld`` keeps its own bodies at margin
+0 (for exact closest points) and makes them on first use, so ``RobotLidars``
+scans the world's ray scene instead (``SimWorld.ray_scene``): a PyBullet
+client of its own holding every present obstacle at Bullet's default margin
+and each robot as the cylinder of its footprint radius, which the world's
+contacts and clearances never see.
+
+``RobotLidars(world, settings)`` puts a Lidar on robots of a SimWorld (frame
+``<robot>/laser``) and scans every ``physics_rate / rate`` physics steps, a
+whole number or refused (``scenario.rate_steps``, as for the control rate);
+the bridge publishes the scans, the in-process loop converts them as the node
+does.
 
 Cost per scan, 360 / 1081 beams, range_max 10 m (median of repeats, both cores
 busy): no obstacles 0.55 / 1.8 ms (over half of it Python); a 10 m box room
@@ -65,6 +71,9 @@ import numbers
 
 import numpy as np
 import pybullet as pb
+import yaml
+
+from sim_bridge.scenario import rate_steps
 
 MAX_BEAMS = 4096
 # Re-casting a beam past a hit on the robot's own body starts this far beyond the hit [m].
@@ -72,6 +81,10 @@ RECAST_STEP = 1e-3
 MAX_RECASTS = 16
 # A field of view within this of 2 pi is a full circle [rad].
 FULL_CIRCLE_TOLERANCE = 1e-9
+# The fields a lidar's parameters set (the bridge's ``lidar.<field>``, ``--lidar FIELD=VALUE``).
+PARAMETER_FIELDS = ('beams', 'field_of_view', 'range_min', 'range_max', 'rate', 'noise_std',
+                    'height', 'mount')
+SCAN_TOPIC = 'scan'  # relative to the robot's namespace
 
 
 def _finite(value):
@@ -103,7 +116,7 @@ class LidarSettings:
 
     ``beams`` (1..MAX_BEAMS) over ``field_of_view`` [rad] in (0, 2 pi], centred on
     the sensor's x axis; ``range_min``, ``range_max`` [m]; ``rate`` [Hz] (the
-    LaserScan's ``scan_time`` = 1 / rate; when to scan is the caller's);
+    LaserScan's ``scan_time`` = 1 / rate; ``RobotLidars`` scans at it);
     ``noise_std`` [m]: Gaussian range noise; ``height`` [m]: the scan plane above
     the base; ``mount``: (x [m], y [m], yaw [rad]) of the sensor in the base frame;
     ``frame_id``: the sensor's frame.  Angles as in sensor_msgs/LaserScan:
@@ -118,7 +131,7 @@ class LidarSettings:
     range_max: float = 10.0
     rate: float = 10.0
     noise_std: float = 0.0
-    height: float = 0.1
+    height: float = 0.0
     mount: tuple = (0.0, 0.0, 0.0)
     frame_id: str = 'laser'
 
@@ -282,22 +295,80 @@ def laser_scan(scan, stamp):
     return message
 
 
-def mount_transform(settings, base_frame, stamp=None):
-    """Return the static TransformStamped ``base_frame`` -> ``settings.frame_id``.
+def mount_transform(settings, base_frame):
+    """Return the static transform ``base_frame`` -> ``settings.frame_id`` (stamp 0).
 
-    Translation (mount x, mount y, height), rotation the mount's yaw; ``stamp``
-    (builtin_interfaces/Time) defaults to zero, as for a static transform.
+    As ``sim_bridge.cdr.tf_message_cdr`` takes it: ``(0, 0, base_frame, frame_id,
+    (mount x, mount y, height), (0, 0, sin(yaw / 2), cos(yaw / 2)))``.
     """
-    from geometry_msgs.msg import TransformStamped
-
     mount_x, mount_y, mount_yaw = (float(v) for v in settings.mount)
-    message = TransformStamped()
-    if stamp is not None:
-        message.header.stamp = stamp
-    message.header.frame_id = base_frame
-    message.child_frame_id = settings.frame_id
-    translation = message.transform.translation
-    translation.x, translation.y, translation.z = mount_x, mount_y, float(settings.height)
-    rotation = message.transform.rotation
-    rotation.z, rotation.w = math.sin(0.5 * mount_yaw), math.cos(0.5 * mount_yaw)
-    return message
+    return (0, 0, base_frame, settings.frame_id, (mount_x, mount_y, float(settings.height)),
+            (0.0, 0.0, math.sin(0.5 * mount_yaw), math.cos(0.5 * mount_yaw)))
+
+
+def lidar_settings(items=(), **fields):
+    """Return the validated LidarSettings of ``fields`` and ``FIELD=VALUE`` ``items``.
+
+    Values in ``items`` are read as YAML (``mount=[0.1, 0, 0]``); only PARAMETER_FIELDS
+    can be set there.  ValueError names a malformed item, an unknown field or a bad value.
+    """
+    for item in items:
+        name, separator, value = item.partition('=')
+        if not separator or name not in PARAMETER_FIELDS:
+            raise ValueError(f'lidar settings are FIELD=VALUE with FIELD one of '
+                             f'{", ".join(PARAMETER_FIELDS)}, got {item!r}')
+        fields[name] = yaml.safe_load(value)
+    if isinstance(fields.get('mount'), (list, array.array)):  # YAML, ROS double arrays
+        fields['mount'] = tuple(fields['mount'])
+    return LidarSettings(**fields).validate()
+
+
+def laser_frame(robot):
+    """Return the frame of ``robot``'s lidar: ``<robot>/laser``."""
+    return f'{robot}/laser'
+
+
+def _yaw(quaternion):
+    """Return the yaw [rad] of quaternion [x, y, z, w]: atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))."""
+    x, y, z, w = (float(v) for v in quaternion)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+class RobotLidars:
+    """A Lidar on each of ``robots`` (default: all) of a ``sim_bridge.world.SimWorld``.
+
+    Each scans the world's ray scene (``SimWorld.ray_scene``) in frame
+    ``laser_frame(robot)``, blind to its own robot's proxy, its noise seeded with
+    (``seed``, the robot's place in the scenario).  Scans are due every ``steps`` =
+    physics_rate / ``settings.rate`` physics steps from step 0 (``rate_steps``:
+    ScenarioError unless a whole number).  ValueError for an unknown robot.
+    """
+
+    def __init__(self, world, settings, robots=None, seed=0):
+        """Validate, connect each chosen robot's Lidar to the world's ray scene."""
+        settings = settings.validate()
+        self.world = world
+        self.steps = rate_steps(world.scenario.physics_rate, settings.rate, 'lidar rate',
+                                'lidar')
+        names = world.robot_names
+        robots = names if robots is None else tuple(robots)
+        unknown = [name for name in robots if name not in names]
+        if unknown:
+            raise ValueError(f'no robot {", ".join(map(repr, unknown))} for a lidar; '
+                             f'the robots are {", ".join(names)}')
+        client, proxies = world.ray_scene()
+        self.lidars = {name: Lidar(client, proxies[name],
+                                   dataclasses.replace(settings, frame_id=laser_frame(name)),
+                                   seed=(seed, names.index(name)))
+                       for name in robots}
+
+    def scans(self):
+        """Return [(robot, Scan)] due at the world's current physics step (else [])."""
+        if self.world.steps % self.steps:
+            return []
+        self.world.ray_scene()  # brought to the current time
+        scans = []
+        for name, lidar in self.lidars.items():
+            position, quaternion = self.world.robot_pose(name)
+            scans.append((name, lidar.scan((*position.tolist(), _yaw(quaternion)))))
+        return scans

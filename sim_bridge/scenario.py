@@ -85,9 +85,9 @@ class ScenarioError(ValueError):
     """A scenario file is missing, unreadable or invalid; the message names the field."""
 
 
-def _rate_problem(physics_rate, control_rate):
-    """Return what is wrong with the rates as text after ``control_rate``, or None."""
-    ratio = physics_rate / control_rate
+def _rate_problem(physics_rate, rate, kind='control'):
+    """Return what is wrong with ``rate`` (a ``kind`` rate) as text after its name, or None."""
+    ratio = physics_rate / rate
     steps = round(ratio)
     if steps >= 1 and abs(ratio - steps) <= RATE_TOLERANCE * steps:
         return None
@@ -95,31 +95,39 @@ def _rate_problem(physics_rate, control_rate):
     divisors = range(low, low + RATE_SUGGESTIONS)
     valid = ', '.join(f'{physics_rate / n:g} Hz ({n} step{"s" if n > 1 else ""})'
                       for n in divisors)
-    if control_rate > physics_rate:
-        problem = f'{control_rate:g} Hz exceeds physics_rate {physics_rate:g} Hz'
+    if rate > physics_rate:
+        problem = f'{rate:g} Hz exceeds physics_rate {physics_rate:g} Hz'
     else:
-        problem = (f'{control_rate:g} Hz does not divide physics_rate {physics_rate:g} Hz '
-                   f'({physics_rate:g} / {control_rate:g} = {ratio:.6g} physics steps per '
-                   'control period, not a whole number; rates are not rounded)')
-    return f'{problem}; valid control rates nearby (physics_rate / n): {valid}'
+        problem = (f'{rate:g} Hz does not divide physics_rate {physics_rate:g} Hz '
+                   f'({physics_rate:g} / {rate:g} = {ratio:.6g} physics steps per '
+                   f'{kind} period, not a whole number; rates are not rounded)')
+    return f'{problem}; valid {kind} rates nearby (physics_rate / n): {valid}'
+
+
+def rate_steps(physics_rate, rate, name, kind):
+    """Return n = physics_rate / rate, the physics steps per period of a ``kind`` rate.
+
+    ``ScenarioError`` (a ``ValueError``) starting with ``name`` and naming both rates and
+    valid rates nearby unless the ratio is a whole number >= 1 to ``RATE_TOLERANCE``
+    (relative): rates are refused, never rounded.
+    """
+    physics_rate, rate = float(physics_rate), float(rate)
+    if not (math.isfinite(physics_rate) and math.isfinite(rate)
+            and physics_rate > 0 and rate > 0):
+        raise ScenarioError(f'rates must be finite and > 0, got physics_rate {physics_rate:g} '
+                            f'Hz, {name} {rate:g} Hz')
+    problem = _rate_problem(physics_rate, rate, kind)
+    if problem is not None:
+        raise ScenarioError(f'{name} {problem}')
+    return round(physics_rate / rate)
 
 
 def control_substeps(physics_rate, control_rate):
     """Return n = physics_rate / control_rate, the physics steps per control period.
 
-    The one place the count is computed: ``ScenarioError`` (a ``ValueError``) naming
-    both rates and valid control rates nearby unless the ratio is a whole number >= 1
-    to ``RATE_TOLERANCE`` (relative).
+    The one place the count is computed (``rate_steps``).
     """
-    physics_rate, control_rate = float(physics_rate), float(control_rate)
-    if not (math.isfinite(physics_rate) and math.isfinite(control_rate)
-            and physics_rate > 0 and control_rate > 0):
-        raise ScenarioError(f'rates must be finite and > 0, got physics_rate {physics_rate:g} '
-                            f'Hz, control_rate {control_rate:g} Hz')
-    problem = _rate_problem(physics_rate, control_rate)
-    if problem is not None:
-        raise ScenarioError(f'control_rate {problem}')
-    return round(physics_rate / control_rate)
+    return rate_steps(physics_rate, control_rate, 'control_rate', 'control')
 
 
 def _scenario_dir():

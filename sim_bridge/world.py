@@ -43,6 +43,14 @@ A cylinder obstacle (``ObstacleSpec.radius``) is a PyBullet cylinder
 (collision margin 0), so closest points measure the true cylinder, not the
 polygon the filter is given.
 
+Lidars (``sim_bridge.lidar``) cast their rays into ``ray_scene()``, a second
+PyBullet client made on first use: every present obstacle copied at once with
+Bullet's default collision margin (rays miss most margin-0 shapes, and a
+lazily made body cannot be seen before it exists), each robot as the upright
+cylinder of its footprint ``radius`` over its body's z range, moved to the
+current time on each call.  The world's own bodies, physics, closest points
+and collision checks never see it.
+
 Crazyflie 2.1 (``assets/crazyflie21.urdf``) is a free rigid body with zero
 linear and angular damping (PyBullet's default 0.04 is a hidden drag) and
 collision margin.  Every physics step each rotor's thrust f_i is an
@@ -128,13 +136,15 @@ class _Obstacle:
     """Static or constant-velocity prism: one mass-0 body per convex part, sharing an anchor.
 
     It is present from ``appear()`` on (at construction when ``appear_at`` is 0); its
-    bodies are made then, or with ``lazy`` on the first ``bodies_at``.
+    bodies are made then, or with ``lazy`` on the first ``bodies_at``.  ``exact``: collision
+    margin 0 (exact closest points; rays miss most such shapes), else Bullet's default.
     """
 
-    def __init__(self, spec, index, client, lazy):
+    def __init__(self, spec, index, client, lazy, exact=True):
         """Describe the prism; part vertices are relative to the footprint's vertex mean."""
         self.spec = spec
         self.client = client
+        self.exact = exact
         self.moving = spec.moving
         self.anchor = np.mean(spec.polygon, axis=0)
         velocity = np.append(spec.velocity, 0.0)
@@ -177,7 +187,8 @@ class _Obstacle:
                 body = pb.createMultiBody(0.0, shape, basePosition=(*self.anchor, z),
                                           physicsClientId=self.client)
                 self.heights.append(z)
-                pb.changeDynamics(body, -1, collisionMargin=0.0, physicsClientId=self.client)
+                if self.exact:
+                    pb.changeDynamics(body, -1, collisionMargin=0.0, physicsClientId=self.client)
                 self.bodies.append(body)
             if self.moving:
                 self.place(time)
@@ -435,6 +446,51 @@ class _Crazyflie(_Robot):
 
 
 
+class _RayScene:
+    """What lidars see of a world: ray-only copies of its bodies in a PyBullet client of their own.
+
+    Every obstacle is copied as soon as it is present (not on first use: a ray cannot ask
+    for the bodies it would hit) with Bullet's default collision margin (rays miss most
+    shapes of margin 0), and every robot is an upright cylinder of its footprint
+    ``radius`` over its body's z range (a robot's CYLINDER marker, as the filter models
+    it).  ``sync(time)`` moves them to the world's state.  Nothing here takes part in the
+    world's physics, contacts or closest points: it is another client.
+    """
+
+    def __init__(self, obstacles, plants):
+        """Connect a DIRECT client; copy the present obstacles, make a proxy per robot."""
+        self.client = pb.connect(pb.DIRECT)
+        self._sources = obstacles
+        self._copies = [_Obstacle(o.spec, o.footprint.index, self.client, lazy=False,
+                                  exact=False) for o in obstacles]
+        self._plants = plants
+        self.proxies = {}
+        for plant in plants:
+            _, _, z_min, z_max = plant.extent()
+            shape = pb.createCollisionShape(pb.GEOM_CYLINDER, radius=plant.spec.radius,
+                                            height=z_max - z_min, physicsClientId=self.client)
+            self.proxies[plant.spec.name] = pb.createMultiBody(0.0, shape,
+                                                               physicsClientId=self.client)
+        self.sync(0.0)
+
+    def sync(self, time):
+        """Copy pop-ups that have appeared, move moving obstacles and robot proxies to ``time``."""
+        for source, copy in zip(self._sources, self._copies):
+            if source.present and not copy.present:
+                copy.appear(time)
+            elif copy.moving and copy.present:
+                copy.place(time)
+        for plant in self._plants:
+            position, _, z_min, z_max = plant.extent()
+            pb.resetBasePositionAndOrientation(
+                self.proxies[plant.spec.name], (position[0], position[1], 0.5 * (z_min + z_max)),
+                (0.0, 0.0, 0.0, 1.0), physicsClientId=self.client)
+
+    def close(self):
+        """Disconnect the client."""
+        pb.disconnect(physicsClientId=self.client)
+
+
 # Robot type (``sim_bridge.robots.ROBOT_TYPES``): its plant, built as ``plant(spec, client,
 # ground)`` with the ground plane's body id.
 PLANTS = {'quadruped': _Quadruped, 'diff_drive': _DiffDrive, 'crazyflie': _Crazyflie}
@@ -451,6 +507,7 @@ class SimWorld:
         self._gui = gui
         self._synced_step = 0
         self._states = {}
+        self._rays = None  # the lidars' _RayScene, made by ray_scene()
         self._client = pb.connect(pb.GUI if gui else pb.DIRECT)
         client = self._client
         pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
@@ -577,6 +634,17 @@ class SimWorld:
         position, quaternion = pb.getBasePositionAndOrientation(
             self._robots[robot].body, physicsClientId=self._client)
         return np.array(position), np.array(quaternion)
+
+    def ray_scene(self):
+        """Return (PyBullet client, {robot: its proxy body}) of what lidars see, synced to now.
+
+        The scene (``_RayScene``) is made on the first call and moved to the current time
+        on every call; the world's own client, bodies and metrics are untouched by it.
+        """
+        if self._rays is None:
+            self._rays = _RayScene(self._obstacles, self._plants)
+        self._rays.sync(self.time)
+        return self._rays.client, self._rays.proxies
 
     def _robot_centres(self):
         """Return each robot's base [x, y], computed once per physics step."""
@@ -749,7 +817,10 @@ class SimWorld:
                     < -COLLISION_TOLERANCE)
 
     def close(self):
-        """Disconnect from PyBullet; safe to call twice."""
+        """Disconnect from PyBullet (and the ray scene's client); safe to call twice."""
+        if self._rays is not None:
+            self._rays.close()
+            self._rays = None
         if self._client is not None:
             pb.disconnect(physicsClientId=self._client)
             self._client = None

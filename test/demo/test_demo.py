@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from PIL import Image
 from rosbags.highlevel import AnyReader
 
@@ -103,3 +104,39 @@ def test_unknown_scenario_is_a_clear_error(tmp_path):
     assert result.returncode == 2
     assert "no scenario named 'no_such_world'" in result.stderr and 'long_wall' in result.stderr
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_scan_mode_over_dds_stops_before_a_wall_seen_only_by_lidar(tmp_path):
+    """--obstacle-source scan: no marker reaches the filter, the scans and /tf_static do.
+
+    Without obstacles the base would drive into the wall within the run; it stops short.
+    """
+    scenario = tmp_path / 'wall_ahead.yaml'
+    scenario.write_text(yaml.safe_dump({
+        'name': 'wall_ahead', 'duration': 6.0,
+        'robots': [{'name': 'base', 'type': 'diff_drive', 'start': [0.0, 0.0, 0.0],
+                    'goal': [5.0, 0.0]}],
+        'obstacles': [{'polygon': [[2.5, -3.0], [2.8, -3.0], [2.8, 3.0], [2.5, 3.0]]}]}))
+    result = _demo(tmp_path, '--scenario', str(scenario), '--filter', 'polyc2bf_horizon',
+                   '--obstacle-source', 'scan', timeout=600)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert 'obstacles from scan' in result.stdout and 'no collision' in result.stdout
+    run_dir, = [p for p in (tmp_path / 'runs').iterdir() if p.is_dir()]
+    robot = json.loads((run_dir / 'metrics.json').read_text())['robots']['base']
+    assert not robot['collision'] and robot['min_clearance_m'] is not None
+    x = [x for x, _, _ in _odometry(run_dir / 'run', '/base/odom').values()]
+    assert max(x) > 1.5
+    with AnyReader([run_dir / 'run']) as reader:
+        by_topic = {c.topic: c for c in reader.connections}
+        assert by_topic['/base/scan'].msgcount >= 1
+        markers = [len(reader.deserialize(raw, c.msgtype).markers) for c, _, raw in
+                   reader.messages(connections=[by_topic['/base/obstacles']])]
+        assert markers and not any(markers)
+        (_, _, raw), = reader.messages(connections=[by_topic['/tf_static']])
+        transform, = reader.deserialize(raw, by_topic['/tf_static'].msgtype).transforms
+        assert (transform.header.frame_id, transform.child_frame_id) == ('base/base_link',
+                                                                        'base/laser')
+        scan = next(reader.messages(connections=[by_topic['/base/scan']]))
+        message = reader.deserialize(scan[2], by_topic['/base/scan'].msgtype)
+        assert message.header.frame_id == 'base/laser' and len(message.ranges) == 360

@@ -4,6 +4,7 @@ from pathlib import Path
 
 import pytest
 
+from polyc2bf_ros.filter_parameters import load_parameters
 from sim_bridge.launcher import (
     AUTO_DOMAINS,
     closed_loop_plan,
@@ -13,6 +14,7 @@ from sim_bridge.launcher import (
     ProcessSpec,
     run_closed_loop,
 )
+from sim_bridge.lidar import LidarSettings
 from sim_bridge.scenario import load_scenario, scenario_names
 
 REPO = Path(__file__).resolve().parents[2]
@@ -57,6 +59,28 @@ def test_plan_for_every_shipped_scenario(scenario):
                 params = mine[1].parameters
                 assert params['filter.barrier'] == barrier and params['rate'] == 120.0
                 assert LOCKSTEP_FILTER.items() <= params.items()
+
+
+def test_scan_plan_gives_the_bridge_a_lidar_and_the_filter_its_scans():
+    """Scan mode: lidar on, markers off; each filter reads ``scan`` at the mount's pose."""
+    lidar = LidarSettings(beams=180, mount=(0.1, 0.0, 0.2), rate=20.0)
+    bridge, *nodes = closed_loop_plan('multi_robot_swap', 'polyc2bf_inflated',
+                                      obstacle_source='scan', lidar=lidar)
+    assert {'lidar.enabled': True, 'obstacle_markers': False, 'lidar.beams': 180,
+            'lidar.rate': 20.0, 'lidar.mount': [0.1, 0.0, 0.2]}.items() <= \
+        bridge.parameters.items()
+    filters = [p for p in nodes if p.executable == 'safety_filter']
+    assert len(filters) == 4
+    for spec in filters:
+        args = spec.ros_args()
+        overrides = [args[i + 1] for i, arg in enumerate(args) if arg == '-p']
+        values = load_parameters([spec.params_file], overrides, spec.namespace)
+        assert values['sensor_pose'] == [0.1, 0.0, 0.2] and values['scan_timeout'] == 0.0
+        assert 'scan_topics:=[scan]' in overrides
+    markers = closed_loop_plan('long_wall', 'polyc2bf_inflated')[0].parameters
+    assert not any(name.startswith('lidar.') or name == 'obstacle_markers' for name in markers)
+    with pytest.raises(ValueError, match='obstacle source must be one of markers, scan'):
+        closed_loop_plan('long_wall', obstacle_source='radar')
 
 
 def test_ros_args_spell_parameters_as_ros_does():

@@ -173,9 +173,9 @@ def test_results_md_plots_and_progress(blocked):
     """The table has a row per filter x nominal and DWA's; the PNGs are images; one bar."""
     out, worlds, stderr, stdout = blocked
     text = (out / 'results.md').read_text()
-    assert '| none | path | 2 | 1.000 | 0.000 | 0.000 | 0.000 |' in text
-    assert '| none | goal | 2 | 0.000 | 1.000 | 0.000 | 0.000 | 0.000 |' in text
-    assert '| DWA (move_base, BARN) | – | 50 x 10 runs | 0.880 | 0.048 |' in text
+    assert '| none | path | markers | 2 | 1.000 | 0.000 | 0.000 | 0.000 |' in text
+    assert '| none | goal | markers | 2 | 0.000 | 1.000 | 0.000 | 0.000 | 0.000 |' in text
+    assert '| DWA (move_base, BARN) | – | – | 50 x 10 runs | 0.880 | 0.048 |' in text
     assert str(worlds) in text and '| none | path |' in stdout
     for name in ('outcomes.png', 'trajectories.png', 'metric_histogram.png'):
         with Image.open(out / name) as image:
@@ -211,3 +211,18 @@ def test_bad_barn_arguments_exit_2(tmp_path, capsys):
     assert '--seeds belong(s) to --suite scenarios' in err and '--jobs must be >= 1' in err
     assert 'world 9 (worlds[0]): centers[0]: expected 2 numbers [x, y], got 1' in err
     assert '--limit belong(s) to --suite barn' in err
+
+
+def test_scan_mode_goal_nominal_keeps_clear_of_the_row_it_sees_by_lidar(tmp_path):
+    """The default filter fed by the lidar alone: go-to-goal no longer hits the row."""
+    worlds, out = _write(tmp_path, [_world()]), tmp_path / 'out'
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+        assert main(['--suite', 'barn', '--worlds', str(worlds), '--nominal', 'goal',
+                     '--jobs', '1', '--obstacle-source', 'scan', '--no-plots',
+                     '--out', str(out)]) == 0
+    record, = json.loads((out / 'results.json').read_text())
+    assert record['obstacle_source'] == 'scan' and record['lidar']['beams'] == 360
+    assert not record['collision'] and record['min_clearance_m'] > 0.0
+    assert record['mean_intervention'] > 0.0
+    text = (out / 'results.md').read_text()
+    assert '| goal | scan | 1 |' in text and 'Obstacles: scan (lidar beams 360' in text

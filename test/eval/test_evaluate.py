@@ -51,9 +51,10 @@ def test_results_md_table_and_findings(tiny):
     """The Markdown has the table rows and findings drawn from the records."""
     out, _ = tiny
     text = (out / 'results.md').read_text()
-    assert '| scenario | filter | success | collision |' in text
-    assert '| long_wall | c3bf | 0/1 | 0/1 | 0/1 | 1/1 | 1/1 |' in text  # timeout at 6 s
-    assert '| long_wall | polyc2bf_inflated |' in text
+    assert '| scenario | filter | obstacles | success | collision |' in text
+    assert '| long_wall | c3bf | markers | 0/1 | 0/1 | 0/1 | 1/1 | 1/1 |' in text  # timeout, 6 s
+    assert '| long_wall | polyc2bf_inflated | markers |' in text
+    assert 'Obstacles: markers.' in text
     assert 'polyc2bf_inflated: zero collisions in 1 runs over 1 scenarios.' in text
     assert 'c3bf on long_wall: fails in 1/1 runs' in text
 
@@ -75,3 +76,30 @@ def test_bad_arguments_exit_2(capsys):
             main(argv)
         assert exit_info.value.code == 2
     assert 'unknown scenario(s) atlantis' in capsys.readouterr().err
+
+
+def test_scan_mode_records_and_lidar_settings(tmp_path):
+    """--obstacle-source scan: every record says so and carries the --lidar settings."""
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+        assert main(['--scenarios', 'long_wall', '--filters', 'polyc2bf_inflated',
+                     '--duration', '2', '--obstacle-source', 'scan', '--lidar', 'beams=180',
+                     '--lidar', 'mount=[0.1, 0, 0]', '--no-plots', '--out', str(tmp_path)]) == 0
+    record, = json.loads((tmp_path / 'results.json').read_text())
+    assert record['obstacle_source'] == 'scan' and record['steps'] == 2 * 120
+    assert record['lidar']['beams'] == 180 and record['lidar']['mount'] == [0.1, 0, 0]
+    text = (tmp_path / 'results.md').read_text()
+    assert '| long_wall | polyc2bf_inflated | scan |' in text
+    assert 'Obstacles: scan (lidar beams 180' in text
+
+
+@pytest.mark.parametrize('arguments, message', [
+    (['--lidar', 'beams=180'], '--lidar needs --obstacle-source scan'),
+    (['--obstacle-source', 'scan', '--lidar', 'colour=red'], 'FIELD one of beams'),
+    (['--obstacle-source', 'scan', '--lidar', 'beams=0'], 'LidarSettings.beams must be'),
+    (['--obstacle-source', 'lidar'], "invalid choice: 'lidar'"),
+])
+def test_bad_lidar_arguments_exit_2(capsys, arguments, message):
+    """Lidar options are checked before anything runs."""
+    with pytest.raises(SystemExit) as exited:
+        main(['--scenarios', 'long_wall', *arguments])
+    assert exited.value.code == 2 and message in capsys.readouterr().err

@@ -2,10 +2,19 @@
 import numpy as np
 import pytest
 
-from sim_bridge.closed_loop import _ObstacleView, obstacle_free, run_in_process
+from sim_bridge.closed_loop import _ObstacleView, _Robot, _ScanView, obstacle_free, run_in_process
 from sim_bridge.evaluate import summarise
-from sim_bridge.scenario import load_scenario
+from sim_bridge.launcher import scan_parameters
+from sim_bridge.lidar import LidarSettings
+from sim_bridge.scenario import load_scenario, scenario_from_dict
 from sim_bridge.world import SimWorld
+
+# A diff-drive base heading for a goal behind a wall across its way (face at x = 2.5).
+WALL_AHEAD = {'name': 'wall_ahead', 'duration': 8.0,
+              'robots': [{'name': 'base', 'type': 'diff_drive', 'start': [0.0, 0.0, 0.0],
+                          'goal': [5.0, 0.0]}],
+              'obstacles': [{'polygon': [[2.5, -3.0], [2.8, -3.0], [2.8, 3.0], [2.5, 3.0]],
+                             'z': [0.0, 1.0]}]}
 
 
 def test_runs_are_deterministic():
@@ -114,3 +123,52 @@ def test_circulation_resolves_the_popup_box_without_collision():
     assert record['success'] and not record['collision']
     assert record['min_clearance_m'] is None or record['min_clearance_m'] > 0.05
     assert record['deadlock_detections'] >= 1 and not record['deadlocked_at_end']
+
+
+def test_scan_mode_filter_holds_only_what_the_node_makes_of_the_lidar_scan():
+    """Keys ``scan:scan/<i>``; thin rectangles on the wall's lit face; held until the next scan."""
+    scenario = scenario_from_dict(WALL_AHEAD)
+    lidar = LidarSettings()
+    with SimWorld(scenario) as world:
+        robot = _Robot(scenario.robots[0], 'polyc2bf_inflated', 'goal', 1.0 / 120.0, 10, world,
+                       scan_parameters(lidar))
+        view = _ScanView(world, {'base': robot}, lidar)
+        state = world.robot_state('base')
+        snapshot = view.snapshot('base', state, state[2], 0.0)
+        obstacles = snapshot.obstacles
+        assert obstacles.keys and all(key.startswith('scan:scan/') for key in obstacles.keys)
+        vertices = np.concatenate([obstacles.footprints.vertices[i, :count]
+                                   for i, count in enumerate(obstacles.footprints.counts)])
+        assert vertices[:, 0].min() > 2.5 - 2e-3 and vertices[:, 0].max() < 2.5 + 0.03
+        assert vertices[:, 1].min() < -2.9 and vertices[:, 1].max() > 2.9
+        assert not np.any(obstacles.velocities)
+        world.step()
+        view.sense()  # step 1: no scan due (every 24 steps at 10 Hz)
+        assert view.snapshot('base', state, state[2], 1.0 / 240.0) is snapshot
+
+
+def test_scan_mode_closed_loop_stops_before_the_wall_without_collision():
+    """Obstacles only from the lidar: the base drives up to the wall and stops short of it.
+
+    The horizon-aware barrier lets it close in (to a few cm), where only the scan's
+    rectangles stand between the disc and the wall.
+    """
+    run = run_in_process(scenario_from_dict(WALL_AHEAD), 'polyc2bf_horizon',
+                         obstacle_source='scan')
+    assert run.obstacle_source == 'scan' and run.lidar == LidarSettings()
+    metrics, trace = run.metrics['base'], run.robots['base']
+    assert not metrics['collision'] and not metrics['goal_reached']
+    assert 0.0 < metrics['min_clearance_m'] < 0.1
+    assert trace.states[:, 0].max() > 2.2  # up to the wall (face 2.5, disc radius 0.2)
+    assert np.isfinite(trace.min_h).all()  # the filter had obstacles from the first step
+
+
+def test_scan_mode_with_noise_is_deterministic():
+    """Seeded range noise: two runs record the same states, unlike the noise-free run."""
+    noisy = LidarSettings(noise_std=0.02)
+    first, second, clean = (
+        run_in_process(scenario_from_dict(WALL_AHEAD), 'polyc2bf_horizon', duration=4.0,
+                       obstacle_source='scan', lidar=lidar).robots['base'].states
+        for lidar in (noisy, noisy, LidarSettings()))
+    np.testing.assert_array_equal(first, second)
+    assert not np.array_equal(first, clean)

@@ -125,12 +125,16 @@ def test_shipped_scenarios_and_the_filters_they_start_use_dividing_rates(name):
         assert control_substeps(scenario.physics_rate, values['rate']) == steps
 
 
-@pytest.mark.parametrize('parameters, message', [
-    (['control_rate:=100.0'], 'control_rate 100 Hz does not divide physics_rate 240 Hz'),
-    (['physics_rate:=1000.0'], 'control_rate 120 Hz does not divide physics_rate 1000 Hz'),
+@pytest.mark.parametrize('parameters, message, valid', [
+    (['control_rate:=100.0'], 'control_rate 100 Hz does not divide physics_rate 240 Hz',
+     'valid control rates'),
+    (['physics_rate:=1000.0'], 'control_rate 120 Hz does not divide physics_rate 1000 Hz',
+     'valid control rates'),
+    (['lidar.enabled:=true', 'lidar.rate:=7.0'],
+     'lidar rate 7 Hz does not divide physics_rate 240 Hz', 'valid lidar rates'),
 ])
 def test_the_bridge_refuses_a_non_dividing_rate_parameter_with_one_fatal_line(parameters,
-                                                                               message):
+                                                                               message, valid):
     """No traceback: one ``[FATAL]`` line with both rates and valid ones, exit status 1."""
     command = [sys.executable, '-m', 'sim_bridge.bridge_node', '--ros-args',
                '-p', 'scenario:=clear_path']
@@ -141,4 +145,4 @@ def test_the_bridge_refuses_a_non_dividing_rate_parameter_with_one_fatal_line(pa
     assert result.returncode == 1, output
     assert 'Traceback' not in output, output
     fatal = [line for line in output.splitlines() if '[FATAL]' in line]
-    assert len(fatal) == 1 and message in fatal[0] and 'valid control rates' in fatal[0], output
+    assert len(fatal) == 1 and message in fatal[0] and valid in fatal[0], output
