@@ -466,3 +466,32 @@ def test_default_settings_are_valid():
     setup = ScanSettings()
     setup.validate()
     assert setup.split_tolerance + setup.segment_thickness / 2 <= setup.cluster_tolerance
+
+
+@pytest.mark.parametrize('radius, distance', [(0.3, 1.0), (0.1, 0.6), (1.0, 3.0)])
+def test_a_cylinder_is_no_farther_than_its_surface(radius, distance):
+    """Every hit lies in a polygon: no near edge lags behind the surface's bulge.
+
+    1081 beams over 270 degrees (0.25 degree spacing) on a cylinder straight ahead.  Each
+    piece's chord lies up to ``split_tolerance`` (5 cm) behind the surface; its near edge
+    is brought forward to its points, so the nearest polygon is as near as the cylinder (up
+    to the surface's sagitta between two beams), and nearer by at most that tolerance.
+    """
+    count, increment = 1081, math.radians(0.25)
+    angle_min = -math.radians(135.0)
+    angles = angle_min + increment * np.arange(count)
+    along = distance * np.cos(angles)
+    across = distance ** 2 * np.sin(angles) ** 2
+    ranges = np.where(across <= radius ** 2, along - np.sqrt(np.maximum(radius ** 2 - across,
+                                                                       0.0)), np.inf)
+    ranges = np.where(along > 0, ranges, np.inf)
+    obstacles = scan_to_obstacles(ranges, angle_min, increment, 0.05, 10.0, ORIGIN, ORIGIN)
+    assert obstacles
+    nearest = min(_distances(np.zeros((1, 2)), o.polygon)[0] for o in obstacles)
+    sagitta = distance * increment ** 2 / 8.0 * distance / radius
+    tolerance = ScanSettings().split_tolerance
+    assert distance - radius - tolerance - 1e-9 <= nearest <= distance - radius + sagitta + 1e-9
+    kept = np.isfinite(ranges)
+    hits = ranges[kept, None] * np.column_stack([np.cos(angles[kept]), np.sin(angles[kept])])
+    gaps = _nearest_polygon_distances(hits, obstacles)
+    assert (gaps <= 1e-9).all(), f'hits in front of every polygon: {hits[gaps > 1e-9][:3]}'
