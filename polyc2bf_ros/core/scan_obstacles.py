@@ -44,9 +44,10 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
 
 Guarantees.  Every point of a piece lies within ``split_tolerance`` of its chord, an edge of
 its rectangle, or within ``split_tolerance + t / 2`` of its square; ``ScanSettings`` requires
-that sum to be at most ``cluster_tolerance``.  No point lies in front of its polygon's near
-edge (step 6) unless that would bring the edge's line within ``footprint_radius`` of q.  So, unless ``min_cluster_points > 1`` drops a
-cluster or ``max_obstacles`` drops a polygon, every kept endpoint lies within
+that sum to be at most ``cluster_tolerance``.  No point lies in front of its polygon's
+near edge (step 6) unless that would bring the edge's line within ``footprint_radius`` of
+q.  So, unless ``min_cluster_points > 1`` drops a cluster or ``max_obstacles`` drops a
+polygon, every kept endpoint lies within
 ``cluster_tolerance`` of a returned polygon, and so does every segment between two linked
 endpoints (distance to a chord is convex along it): the outline is open only where links
 break.  A polygon extends away from q, so its distance

@@ -6,6 +6,7 @@ this test and for the node it starts, which finds it on ``PYTHONPATH``.
 import fcntl
 import math
 import os
+import sys
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -64,8 +65,22 @@ def _transform(parent, child, x, yaw):
     return msg
 
 
+@pytest.fixture
+def forget_tf2_msgs(tf2_msgs_path):
+    """Drop the stand-in's modules after the test.
+
+    Later tests in this worker (the bag reader's "type not installed" path) must not find
+    a tf2_msgs.
+    """
+    yield
+    if tf2_msgs_path is not None:
+        for name in [name for name in sys.modules if name.split('.')[0] == 'tf2_msgs']:
+            del sys.modules[name]
+
+
 @pytest.mark.slow
-def test_a_static_transform_chain_puts_the_scan_wall_ahead(tf2_msgs_path, monkeypatch):
+def test_a_static_transform_chain_puts_the_scan_wall_ahead(tf2_msgs_path, monkeypatch,
+                                                            forget_tf2_msgs):
     """Before /tf_static the wall is behind (sensor_pose: identity) and 0.5 m/s passes.
 
     Then ``base_link -> laser_mount -> laser`` (0.1 m ahead, turned by two quarter turns:
