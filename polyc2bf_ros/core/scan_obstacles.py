@@ -114,11 +114,7 @@ class ScanSettings:
     cluster_tolerance: float = 0.15
     min_cluster_points: int = 1
     segment_thickness: float = 0.02
-    # 1 cm: the near edges are brought forward (step 6), so a larger tolerance makes the
-    # polygons up to that much nearer than the surface and narrows gaps (a Crazyflie between
-    # pillars, scan mode: 5 cm made the gap infeasible, the slack fallback let it sink to the
-    # floor); 1 cm costs a few more pieces (bench/README.md, laser scan to obstacles).
-    split_tolerance: float = 0.01
+    split_tolerance: float = 0.05
     footprint_radius: float = 0.0
     max_obstacles: int = 512
 

@@ -249,11 +249,10 @@ def test_empty_and_all_nan_scans_give_no_obstacles():
 
 # -- clustering and pieces -------------------------------------------------------------------
 
-def _scene(walls, **settings):
+def _scene(walls):
     """Return the obstacles of walls seen by 181 beams over 180 degrees from the origin."""
     ranges = _cast(walls, 181, 0.0, math.pi / 180)
-    return scan_to_obstacles(ranges, 0.0, math.pi / 180, 0.05, 10.0, ORIGIN, ORIGIN,
-                             ScanSettings(**settings))
+    return scan_to_obstacles(ranges, 0.0, math.pi / 180, 0.05, 10.0, ORIGIN, ORIGIN)
 
 
 def test_a_straight_wall_becomes_one_thin_rectangle_behind_it():
@@ -285,13 +284,8 @@ def test_beams_without_return_break_a_cluster():
 
 
 def test_an_l_shaped_wall_becomes_two_pieces():
-    """A corner at (1, 2): one rectangle along each wall (ending at the hits nearest it).
-
-    With a 5 cm split tolerance (at the default 1 cm the beams' spacing at the corner leaves
-    a third, short piece there).
-    """
-    obstacles = _scene([((-1.0, 2.0), (1.0, 2.0)), ((1.0, 2.0), (1.0, 0.5))],
-                       split_tolerance=0.05)
+    """A corner at (1, 2): one rectangle along each wall (ending at the hits nearest it)."""
+    obstacles = _scene([((-1.0, 2.0), (1.0, 2.0)), ((1.0, 2.0), (1.0, 0.5))])
     assert len(obstacles) == 2
     flat, upright = sorted((o.polygon for o in obstacles), key=lambda p: np.ptp(p[:, 1]))
     assert np.ptp(flat[:, 0]) > 1.9 and np.ptp(flat[:, 1]) < 0.05
@@ -371,10 +365,8 @@ def test_a_link_across_the_footprint_is_cut():
 def test_a_chord_across_the_footprint_is_split():
     """Three points within split_tolerance of a chord passing 0.01 m from the base: split."""
     points = [[-0.1, 0.01], [0.0, 0.058], [0.1, 0.01]]
-    loose = {'split_tolerance': 0.05}
-    assert len(scan_obstacles(points, (0.0, 0.0),
-                              ScanSettings(footprint_radius=0.0, **loose))) == 1
-    split = scan_obstacles(points, (0.0, 0.0), ScanSettings(footprint_radius=0.05, **loose))
+    assert len(scan_obstacles(points, (0.0, 0.0), ScanSettings(footprint_radius=0.0))) == 1
+    split = scan_obstacles(points, (0.0, 0.0), ScanSettings(footprint_radius=0.05))
     assert len(split) == 2
     for obstacle in split:
         assert _distances(np.zeros((1, 2)), obstacle.polygon)[0] >= 0.05
