@@ -35,25 +35,33 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
    piece, or a single point, becomes the t x t square whose near edge is centred on the chord
    midpoint m and which extends along ``(m - q) / |m - q|``.
 6. Front.  A piece's points may lie in front of its chord (on the robot's side, up to
-   ``split_tolerance``; ``t / 2`` for a square).  The near edge is moved towards q, along the
-   polygon's normal, by the largest such distance, so no measured point lies in front of its
-   polygon's near edge: the polygon is at least as close as the surface the beams hit.
+   ``split_tolerance``; ``t / 2`` for a square).  The deepest of them, m, becomes a fifth
+   corner between the chord's ends when it lies within the chord's span, so the near side
+   runs a m b: exact across a box's corner, and a quarter of the chord's sagitta from an
+   arc.  Then the near corners move towards q, along the polygon's normal, by the largest
+   distance a point still lies in front of that near side, so no measured point lies in
+   front of its polygon: the polygon is at least as close as the surface the beams hit.
    (Left on the chord, a cylinder's front bulged up to 4 cm in front of its pieces and the
-   robot grazed cylinders it believed centimetres away: BARN in scan mode.)  The move is
-   capped so that the near edge's line stays ``footprint_radius`` from q.
+   robot grazed cylinders it believed centimetres away: BARN in scan mode.  Moved as a
+   whole instead, the near edge stood up to ``split_tolerance`` in front of a box's faces
+   next to a corner, and a gap between two pillars narrowed by twice that.)  The move is
+   capped so that the line through the nearest corner, parallel to the chord, stays
+   ``footprint_radius`` from q; a piece whose fifth corner would pass that line keeps four.
 
 Guarantees.  Every point of a piece lies within ``split_tolerance`` of its chord, an edge of
 its rectangle, or within ``split_tolerance + t / 2`` of its square; ``ScanSettings`` requires
 that sum to be at most ``cluster_tolerance``.  No point lies in front of its polygon's
-near edge (step 6) unless that would bring the edge's line within ``footprint_radius`` of
-q.  So, unless ``min_cluster_points > 1`` drops a cluster or ``max_obstacles`` drops a
+near side (step 6) unless that would bring its nearest line within ``footprint_radius``
+of q.  So, unless ``min_cluster_points > 1`` drops a cluster or ``max_obstacles`` drops a
 polygon, every kept endpoint lies within
 ``cluster_tolerance`` of a returned polygon, and so does every segment between two linked
 endpoints (distance to a chord is convex along it): the outline is open only where links
-break.  A polygon extends away from q, so its distance
-from q is that of its near edge, which is more than ``footprint_radius``: no polygon contains
-the base.  Polygons are rectangles: convex, counter-clockwise, area at least ``t^2``.  At
-most ``max_obstacles`` are returned; the farthest from q are dropped.
+break.  A polygon extends away from q, so its distance from q is at least that of the line
+through its nearest corner parallel to its chord, which is more than ``footprint_radius``: no
+polygon contains the base.  Polygons are rectangles, or pentagons with one corner in front
+of the chord: convex, counter-clockwise, area at least ``t^2``.  At
+most ``max_obstacles`` are returned; the farthest from q (by their chords' rectangles) are
+dropped.
 
 Limits.
 - A polygon is the lit side of an object thickened by t: the far side and the depth of the
@@ -98,6 +106,8 @@ from polyc2bf_ros.core.obstacles import Obstacle
 FULL_TURN = 2.0 * math.pi
 STILL = np.zeros(3)  # the velocity of every scan obstacle: one shared read-only array
 STILL.flags.writeable = False
+MIN_APEX_DEPTH = 1.0e-4
+"""How far [m] a piece's deepest point must lie in front of its chord to become a corner."""
 
 
 @dataclass(frozen=True)
@@ -356,31 +366,53 @@ def _rectangles(ax, ay, bx, by, base, thickness):
     return corners
 
 
-def _bring_forward(polygons, px, py, first, last, base, footprint_radius):
-    """Move each near edge (corners 0, 1) towards the base past its piece's points (step 6).
+def _front(polygons, px, py, first, last, base, footprint_radius):
+    """Return the piece polygons with their near sides brought to their points (step 6).
 
-    Piece k is points ``first[k] .. last[k]``; its normal n runs from corner 0 to corner 3
-    (away from the base).  With s = min over the piece of (p - c0) . n / |n|, the near
-    edge moves by min(max(0, -s), (c0 - base) . n / |n| - footprint_radius) (at least 0)
-    along -n / |n|: the line stays ``footprint_radius`` from the base, so the edge does.
+    Piece k is points ``first[k] .. last[k]`` and rectangle ``a, b, b', a'`` (``_rectangles``;
+    near edge a b of length L, unit e along it, unit normal n from a to a').  Per point
+    u = (p - a) . e and f = -(p - a) . n, how far it lies in front of the chord.  The point m
+    of largest f, when f_m > ``MIN_APEX_DEPTH`` and 0 < u_m < L, becomes a fifth corner
+    between a and b (convex: m lies in front of the chord, within its span), where the near
+    side then runs a m b, in front of u by c(u) = f_m min(u / u_m, (L - u) / (L - u_m));
+    else c = 0.  The near corners then move along -n by max(0, max f - c(u)) over the piece,
+    capped so that the line through the nearest corner parallel to a b stays
+    ``footprint_radius`` from the base; a piece whose apex line is closer keeps 4 corners.
     """
-    if not len(polygons):
-        return
+    count = len(polygons)
+    if not count:
+        return []
     counts = last - first + 1
     starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
     points = first.repeat(counts) + np.arange(counts.sum()) - starts.repeat(counts)
-    nx = polygons[:, 3, 0] - polygons[:, 0, 0]
-    ny = polygons[:, 3, 1] - polygons[:, 0, 1]
-    norm = np.sqrt(nx * nx + ny * ny)
-    nx, ny = nx / norm, ny / norm
     ax, ay = polygons[:, 0, 0], polygons[:, 0, 1]
-    ahead = (px[points] - ax.repeat(counts)) * nx.repeat(counts) \
-        + (py[points] - ay.repeat(counts)) * ny.repeat(counts)
-    front = np.maximum(0.0, -np.minimum.reduceat(ahead, starts))
+    ex, ey = polygons[:, 1, 0] - ax, polygons[:, 1, 1] - ay
+    length = np.sqrt(ex * ex + ey * ey)
+    ex, ey = ex / length, ey / length
+    nx, ny = -ey, ex  # counter-clockwise corners: the normal away from the base is e turned left
+    rel_x, rel_y = px[points] - ax.repeat(counts), py[points] - ay.repeat(counts)
+    along = rel_x * ex.repeat(counts) + rel_y * ey.repeat(counts)
+    ahead = -(rel_x * nx.repeat(counts) + rel_y * ny.repeat(counts))
+    depth = np.maximum.reduceat(ahead, starts)
+    deepest = (ahead == depth.repeat(counts)).nonzero()[0]
+    apex = deepest[deepest.searchsorted(starts)]
+    apex_along = along[apex]
     room = (ax - base[0]) * nx + (ay - base[1]) * ny - footprint_radius
-    shift = np.minimum(front, np.maximum(room, 0.0))
-    polygons[:, :2, 0] -= (shift * nx)[:, None]
-    polygons[:, :2, 1] -= (shift * ny)[:, None]
+    pointed = ((depth > MIN_APEX_DEPTH) & (apex_along > 0.0) & (apex_along < length)
+               & (room >= depth))
+    rise = np.where(pointed, depth / np.where(pointed, apex_along, 1.0), 0.0)
+    fall = np.where(pointed, depth / np.where(pointed, length - apex_along, 1.0), 0.0)
+    chain = np.maximum(np.minimum(rise.repeat(counts) * along,
+                                  fall.repeat(counts) * (length.repeat(counts) - along)), 0.0)
+    residual = np.maximum(np.maximum.reduceat(ahead - chain, starts), 0.0)
+    shift = np.minimum(residual, np.maximum(room - np.where(pointed, depth, 0.0), 0.0))
+    corners = np.empty((count, 5, 2))
+    corners[:, 0], corners[:, 2:] = polygons[:, 0], polygons[:, 1:]
+    corners[:, 1, 0], corners[:, 1, 1] = px[points[apex]], py[points[apex]]
+    corners[:, :3, 0] -= (shift * nx)[:, None]
+    corners[:, :3, 1] -= (shift * ny)[:, None]
+    rectangles = corners[:, (0, 2, 3, 4)]
+    return [corners[k] if pointed[k] else rectangles[k] for k in range(count)]
 
 
 def _nearest(polygons, base, count):
@@ -434,9 +466,10 @@ def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=F
     first, last = first[order], last[order]
     polygons = _rectangles(px[first], py[first], px[last], py[last], base,
                            settings.segment_thickness)
-    _bring_forward(polygons, px, py, first, last, base, settings.footprint_radius)
     if len(polygons) > settings.max_obstacles:
-        polygons = polygons[_nearest(polygons, base, settings.max_obstacles)]
+        nearest = _nearest(polygons, base, settings.max_obstacles)
+        polygons, first, last = polygons[nearest], first[nearest], last[nearest]
+    polygons = _front(polygons, px, py, first, last, base, settings.footprint_radius)
     return [Obstacle(polygon=polygon, velocity=STILL, key=f'scan/{index}')
             for index, polygon in enumerate(polygons)]
 

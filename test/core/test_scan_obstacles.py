@@ -489,9 +489,36 @@ def test_a_cylinder_is_no_farther_than_its_surface(radius, distance):
     assert obstacles
     nearest = min(_distances(np.zeros((1, 2)), o.polygon)[0] for o in obstacles)
     sagitta = distance * increment ** 2 / 8.0 * distance / radius
-    tolerance = ScanSettings().split_tolerance
+    # The deepest point is a corner: the rest of the arc bulges about a quarter as far.
+    tolerance = ScanSettings().split_tolerance / 2
     assert distance - radius - tolerance - 1e-9 <= nearest <= distance - radius + sagitta + 1e-9
     kept = np.isfinite(ranges)
     hits = ranges[kept, None] * np.column_stack([np.cos(angles[kept]), np.sin(angles[kept])])
     gaps = _nearest_polygon_distances(hits, obstacles)
     assert (gaps <= 1e-9).all(), f'hits in front of every polygon: {hits[gaps > 1e-9][:3]}'
+
+
+@pytest.mark.parametrize('sides, radius', [(4, 0.7), (8, 0.25), (12, 0.4)])
+@pytest.mark.parametrize('turn', [0.0, 0.1, 0.2, 0.3])
+def test_a_polygon_corner_is_followed_not_cut_off(sides, radius, turn):
+    """No polygon corner stands more than t / 2 in front of a box's or pillar's faces.
+
+    A regular polygon 2 m ahead, turned by ``turn``: a piece spanning one of its corners
+    takes the corner as its fifth vertex, so its near side follows both faces (moved as a
+    whole, it stood up to ``split_tolerance`` in front of them next to the corner: a gap
+    between two pillars narrowed by twice that).  t / 2: a face seen at a grazing angle has
+    hits too far apart to link, each a t x t square centred on its hit.
+    """
+    angles = turn + 2.0 * math.pi * np.arange(sides) / sides
+    corners = np.array([2.0, 0.1]) + radius * np.column_stack([np.cos(angles),
+                                                               np.sin(angles)])
+    walls = [(tuple(corners[k]), tuple(corners[(k + 1) % sides])) for k in range(sides)]
+    count, increment = 1081, math.radians(0.25)
+    ranges = _cast(walls, count, -math.radians(135.0), increment)
+    obstacles = scan_to_obstacles(ranges, -math.radians(135.0), increment, 0.05, 10.0,
+                                  ORIGIN, ORIGIN)
+    assert obstacles
+    vertices = np.concatenate([o.polygon for o in obstacles])
+    outside = _distances(vertices, corners)  # counter-clockwise
+    assert outside.max() <= ScanSettings().segment_thickness / 2 + 1e-9, \
+        f'a corner {outside.max():.4f} m in front of the faces: {vertices[outside.argmax()]}'
