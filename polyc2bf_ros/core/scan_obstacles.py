@@ -29,13 +29,17 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
    chord does (rare: the chord cuts across the robot).  A piece of two consecutive points is
    never split, and both rules were checked for it in step 3, so splitting ends.  Pieces
    are not merged again afterwards.
-5. Thickening.  A piece with chord ``[a, b]`` of length ``L >= t = segment_thickness``
-   becomes the rectangle ``a, b, b + t n, a + t n``, n the unit normal of the chord on the
-   side away from q (a and b swapped where needed for counter-clockwise order).  A shorter
-   piece, or a single point, becomes the t x t square whose near edge is centred on the chord
-   midpoint m and which extends along ``(m - q) / |m - q|``.
+5. Depth.  A piece with chord ``[a, b]`` of length ``L >= t = segment_thickness`` becomes
+   the rectangle ``a, b, b + D n, a + D n`` (D = ``depth``), n the unit normal of the chord
+   on the side away from q (a and b swapped where needed for counter-clockwise order).  A
+   shorter piece, or a single point, becomes the t wide, D deep rectangle whose near edge is
+   centred on the chord midpoint m and which extends along ``(m - q) / |m - q|``.  Only the
+   lit side is measured; D stands for the body behind it.  (At D = 2 cm, a robot passing a
+   BARN cylinder of 7.5 cm radius saw a sliver of it: the side it came alongside had never
+   been lit, the filter believed it a few millimetres farther than it was, and the robot
+   grazed it.)
 6. Front.  A piece's points may lie in front of its chord (on the robot's side, up to
-   ``split_tolerance``; ``t / 2`` for a square).  The deepest of them, m, becomes a fifth
+   ``split_tolerance``; ``t / 2`` for a lone point's).  The deepest of them, m, becomes a fifth
    corner between the chord's ends when it lies within the chord's span, so the near side
    runs a m b: exact across a box's corner, and a quarter of the chord's sagitta from an
    arc.  Then the near corners move towards q, along the polygon's normal, by the largest
@@ -48,24 +52,25 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
    capped so that the line through the nearest corner, parallel to the chord, stays
    ``footprint_radius`` from q; a piece whose fifth corner would pass that line keeps four.
 
-Guarantees.  Every point of a piece lies within ``split_tolerance`` of its chord, an edge of
-its rectangle, or within ``split_tolerance + t / 2`` of its square; ``ScanSettings`` requires
-that sum to be at most ``cluster_tolerance``.  No point lies in front of its polygon's
-near side (step 6) unless that would bring its nearest line within ``footprint_radius``
-of q.  So, unless ``min_cluster_points > 1`` drops a cluster or ``max_obstacles`` drops a
-polygon, every kept endpoint lies within
-``cluster_tolerance`` of a returned polygon, and so does every segment between two linked
-endpoints (distance to a chord is convex along it): the outline is open only where links
-break.  A polygon extends away from q, so its distance from q is at least that of the line
-through its nearest corner parallel to its chord, which is more than ``footprint_radius``: no
-polygon contains the base.  Polygons are rectangles, or pentagons with one corner in front
-of the chord: convex, counter-clockwise, area at least ``t^2``.  At
-most ``max_obstacles`` are returned; the farthest from q (by their chords' rectangles) are
-dropped.
+Guarantees. Every point of a piece lies within ``split_tolerance`` of its chord, an edge of
+its rectangle, or within ``split_tolerance + t / 2`` of its short rectangle;
+``ScanSettings`` requires that sum to be at most ``cluster_tolerance``. No point lies in
+front of its polygon's near side (step 6) unless that would bring its nearest line within
+``footprint_radius`` of q. So, unless ``min_cluster_points > 1`` drops a cluster or
+``max_obstacles`` drops a polygon, every kept endpoint lies within ``cluster_tolerance`` of
+a returned polygon, and so does every segment between two linked endpoints (distance to a
+chord is convex along it): the outline is open only where links break. A polygon extends
+away from q, so its distance from q is at least that of the line through its nearest corner
+parallel to its chord, which is more than ``footprint_radius``: no polygon contains the
+base. Polygons are rectangles, or pentagons with one corner in front of the chord: convex,
+counter-clockwise, area at least ``t D``. At most ``max_obstacles`` are returned; the
+farthest from q (by their chords' rectangles) are dropped.
 
 Limits.
-- A polygon is the lit side of an object thickened by t: the far side and the depth of the
-  object are unknown.  It keeps a robot on the side it sees, not one already behind it.
+- A polygon is the lit side of an object, D deep: the far side and the true depth of the
+  object are unknown.  It keeps a robot on the side it sees, not one already behind it; an
+  object deeper than D may still reach nearer a robot that drives round it than its
+  polygons do, until a scan lights that side.
 - Between two beams a convex surface may still bulge in front of the near edge, by at most
   its sagitta over the beam spacing (a 0.1 m cylinder at 2 m and 0.33 degree beams: under
   0.1 mm).
@@ -77,7 +82,7 @@ Limits.
   hits on a surface lie about ``r |angle_increment| / cos(incidence)`` apart; where that
   exceeds ``cluster_tolerance`` (head-on beyond 34 m at 0.25 deg and 0.15 m; along a corridor
   wall 1 m away, beyond about 6 m) they no longer link and the surface becomes a row of
-  squares, which still covers every endpoint.
+  short rectangles, which still cover every endpoint.
 - Anything closer than ``footprint_radius`` to the base is taken for the robot itself and
   ignored, even a real obstacle.
 - The scan is taken as instantaneous at ``robot_pose`` (no de-skewing of motion during the
@@ -116,14 +121,17 @@ class ScanSettings:
 
     ``cluster_tolerance`` [m]: the largest gap between linked neighbouring endpoints;
     ``min_cluster_points``: smaller clusters are dropped as noise; ``segment_thickness`` [m]:
-    t, the thickness of every polygon; ``split_tolerance`` [m]: the largest distance of a
-    point from its piece's chord; ``footprint_radius`` [m]: endpoints this close to the base
-    are the robot itself; ``max_obstacles``: how many polygons, the nearest, are kept.
+    t, the side of a lone point's polygon and the shortest chord; ``depth`` [m]: D >= t, how
+    far every polygon reaches behind the surface it outlines; ``split_tolerance`` [m]: the
+    largest distance of a point from its piece's chord; ``footprint_radius`` [m]: endpoints
+    this close to the base are the robot itself; ``max_obstacles``: how many polygons, the
+    nearest, are kept.
     """
 
     cluster_tolerance: float = 0.15
     min_cluster_points: int = 1
     segment_thickness: float = 0.02
+    depth: float = 0.10
     split_tolerance: float = 0.05
     footprint_radius: float = 0.0
     max_obstacles: int = 512
@@ -135,10 +143,12 @@ class ScanSettings:
     def validate(self):
         """Raise ValueError naming the first field out of range.
 
-        Lengths are finite, tolerance and thickness positive, counts integers >= 1, and
-        ``split_tolerance + segment_thickness / 2 <= cluster_tolerance`` (the coverage bound).
+        Lengths are finite, tolerance and thickness positive, counts integers >= 1,
+        ``depth >= segment_thickness`` and ``split_tolerance + segment_thickness / 2 <=
+        cluster_tolerance`` (the coverage bound).
         """
         for name, positive in (('cluster_tolerance', True), ('segment_thickness', True),
+                               ('depth', True),
                                ('split_tolerance', False), ('footprint_radius', False)):
             value = getattr(self, name)
             if (isinstance(value, bool) or not isinstance(value, numbers.Real)
@@ -149,6 +159,9 @@ class ScanSettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
                 raise ValueError(f'{name} must be an integer >= 1, got {value!r}')
+        if not self.depth >= self.segment_thickness:
+            raise ValueError(f'depth must be at least segment_thickness = '
+                             f'{self.segment_thickness!r}, got {self.depth!r}')
         if self.split_tolerance + self.segment_thickness / 2 > self.cluster_tolerance:
             raise ValueError(
                 f'split_tolerance + segment_thickness / 2 = '
@@ -338,7 +351,7 @@ def _split(px, py, ends, base, settings):
         ends.sort()
 
 
-def _rectangles(ax, ay, bx, by, base, thickness):
+def _rectangles(ax, ay, bx, by, base, thickness, depth):
     """Return the (M, 4, 2) CCW polygons of chords [a, b] (step 5); corners 0, 1: near edge."""
     length = np.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
     short = length < thickness
@@ -356,7 +369,7 @@ def _rectangles(ax, ay, bx, by, base, thickness):
         ax, ay = np.where(short, cx - uy, ax), np.where(short, cy + ux, ay)
         bx, by = np.where(short, cx + uy, bx), np.where(short, cy - ux, by)
         length = np.where(short, thickness, length)
-    scale = thickness / length
+    scale = depth / length
     nx, ny = (ay - by) * scale, (bx - ax) * scale
     corners = np.empty((len(ax), 4, 2))
     corners[:, 0, 0], corners[:, 0, 1] = ax, ay
@@ -465,7 +478,7 @@ def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=F
     order = first.argsort()
     first, last = first[order], last[order]
     polygons = _rectangles(px[first], py[first], px[last], py[last], base,
-                           settings.segment_thickness)
+                           settings.segment_thickness, settings.depth)
     if len(polygons) > settings.max_obstacles:
         nearest = _nearest(polygons, base, settings.max_obstacles)
         polygons, first, last = polygons[nearest], first[nearest], last[nearest]

@@ -145,6 +145,7 @@ def scans(draw):
         'robot_pose': (*rng.uniform(-20.0, 20.0, 2), rng.uniform(-math.pi, math.pi)),
         'settings': ScanSettings(
             cluster_tolerance=cluster_tolerance, segment_thickness=thickness,
+            depth=rng.uniform(thickness, 0.3),
             split_tolerance=rng.uniform(0.0, cluster_tolerance - thickness / 2),
             footprint_radius=footprint_radius, max_obstacles=100_000),
     }
@@ -203,13 +204,13 @@ def test_no_polygon_comes_within_the_footprint(scan):
 @SETTINGS
 @given(scans())
 def test_polygons_are_convex_ccw_finite_and_not_degenerate(scan):
-    """Every polygon is a finite convex CCW polygon of area >= t^2; obstacles are static."""
-    thickness = scan['settings'].segment_thickness
+    """Every polygon is a finite convex CCW polygon of area >= t D; obstacles are static."""
+    area = scan['settings'].segment_thickness * scan['settings'].depth
     obstacles = _obstacles(scan)
     for obstacle in obstacles:
         problem = _convex_ccw_problem(obstacle.polygon)
         assert problem is None, f'{obstacle.key}: {problem}'
-        assert _signed_area(obstacle.polygon) >= thickness ** 2 * (1 - 1e-6)
+        assert _signed_area(obstacle.polygon) >= area * (1 - 1e-6)
         assert not obstacle.velocity.any()
         assert (obstacle.z_min, obstacle.z_max) == (-np.inf, np.inf)
     assert [o.key for o in obstacles] == [f'scan/{i}' for i in range(len(obstacles))]
@@ -256,13 +257,13 @@ def _scene(walls):
 
 
 def test_a_straight_wall_becomes_one_thin_rectangle_behind_it():
-    """A wall at y = 2: one rectangle from the first to the last hit, t thick, beyond y = 2."""
+    """A wall at y = 2: one rectangle from the first to the last hit, D deep, beyond y = 2."""
     obstacles = _scene([((-1.0, 2.0), (1.0, 2.0))])
     assert len(obstacles) == 1
     polygon = obstacles[0].polygon
     assert len(polygon) == 4
     np.testing.assert_allclose(polygon[:, 1].min(), 2.0, atol=1e-9)
-    np.testing.assert_allclose(polygon[:, 1].max(), 2.02, atol=1e-9)
+    np.testing.assert_allclose(polygon[:, 1].max(), 2.0 + ScanSettings().depth, atol=1e-9)
     assert polygon[:, 0].min() == pytest.approx(-1.0, abs=0.04)
     assert polygon[:, 0].max() == pytest.approx(1.0, abs=0.04)
 
@@ -288,8 +289,9 @@ def test_an_l_shaped_wall_becomes_two_pieces():
     obstacles = _scene([((-1.0, 2.0), (1.0, 2.0)), ((1.0, 2.0), (1.0, 0.5))])
     assert len(obstacles) == 2
     flat, upright = sorted((o.polygon for o in obstacles), key=lambda p: np.ptp(p[:, 1]))
-    assert np.ptp(flat[:, 0]) > 1.9 and np.ptp(flat[:, 1]) < 0.05
-    assert np.ptp(upright[:, 1]) > 1.4 and np.ptp(upright[:, 0]) < 0.05
+    depth = ScanSettings().depth
+    assert np.ptp(flat[:, 0]) > 1.9 and np.ptp(flat[:, 1]) < depth + 0.03
+    assert np.ptp(upright[:, 1]) > 1.4 and np.ptp(upright[:, 0]) < depth + 0.03
     assert upright[:, 0].min() == pytest.approx(1.0, abs=0.03)
 
 
@@ -450,7 +452,8 @@ def test_malformed_endpoints_raise(endpoints, position, message):
 
 @pytest.mark.parametrize('field, value', [
     ('cluster_tolerance', 0.0), ('cluster_tolerance', np.inf), ('segment_thickness', -0.1),
-    ('segment_thickness', 0.0), ('split_tolerance', -0.01), ('split_tolerance', 0.2),
+    ('segment_thickness', 0.0), ('depth', 0.01), ('depth', np.nan), ('split_tolerance', -0.01),
+    ('split_tolerance', 0.2),
     ('footprint_radius', np.nan), ('footprint_radius', -1.0), ('min_cluster_points', 0),
     ('min_cluster_points', 1.5), ('max_obstacles', 0), ('max_obstacles', True),
     ('cluster_tolerance', '0.1'),
