@@ -12,19 +12,20 @@ Its arguments:
 - ``cmd_vel_in_topic`` (default ``cmd_vel_nav``; ``cmd_vel_smoothed`` behind the velocity
   smoother) and ``cmd_vel_out_topic`` (default ``cmd_vel``), named as the collision
   monitor's parameters, remapped onto the node's ``cmd_vel_in`` / ``cmd_vel_out``;
-- ``empty_obstacles`` (default true): publish an empty, latched MarkerArray on
-  ``obstacles`` (``ros2 topic pub``), which the node needs when every obstacle comes from
-  scans; set false when something else publishes obstacle markers;
 - ``use_lifecycle`` (default false): true starts the executable ``safety_filter_lifecycle``
   instead of ``safety_filter``, with the same name, parameters and remappings, for Nav2's
   lifecycle manager to configure and activate.  That variant may not be installed yet: the
   launch description is valid either way, but starting it fails until it is.
+
+The shipped parameters take every obstacle from ``scan`` (``use_markers: false``): no
+MarkerArray is needed.  For obstacle markers on ``obstacles`` as well, use a parameter file
+with ``use_markers: true``.
 """
 import os
 
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, ExecuteProcess
+from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
@@ -50,7 +51,7 @@ def _filter_node(executable, condition):
 
 
 def generate_launch_description():
-    """Return the safety filter (plain or lifecycle) and the optional empty obstacle map."""
+    """Return the safety filter, plain or lifecycle (``use_lifecycle``)."""
     default_params = os.path.join(
         get_package_share_directory('polyc2bf_ros'), 'config', 'nav2_safety_filter.yaml')
     use_lifecycle = LaunchConfiguration('use_lifecycle')
@@ -73,17 +74,6 @@ def generate_launch_description():
         DeclareLaunchArgument(
             'cmd_vel_out_topic', default_value='cmd_vel',
             description='safe command: the base'),
-        DeclareLaunchArgument(
-            'empty_obstacles', default_value='true',
-            description='publish an empty latched MarkerArray on obstacles (scans only)'),
         _filter_node('safety_filter', UnlessCondition(use_lifecycle)),
         _filter_node('safety_filter_lifecycle', IfCondition(use_lifecycle)),
-        ExecuteProcess(
-            cmd=['ros2', 'topic', 'pub', '--rate', '1', '--qos-reliability', 'reliable',
-                 '--qos-durability', 'transient_local',
-                 [LaunchConfiguration('namespace'), '/obstacles'],
-                 'visualization_msgs/msg/MarkerArray', '{markers: []}'],
-            condition=IfCondition(LaunchConfiguration('empty_obstacles')),
-            output='log',
-        ),
     ])

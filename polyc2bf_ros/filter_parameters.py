@@ -44,6 +44,9 @@ NODE_PARAMETERS = {
                      'control period (transparent when nothing constrains)', False),
     'odom_timeout': (0.25, (0.002, 10.0), 'odometry older than this [s] -> stop', False),
     'cmd_timeout': (0.5, (0.002, 10.0), 'nominal command older than this [s] -> stop', False),
+    'use_markers': (True, None, 'subscribe to the MarkerArray topic obstacles and watch it with '
+                    'obstacles_timeout; false: obstacles come from scan_topics only, which '
+                    'must name one', True),
     'obstacles_timeout': (1.0, (0.0, 3600.0), 'obstacles older than this [s] -> stop; 0 = '
                           'never stale once received (latched static map)', False),
     'max_extrapolation': (0.5, (0.0, 5.0), 'obstacles are moved by velocity * age, age = '
@@ -180,8 +183,9 @@ FILTER_FIELDS = tuple(f.name for f in dataclasses.fields(FilterConfig)
 class NodeSettings:
     """Everything the node derives from its parameters, built and validated together.
 
-    ``parameters`` is every value used (defaults filled in); ``ignored`` the names given
-    that the node does not declare (callers report them).
+    ``timeouts``: the watchdogs', ``obstacles`` only with ``use_markers``; ``parameters`` is
+    every value used (defaults filled in); ``ignored`` the names given that the node does not
+    declare (callers report them).
     """
 
     command_filter: CommandFilter
@@ -189,6 +193,7 @@ class NodeSettings:
     period: float
     per_command: bool
     timeouts: dict
+    use_markers: bool
     intake: IntakeSettings
     stall_timeout: float
     block_if_invalid: bool
@@ -231,14 +236,16 @@ def build_settings(values, model=None):
         command_filter = CommandFilter(model, config, float(values['velocity_tau']))
     except (TypeError, ValueError) as exc:
         raise ParameterError(f'invalid filter parameters: {exc}') from None
-    timeouts = {name: float(values[f'{name}_timeout']) for name in ('odom', 'cmd', 'obstacles')}
+    use_markers = bool(values['use_markers'])
+    watched = ('odom', 'cmd', 'obstacles') if use_markers else ('odom', 'cmd')
+    timeouts = {name: float(values[f'{name}_timeout']) for name in watched}
     for name, timeout in timeouts.items():
         if 0.0 < timeout <= period:
             raise ParameterError(f'{name}_timeout ({timeout:g} s) must exceed the control '
                                  f'period 1/rate ({period:g} s)')
     settings = NodeSettings(
         command_filter=command_filter, model_name=model_name, period=period,
-        per_command=values['trigger'] == 'command', timeouts=timeouts,
+        per_command=values['trigger'] == 'command', timeouts=timeouts, use_markers=use_markers,
         intake=IntakeSettings(*(values[name] for name in IntakeSettings._fields)),
         stall_timeout=float(values['stall_timeout']),
         block_if_invalid=bool(values['block_if_invalid']),

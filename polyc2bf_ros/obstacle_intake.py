@@ -26,14 +26,17 @@ process now does only queueing, one unpickle per pass and its control steps, and
 worker runs at niceness ``WORKER_NICENESS``, so the control thread wins the CPU.
 
 LaserScans (``submit_scan``, the node's ``scan_topics``) take the same path: the newest
-scan per topic is queued serialized with the robot pose of the latest odometry, and the
-worker reads, checks and converts it (``core.scan_obstacles.scan_to_obstacles``, in
-``scan_obstacles``).  A topic's obstacles (keys ``<topic>:scan/<i>``) replace its previous
-ones and join the marker obstacles in one ``ObstacleSet``; a rejected scan keeps them and
-is reported in ``scan_status``.  ``/tf_static`` messages (``submit_transforms``) go to the
-worker too, which keeps the static transform tree (``static_transforms``): a scan in another
-frame than the odometry child frame is placed by the static transforms from that frame to
-the scan's, and at ``sensor_pose`` when none links them.
+scan per topic is queued serialized with the node's recent odometry (its last
+``ODOMETRY_HISTORY`` samples), and the worker reads and checks it, places it at the pose of
+the sample stamped nearest the scan's ``header.stamp`` (``core.scan_obstacles.pose_at``: no
+interpolation; a scan older than the samples takes the oldest) and converts it
+(``core.scan_obstacles.scan_to_obstacles``, in ``scan_obstacles``).  A topic's obstacles
+(keys ``<topic>:scan/<i>``) replace its previous ones and join the marker obstacles in one
+``ObstacleSet``; a rejected scan keeps them and is reported in ``scan_status``.
+``/tf_static`` messages (``submit_transforms``) go to the worker too, which keeps the static
+transform tree (``static_transforms``): a scan in another frame than the odometry child
+frame is placed by the static transforms from that frame to the scan's, and at
+``sensor_pose`` when none links them.
 
 If the worker process dies, the obstacles it held are lost: the snapshot stays unusable
 (the node brakes, with the reason in its diagnostics) until the node is restarted.
@@ -59,10 +62,12 @@ from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import SafetyFilter
-from polyc2bf_ros.core.scan_obstacles import scan_to_obstacles, ScanSettings
+from polyc2bf_ros.core.scan_obstacles import pose_at, scan_to_obstacles, ScanSettings
 from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 
 MAX_OBSTACLES = 1000
+# Odometry samples a scan is matched against: 0.2 s of 1 kHz odometry, 4 s of 50 Hz.
+ODOMETRY_HISTORY = 200
 _PROTOCOL = pickle.HIGHEST_PROTOCOL
 
 
@@ -92,9 +97,9 @@ class ObstacleJob(NamedTuple):
     """One pass: messages [(data, received)], odometry frame, settings, filter, stamp [s].
 
     ``data`` is a serialized MarkerArray, or a MarkerArray message (offline replay).
-    ``scans``: the newest scan per topic, ``(topic, data, received, robot pose (x, y, yaw) or
-    None, odometry child frame)``; ``transforms``: serialized ``/tf_static`` messages, oldest
-    first.
+    ``scans``: the newest scan per topic, ``(topic, data, received, odometry samples
+    ((stamp [s], x, y, yaw), ...), odometry child frame)``; ``transforms``: serialized
+    ``/tf_static`` messages, oldest first.
     """
 
     messages: list
@@ -167,11 +172,11 @@ class ObstaclePipeline:
                              f'({settings.max_obstacles})')
         return result, t_ref, wrong_frame
 
-    def _take_scan(self, topic, data, received, robot_pose, base_frame, settings, radius):
+    def _take_scan(self, topic, data, received, odometry, base_frame, settings, radius):
         """Convert one serialized LaserScan of ``topic``; a bad one is counted, not used."""
         status = self.scan_status.get(topic, ScanStatus())
         try:
-            obstacles = scan_obstacles(data, robot_pose, base_frame, settings, radius,
+            obstacles = scan_obstacles(data, odometry, base_frame, settings, radius,
                                        self._static)
         except ValueError as exc:
             self.scan_status[topic] = status._replace(
@@ -189,24 +194,27 @@ class ObstaclePipeline:
         return self._filter
 
 
-def scan_obstacles(data, robot_pose, base_frame, settings, robot_radius, transforms=None):
+def scan_obstacles(data, odometry, base_frame, settings, robot_radius, transforms=None):
     """Return the obstacles of a serialized LaserScan; ValueError says why it is unusable.
 
-    ``robot_pose`` (x, y, yaw): the base in the odometry frame (None: no odometry yet).  A
-    scan in another frame than ``base_frame`` (the odometry child frame) was taken where the
-    ``StaticTransforms`` ``transforms`` put that frame, else at ``settings.sensor_pose``; a
-    non-finite transform on the way refuses the scan.  Every range NaN is refused (no
-    measurement at all).
+    ``odometry``: samples ``(stamp [s], x, y, yaw)`` of the base in the odometry frame,
+    oldest first (empty: no odometry yet); the scan is taken at the one stamped nearest its
+    ``header.stamp`` (``pose_at``).  A scan in another frame than ``base_frame`` (the
+    odometry child frame) was taken where the ``StaticTransforms`` ``transforms`` put that
+    frame, else at ``settings.sensor_pose``; a non-finite transform on the way refuses the
+    scan.  Every range NaN is refused (no measurement at all).
     """
     # Imported on the first scan: a worker without scan input does not pay for them.
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import LaserScan
-    if robot_pose is None:
+    if not odometry:
         raise ValueError('no odometry yet: the robot pose at the scan is unknown')
     try:
         scan = deserialize_message(data, LaserScan)
     except Exception as exc:  # noqa: BLE001 - any decoding failure is a malformed message
         raise ValueError(f'malformed LaserScan: {exc}') from None
+    stamp = scan.header.stamp
+    robot_pose = pose_at(odometry, stamp.sec + 1e-9 * stamp.nanosec)
     ranges = scan.ranges
     if len(ranges) == 0:
         raise ValueError('LaserScan without ranges')
@@ -321,14 +329,14 @@ class ObstacleIntake:
             self._generation += 1
         self._wake.set()
 
-    def submit_scan(self, topic, data, received, robot_pose, base_frame):
+    def submit_scan(self, topic, data, received, odometry, base_frame):
         """Queue a serialized LaserScan of ``topic`` (replacing one not yet processed).
 
-        ``robot_pose``: (x, y, yaw) of the latest odometry, or None; ``base_frame``: its
-        child frame.
+        ``odometry``: the recent odometry samples ``(stamp [s], x, y, yaw)``, oldest first
+        (a tuple: empty before any); ``base_frame``: its child frame.
         """
         with self._lock:
-            self._scans[topic] = (topic, data, received, robot_pose, base_frame)
+            self._scans[topic] = (topic, data, received, odometry, base_frame)
             self._generation += 1
         self._wake.set()
 

@@ -1,7 +1,8 @@
 """``safety_filter``: PolyC2BF safety filter between a planner and a robot.
 
 Subscribes ``odom`` (nav_msgs/Odometry, best effort), ``obstacles``
-(visualization_msgs/MarkerArray, reliable + transient local) and the nominal
+(visualization_msgs/MarkerArray, reliable + transient local; not with ``use_markers:=false``,
+which takes obstacles from ``scan_topics`` only) and the nominal
 command: ``cmd_vel_in`` (Twist, or TwistStamped with ``stamped:=true``) for the
 velocity-interface models, ``wrench_in`` (WrenchStamped) for ``quadrotor``.
 Publishes the safe command on ``cmd_vel_out`` / ``wrench_out`` (same type,
@@ -33,9 +34,12 @@ readable one arrives.  With ``block_if_invalid`` (default, as Nav2's collision
 monitor) rejected obstacles (wrong frame, unusable) are not fresh data: the
 obstacles go stale after ``obstacles_timeout`` and the node stops (at once with
 timeout 0).
-LaserScans on ``scan_topics`` take the same worker (``obstacle_intake``, with the pose of
-the latest odometry): their obstacles join the markers', each topic with its own
-``scan_timeout`` watchdog.  With scan topics the node also takes ``/tf_static``
+LaserScans on ``scan_topics`` take the same worker (``obstacle_intake``): each is placed at
+the pose of the odometry stamped nearest its ``header.stamp``, among the last
+``ODOMETRY_HISTORY`` (200) odometry messages, kept only with scan topics (no interpolation);
+their obstacles join the markers', each topic with its own ``scan_timeout`` watchdog.  With
+``use_markers:=false`` there is no ``obstacles`` input nor watchdog, and ``scan_topics`` must
+name a topic.  With scan topics the node also takes ``/tf_static``
 (tf2_msgs/TFMessage, reliable + transient local, depth 100; no tf2 buffer): a scan whose
 frame a chain of static transforms links to the odometry child frame is placed by them (in
 the plane, ``static_transforms``), any other at ``sensor_pose``; a non-finite transform
@@ -66,6 +70,7 @@ are read (``conversions``, CDR section); the answer is a copy of the command's
 bytes with its six numbers replaced, so its header is the input's.
 Diagnostics and markers are built on their own slow timers.
 """
+import collections
 import functools
 import math
 import sys
@@ -106,7 +111,7 @@ from polyc2bf_ros.filter_parameters import (
 )
 from polyc2bf_ros.loop_log import LoopLogger
 from polyc2bf_ros.node_main import run_node
-from polyc2bf_ros.obstacle_intake import ObstacleIntake
+from polyc2bf_ros.obstacle_intake import ObstacleIntake, ODOMETRY_HISTORY
 from polyc2bf_ros.stall_guard import StallGuard
 
 try:
@@ -178,6 +183,8 @@ class SafetyFilterMixin:
         self._child_frame_raw = None
         self._child_frame = ''
         self._scan_fed = {}  # topic: receipt time last fed to its watchdog
+        # (stamp, x, y, yaw) of recent odometry for placing scans: filled with scan topics only.
+        self._odometry = collections.deque(maxlen=ODOMETRY_HISTORY)
         self._scan_rejected = {}  # topic: rejections reported so far
         self._cmd = None  # the last readable nominal command (its bytes carry the answer)
         self._last_info = None
@@ -232,10 +239,13 @@ class SafetyFilterMixin:
         # Obstacles, then odometry, then commands: an executor serving them in one wake-up
         # (in creation order) answers on the newest inputs.  All are taken serialized
         # (raw): obstacle bytes go to the worker as they came; see the module docstring.
-        self._subscribe(MarkerArray, 'obstacles', self._on_obstacles, latched_qos)
+        if self._use_markers:
+            self._subscribe(MarkerArray, 'obstacles', self._on_obstacles, latched_qos)
         if self._scan_watchdogs:
             self._subscribe_static_transforms()
-        self._subscribe(Odometry, 'odom', self._on_odom, sensor_qos)
+        self._subscribe(Odometry, 'odom',
+                        self._on_odom_for_scans if self._scan_watchdogs else self._on_odom,
+                        sensor_qos)
         scan_qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
         for topic in self._scan_watchdogs:
             self._subscribe(LaserScan, topic,
@@ -318,6 +328,7 @@ class SafetyFilterMixin:
                              f'got {self._model_name!r}')
         self._declare_model_and_filter_parameters()
         settings = build_settings(self._parameter_values())
+        self._use_markers = settings.use_markers
         self._scan_watchdogs = self._scan_sources(settings)
         return settings
 
@@ -344,6 +355,9 @@ class SafetyFilterMixin:
         except ParameterUninitializedException:
             topics = []
         topics = list(dict.fromkeys(t for t in topics if t))
+        if not (topics or settings.use_markers):
+            raise ValueError('use_markers is false and scan_topics is empty: the node has no '
+                             'obstacle source (set scan_topics, or use_markers true)')
         self._scan_timeout = float(self.get_parameter('scan_timeout').value)
         if topics and 0.0 < self._scan_timeout <= settings.period:
             raise ValueError(f'scan_timeout ({self._scan_timeout:g} s) must exceed the control '
@@ -351,7 +365,7 @@ class SafetyFilterMixin:
         return {topic: 'scan_' + topic.strip('/').replace('/', '_') for topic in topics}
 
     def _timeouts(self, settings):
-        """Return the watchdog timeouts: odometry, command, obstacles and one per scan topic."""
+        """Return the watchdog timeouts: odometry, command, obstacles (markers), one per scan."""
         return {**settings.timeouts,
                 **dict.fromkeys(self._scan_watchdogs.values(), self._scan_timeout)}
 
@@ -439,6 +453,14 @@ class SafetyFilterMixin:
             self._obstacles_needed = self._intake.generation
             self._answer_if_ready()
 
+    def _on_odom_for_scans(self, data):
+        """``_on_odom``, then keep a usable odometry's stamp and pose for placing scans."""
+        self._on_odom(data)
+        decision = self._decision
+        if decision.odom_valid:
+            state = decision.state
+            self._odometry.append((decision.odom_stamp, state[0], state[1], decision.yaw))
+
     def _on_command(self, data):
         """Store the nominal command; with ``trigger:=command`` answer it right away."""
         now = time.monotonic()
@@ -487,10 +509,9 @@ class SafetyFilterMixin:
         self._intake.submit_transforms(data)
 
     def _on_scan(self, topic, data):
-        """Queue a serialized LaserScan with the latest odometry's pose (``obstacle_intake``)."""
-        state = self._decision.state
-        pose = None if state is None else (state[0], state[1], self._decision.yaw)
-        self._intake.submit_scan(topic, data, time.monotonic(), pose, self._child_frame)
+        """Queue a serialized LaserScan with the recent odometry (``obstacle_intake``)."""
+        self._intake.submit_scan(topic, data, time.monotonic(), tuple(self._odometry),
+                                 self._child_frame)
 
     def _take_scans(self):
         """Feed each scan topic's watchdog with its accepted scans; log rejected ones.

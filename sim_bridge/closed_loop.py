@@ -361,8 +361,9 @@ class _ScanView:
     ``RobotLidars`` scans the world's ray scene every physics_rate / rate physics steps
     (``sense``, after each step and once at the start).  A scan is serialized as the
     bridge publishes it and, at the start of the next control period, goes with the
-    pose (x, y, yaw) of that period's odometry (the node pairs a scan with its latest
-    odometry) to the node's own obstacle pipeline (``obstacle_intake.ObstaclePipeline``:
+    pose (x, y, yaw) of that period's odometry as the only odometry sample (the node takes
+    the odometry stamped nearest the scan: in lockstep, that one) to the node's own
+    obstacle pipeline (``obstacle_intake.ObstaclePipeline``:
     ``scan_obstacles``, then the ``ObstacleSet``, prepared for the filter), which has had
     the empty marker set the bridge sends in scan mode.  The snapshot holds until the next
     scan; its obstacles have velocity 0.
@@ -397,9 +398,9 @@ class _ScanView:
         pending = self._pending.pop(robot, None)
         if pending is not None:
             data, taken = pending
-            pose = (float(state[0]), float(state[1]), float(yaw))
+            odometry = ((taken, float(state[0]), float(state[1]), float(yaw)),)
             self._snapshots[robot] = self._run(robot, [], (
-                (SCAN_TOPIC, data, taken, pose, f'{robot}/base_link'),))
+                (SCAN_TOPIC, data, taken, odometry, f'{robot}/base_link'),))
         return self._snapshots[robot]
 
 

@@ -14,7 +14,9 @@ NaN/Inf), ``command`` (the nominal command vector, or None when unusable) and ``
                                     obstacles, age), counted by the filter's status
 
 An input is stale when it never arrived or is older than its timeout (0: never, once
-received; ``core.watchdog``).  A new obstacle snapshot with a receipt time is fresh data,
+received; ``core.watchdog``).  Without an ``'obstacles'`` watchdog (no marker input: the
+node's ``use_markers`` false) snapshots feed none and nothing blocks on rejected markers.
+A new obstacle snapshot with a receipt time is fresh data,
 but under ``block_if_invalid`` only when nothing in it was rejected (wrong frame, unusable
 marker): rejected input then stops the robot once it has lasted ``obstacles_timeout``, or at
 once when that is 0 ('blocked_stop').  The obstacles are moved to the odometry's stamp by
@@ -99,6 +101,8 @@ class ControlDecision:
                  deadlock=DEADLOCK_DEFAULTS, resolution='none'):
         """Decide with ``command_filter``; ``timeouts`` = {'odom', 'cmd', 'obstacles': s}.
 
+        ``'obstacles'`` may be left out (no marker input); other names are more watchdogs.
+
         ``deadlock`` = (deadlock_time [s], deadlock_radius [m]) of the deadlock detector;
         ``resolution`` one of ``RESOLUTIONS``.
         """
@@ -132,6 +136,10 @@ class ControlDecision:
         self.filter = command_filter
         for name, timeout in timeouts.items():
             self.watchdog.set_timeout(name, timeout)
+        self._watch_markers = 'obstacles' in self.watchdog.names
+        # Rejected obstacles stop at once: block_if_invalid with obstacles_timeout 0.
+        self._block_at_once = (bool(block_if_invalid) and self._watch_markers
+                               and self.watchdog.timeout('obstacles') == 0.0)
         self.block_if_invalid = bool(block_if_invalid)
         self.max_extrapolation = float(max_extrapolation)
 
@@ -154,7 +162,8 @@ class ControlDecision:
         if snapshot is self.snapshot:
             return
         self.snapshot = snapshot
-        if snapshot.received is not None and (snapshot.clean or not self.block_if_invalid):
+        if (self._watch_markers and snapshot.received is not None
+                and (snapshot.clean or not self.block_if_invalid)):
             self.watchdog.feed('obstacles', snapshot.received)
 
     def stop(self):
@@ -175,8 +184,7 @@ class ControlDecision:
         snapshot = self.snapshot
         if not (self.odom_valid and self.command_valid and snapshot.usable):
             return self._stop('invalid_input')
-        if (self.block_if_invalid and not snapshot.clean
-                and self.watchdog.timeout('obstacles') == 0.0):
+        if self._block_at_once and not snapshot.clean:
             return self._stop('blocked_stop')
         age = extrapolation_age(self.odom_stamp, snapshot.t_ref, self.max_extrapolation)
         command, circulation, position = self.command_vector, self.circulation, None

@@ -86,7 +86,8 @@ Limits.
 - Anything closer than ``footprint_radius`` to the base is taken for the robot itself and
   ignored, even a real obstacle.
 - The scan is taken as instantaneous at ``robot_pose`` (no de-skewing of motion during the
-  sweep); obstacles get zero velocity and an unbounded z range.
+  sweep); obstacles get zero velocity and an unbounded z range.  ``pose_at`` picks that
+  pose among odometry samples: the one stamped nearest the scan, not interpolated.
 - ``obstacle_tracker.outline_polygon`` thickens an outline symmetrically, one obstacle at a
   time; here the thickening goes away from the base, so that it can never cover it, and is
   done for all pieces at once.
@@ -498,3 +499,21 @@ def scan_to_obstacles(ranges, angle_min, angle_increment, range_min, range_max, 
                                sensor_pose, robot_pose)
     return scan_obstacles(endpoints, _finite_vector(robot_pose, 3, 'robot_pose')[:2], settings,
                           scan_wraps(len(endpoints), angle_increment))
+
+
+def pose_at(odometry, stamp):
+    """Return ``(x, y, yaw)`` of the odometry sample stamped nearest ``stamp`` [s].
+
+    ``odometry``: samples ``(stamp [s], x, y, yaw)``, oldest first; None when it is empty.  A
+    tie goes to the later stamp, then to the later sample (all stamps 0: the latest); a
+    ``stamp`` of 0 (an unstamped scan) takes the latest sample.  No interpolation: a stamp
+    outside the samples' span takes the nearest end.
+    """
+    if stamp == 0.0:
+        return tuple(odometry[-1][1:]) if odometry else None
+    best, best_gap = None, math.inf
+    for sample in odometry:
+        gap = abs(sample[0] - stamp)
+        if gap < best_gap or (gap == best_gap and sample[0] >= best[0]):
+            best, best_gap = sample, gap
+    return None if best is None else tuple(best[1:])

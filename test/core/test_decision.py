@@ -94,6 +94,23 @@ def test_rejected_obstacles_with_a_latched_map_block_at_once():
     assert decision.counts['blocked_stop'] == 1
 
 
+def test_without_an_obstacles_watchdog_snapshots_are_used_but_watch_nothing():
+    """No 'obstacles' timeout (scans only): no watchdog to feed, no blocking on markers.
+
+    A scan watchdog stops until fed; a snapshot never received is usable; a rejected marker
+    (which a scan-only node cannot have) neither blocks nor raises.
+    """
+    decision = _decision(timeouts={'odom': 0.25, 'cmd': 0.5, 'scan_scan': 0.0})
+    assert decision.watchdog.names == ('odom', 'cmd', 'scan_scan')
+    decision.obstacles(_snapshot(received=None))
+    assert decision.step(10.0).reason == 'stale_stop'
+    decision.watchdog.feed('scan_scan', 10.0)
+    assert decision.step(10.0).action == 'filter'
+    decision.obstacles(_snapshot(rejected={'m/2': 'self-intersecting'}))
+    assert decision.step(10.0).action == 'filter'
+    assert decision.watchdog.names == ('odom', 'cmd', 'scan_scan')
+
+
 def test_disabled_passes_the_nominal_but_still_stops_on_a_stale_command():
     """Pass-through while disabled; a stale or unusable command still gives the stop."""
     decision = _decision()

@@ -12,6 +12,7 @@ from hypothesis import given, settings, strategies as st
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.scan_obstacles import (
     beam_endpoints,
+    pose_at,
     scan_obstacles,
     scan_points,
     scan_to_obstacles,
@@ -525,3 +526,23 @@ def test_a_polygon_corner_is_followed_not_cut_off(sides, radius, turn):
     outside = _distances(vertices, corners)  # counter-clockwise
     assert outside.max() <= ScanSettings().segment_thickness / 2 + 1e-9, \
         f'a corner {outside.max():.4f} m in front of the faces: {vertices[outside.argmax()]}'
+
+
+def test_pose_at_takes_the_odometry_stamped_nearest_the_scan():
+    """Nearest stamp; ties: the later stamp, then the later sample; no interpolation.
+
+    Outside the samples' span the nearest end; all stamps 0 or an unstamped scan (0): the
+    latest; no sample: None.
+    """
+    odometry = ((1.0, 0.0, 0.0, 0.0), (2.0, 1.0, 0.0, 0.5), (3.0, 2.0, 1.0, 1.0))
+    assert pose_at(odometry, 2.2) == (1.0, 0.0, 0.5)
+    assert pose_at(odometry, 2.5) == (2.0, 1.0, 1.0)  # tie: the later stamp
+    assert pose_at(odometry[::-1], 2.5) == (2.0, 1.0, 1.0)  # whatever the order
+    assert pose_at(odometry, 0.5) == (0.0, 0.0, 0.0)
+    assert pose_at(odometry, 9.0) == (2.0, 1.0, 1.0)
+    assert pose_at(odometry, 0.0) == (2.0, 1.0, 1.0)  # an unstamped scan
+    twice = ((2.0, 0.0, 0.0, 0.0), (2.0, 5.0, 0.0, 0.0))
+    assert pose_at(twice, 2.0) == (5.0, 0.0, 0.0)  # same stamp: the later sample
+    unstamped = tuple((0.0, float(x), 0.0, 0.0) for x in range(3))
+    assert pose_at(unstamped, 7.0) == (2.0, 0.0, 0.0)
+    assert pose_at((), 2.0) is None and pose_at((), 0.0) is None

@@ -58,3 +58,11 @@ def test_the_params_file_names_only_node_parameters_and_builds():
         settings = build_filter(values)
         assert settings.ignored == ('scan_topics',)  # declared by the node apart (scan sources)
         assert settings.parameters['stamped'] is False  # Jazzy's Nav2 sends Twist
+        # Obstacles from the scan only: no MarkerArray input and no watchdog for one.
+        assert settings.use_markers is False and 'obstacles' not in settings.timeouts
+
+
+def test_the_launch_file_runs_only_the_filter():
+    """One of the two filter nodes and nothing else: no empty MarkerArray publisher."""
+    assert len(_calls('Node')) == 1 and len(_calls('_filter_node')) == 2
+    assert not _calls('ExecuteProcess') and 'empty_obstacles' not in _arguments()

@@ -121,11 +121,13 @@ class Harness:
             self.executor.spin_once(timeout_sec=0.005)
         return predicate()
 
-    def filter_io(self, proc, command_type=Twist, command_topic=None, odom_qos=RELIABLE):
+    def filter_io(self, proc, command_type=Twist, command_topic=None, odom_qos=RELIABLE,
+                  obstacles=True):
         """Wire the filter's usual inputs and outputs; wait until ``proc`` subscribed.
 
         Returns a namespace with the publishers ``odom``, ``cmd`` and
-        ``obstacles`` (latched) and the collected lists ``out`` (safe commands)
+        ``obstacles`` (latched; None with ``obstacles`` false: a node with
+        ``use_markers:=false``) and the collected lists ``out`` (safe commands)
         and ``diagnostics``.  ``command_topic`` defaults to ``cmd_vel_in`` or
         ``wrench_in`` by ``command_type``.
         """
@@ -136,8 +138,9 @@ class Harness:
             odom=self.publisher(Odometry, 'odom', odom_qos),
             cmd=self.publisher(command_type, command_topic or (
                 'wrench_in' if wrench else 'cmd_vel_in')),
-            obstacles=self.publisher(MarkerArray, 'obstacles', LATCHED))
-        assert self.wait_for_subscribers(io.odom, io.cmd, io.obstacles), node_log(proc)
+            obstacles=self.publisher(MarkerArray, 'obstacles', LATCHED) if obstacles else None)
+        inputs = (io.odom, io.cmd, io.obstacles) if obstacles else (io.odom, io.cmd)
+        assert self.wait_for_subscribers(*inputs), node_log(proc)
         return io
 
     def wait_for_subscribers(self, *publishers, timeout=15.0):

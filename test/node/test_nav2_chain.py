@@ -4,8 +4,9 @@ The filter runs as a child process with the shipped ``config/nav2_safety_filter.
 the remappings of ``launch/nav2_safety_filter.launch.py`` (read from the file: the launch
 packages are not in the venv).  The test process stands in for the rest of the stack: a
 controller publishing a steady forward ``cmd_vel_nav``, a diff-drive base whose odometry
-follows ``cmd_vel``, a laser on ``scan`` and, as the launch file's ``empty_obstacles``
-does, an empty latched MarkerArray on ``obstacles``.
+follows ``cmd_vel`` and a laser on ``scan``.  No MarkerArray is ever published: the
+shipped parameters take obstacles from the scan only (``use_markers: false``), and the node
+does not subscribe ``obstacles``.
 """
 import ast
 import contextlib
@@ -18,13 +19,11 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
-from visualization_msgs.msg import MarkerArray
 
 from node_harness import (
     Harness,
     LATCHED,
     latest_status,
-    markers,
     node_log,
     odometry,
     REPO,
@@ -86,10 +85,9 @@ class Chain:
         self._odom = harness.publisher(Odometry, 'odom')
         self._cmd = harness.publisher(Twist, topics['cmd_vel_in'])
         self._scan = harness.publisher(LaserScan, 'scan', qos_profile_sensor_data)
-        obstacles = harness.publisher(MarkerArray, 'obstacles', LATCHED)
-        assert harness.wait_for_subscribers(self._odom, self._cmd, self._scan, obstacles,
+        assert harness.wait_for_subscribers(self._odom, self._cmd, self._scan,
                                             timeout=WAIT), node_log(proc)
-        obstacles.publish(markers())
+        assert harness.node.count_subscribers('/obstacles') == 0, node_log(proc)
         self.x = 0.0  # the base's position along its heading (odometry frame x)
         self.wall_x = None  # where the wall stands; None: nothing in range
         self.scanning = True

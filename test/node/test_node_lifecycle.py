@@ -187,3 +187,22 @@ def test_invalid_parameters_and_transitions_are_refused():
         assert _state(h, proc) == 'finalized'
         assert h.spin_until(lambda: _no_filter_topics(h), WAIT), node_log(proc)
         assert proc.poll() is None, node_log(proc)
+
+
+@pytest.mark.parametrize('scan_topics', [None, '[scan]'])
+@pytest.mark.slow
+def test_use_markers_false_takes_obstacles_from_scans_only(scan_topics):
+    """Without scan topics configure fails: no obstacle source; with one, no ``obstacles``."""
+    params = {**PARAMS, 'use_markers': False}
+    if scan_topics is not None:
+        params['scan_topics'] = scan_topics
+    with running_filter(params=params, module=MODULE) as proc, Harness() as h:
+        if scan_topics is None:
+            assert not _change(h, proc, Transition.TRANSITION_CONFIGURE), node_log(proc)
+            assert _state(h, proc) == 'unconfigured'
+            assert 'no obstacle source' in node_log(proc)
+            return
+        assert _change(h, proc, Transition.TRANSITION_CONFIGURE), node_log(proc)
+        assert h.spin_until(lambda: _filter_topics(h) and h.node.count_subscribers('/scan'),
+                            WAIT), node_log(proc)
+        assert h.node.count_subscribers('/obstacles') == 0, node_log(proc)

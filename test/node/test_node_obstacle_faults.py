@@ -123,6 +123,7 @@ BAD_STARTS = [
     (FILTER, 'stall_timeout:=0.011', 'stall_timeout'),
     (FILTER, 'max_vertices:=2', 'max_vertices out of range'),
     (FILTER, 'odom_timeout:=0.005', 'must exceed the control period'),
+    (FILTER, 'use_markers:=false', 'no obstacle source'),
     ('sim_bridge.bridge_node', 'duration:=abc', "expecting type 'DOUBLE'"),
     ('sim_bridge.nominal_controller_node', 'robot_type:=tank', "'robot_type' must be one of"),
 ]

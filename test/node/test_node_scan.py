@@ -1,20 +1,46 @@
-"""LaserScan obstacles over real DDS: a wall in the scan slows the robot; NaN scans are refused."""
+"""LaserScan obstacles over real DDS: a wall in the scan slows the robot; NaN scans are refused.
+
+A scan is placed at the odometry stamped nearest it; with ``use_markers:=false`` scans are the
+only obstacle source and no MarkerArray is needed.
+"""
 import math
 
 import pytest
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus
 from sensor_msgs.msg import LaserScan
+from visualization_msgs.msg import MarkerArray
 
-from node_harness import Harness, latest_status, markers, node_log, odometry, running_filter, twist
+from node_harness import (
+    FILTERED_STATUSES,
+    Harness,
+    LATCHED,
+    latest_status,
+    markers,
+    node_log,
+    odometry,
+    running_filter,
+    status_values,
+    twist,
+)
 
 WAIT = 60.0  # wall-clock bound on each wait: a starved 2-core machine is slow, not wrong
 SPEED = 0.5
 BEAMS = 181
+PARAMS = {'model': 'unicycle', 'rate': 50.0, 'obstacles_timeout': 0.0, 'odom_timeout': 10.0,
+          'cmd_timeout': 10.0, 'stall_timeout': 10.0, 'deadlock_time': 600.0,
+          'scan_topics': '[scan]', 'scan_timeout': 1.0}
 
 
-def _scan(wall_x=None, nan=False, frame='base_link'):
-    """Return a half-turn scan from the base: a wall at x = ``wall_x`` ahead, or no returns."""
+def _scan(wall_x=None, nan=False, frame='base_link', stamp=None):
+    """Return a half-turn scan from the base: a wall at x = ``wall_x`` ahead, or no returns.
+
+    ``stamp``: its ``header.stamp`` (a ``builtin_interfaces/Time``; default 0).
+    """
     msg = LaserScan()
     msg.header.frame_id = frame
+    if stamp is not None:
+        msg.header.stamp = stamp
     msg.angle_min, msg.angle_increment = -0.5 * math.pi, math.pi / (BEAMS - 1)
     msg.angle_max = msg.angle_min + (BEAMS - 1) * msg.angle_increment
     msg.range_min, msg.range_max = 0.05, 10.0
@@ -39,10 +65,7 @@ def test_a_wall_in_the_scan_slows_the_robot_and_nan_scans_are_refused():
     rejected (counted in /diagnostics, the node lives on), so the scan source goes stale
     after ``scan_timeout`` and the node stops.
     """
-    params = {'model': 'unicycle', 'rate': 50.0, 'obstacles_timeout': 0.0,
-              'odom_timeout': 10.0, 'cmd_timeout': 10.0, 'stall_timeout': 10.0,
-              'deadlock_time': 600.0, 'scan_topics': '[scan]', 'scan_timeout': 1.0}
-    with running_filter(params=params) as proc, Harness() as h:
+    with running_filter(params=PARAMS) as proc, Harness() as h:
         io = h.filter_io(proc)
         scans = h.publisher(LaserScan, 'scan')
         assert h.wait_for_subscribers(scans), node_log(proc)
@@ -84,3 +107,92 @@ def test_a_wall_in_the_scan_slows_the_robot_and_nan_scans_are_refused():
             return 'scan_scan' in latest_status(io.diagnostics)[1].get('stale_inputs', '')
 
         assert h.spin_until(stale_reported, WAIT, feed, 0.02), node_log(proc)
+
+
+def _stamp(k):
+    """Return the stamp of odometry message ``k``: 100 s + 0.02 s k."""
+    return Time(sec=100 + k // 50, nanosec=(k % 50) * 20_000_000)
+
+
+def _drawn_wall_x(drawn):
+    """Return the smallest x of the obstacle parts on the newest ``~/markers`` (None: none)."""
+    if not drawn:
+        return None
+    xs = [p.x for m in drawn[-1][1].markers if m.ns == 'obstacles' for p in m.points]
+    return min(xs) if xs else None
+
+
+@pytest.mark.slow
+def test_a_scan_is_placed_at_the_odometry_stamped_nearest_it():
+    """The robot moves 2 m in 50 odometry messages 0.02 s apart (x = 0.04 k), then is silent.
+
+    A scan with a wall 1 m ahead, stamped as message 20 (x = 0.8), is drawn on ``~/markers``
+    at x = 1.8, not at 2.96 as from the latest odometry (x = 1.96); stamped past the last
+    message, at 2.96.  No command: the node only builds and draws obstacles.
+    """
+    with running_filter(params=PARAMS) as proc, Harness() as h:
+        drawn = h.collect(MarkerArray, 'safety_filter/markers')
+        io = h.filter_io(proc)
+        scans = h.publisher(LaserScan, 'scan')
+        assert h.wait_for_subscribers(scans), node_log(proc)
+        for k in range(50):
+            io.odom.publish(odometry(x=0.04 * k, stamp=_stamp(k)))
+            h.spin_for(0.02)
+        scan = [_scan(wall_x=1.0, stamp=_stamp(20))]
+
+        def drawn_at(x):
+            wall_x = _drawn_wall_x(drawn)
+            return wall_x is not None and abs(wall_x - x) < 0.1
+
+        assert h.spin_until(lambda: drawn_at(1.8), WAIT, lambda: scans.publish(scan[0]), 0.1), \
+            (_drawn_wall_x(drawn), node_log(proc))
+        scan[0] = _scan(wall_x=1.0, stamp=_stamp(80))
+        assert h.spin_until(lambda: drawn_at(2.96), WAIT, lambda: scans.publish(scan[0]),
+                            0.1), (_drawn_wall_x(drawn), node_log(proc))
+
+
+@pytest.mark.slow
+def test_a_scan_only_node_needs_no_marker_array():
+    """``use_markers:=false``: no ``obstacles`` subscription or watchdog, and none published.
+
+    Before any scan the node stops (stale ``scan_scan``); empty scans pass 0.5 m/s; a wall
+    0.6 m ahead in the scan slows it (a step the filter computed, not a watchdog's stop).
+    """
+    params = {**PARAMS, 'use_markers': False}
+    with running_filter(params=params) as proc, Harness() as h:
+        io = h.filter_io(proc, obstacles=False)
+        states = h.collect(DiagnosticStatus, '/safety_filter/state', LATCHED)
+        scans = h.publisher(LaserScan, 'scan')
+        assert h.wait_for_subscribers(scans), node_log(proc)
+        assert h.node.count_subscribers('/obstacles') == 0, node_log(proc)
+        scan = [None]
+
+        def feed():
+            io.odom.publish(odometry(v=SPEED))
+            io.cmd.publish(twist(SPEED))
+            if scan[0] is not None:
+                scans.publish(scan[0])
+
+        def speed():
+            return io.out[-1][1].linear.x if io.out else None
+
+        def stale_scan_stop():
+            values = latest_status(io.diagnostics)[1]
+            return speed() == 0.0 and 'scan_scan' in values.get('stale_inputs', '')
+
+        assert h.spin_until(stale_scan_stop, WAIT, feed, 0.02), node_log(proc)
+        values = latest_status(io.diagnostics)[1]
+        assert 'obstacles' not in values['stale_inputs'] and 'age_obstacles_s' not in values
+
+        scan[0] = _scan()
+        assert h.spin_until(lambda: speed() == SPEED, WAIT, feed, 0.02), node_log(proc)
+        scan[0] = _scan(wall_x=0.6)
+
+        def braked():
+            return (speed() < SPEED - 0.005 and bool(states)
+                    and status_values(states[-1][1])['status'] in FILTERED_STATUSES)
+
+        assert h.spin_until(braked, WAIT, feed, 0.02), \
+            (speed(), [s.message for _, s in states[-3:]], node_log(proc))
+        assert h.node.count_subscribers('/obstacles') == 0
+        assert proc.poll() is None, node_log(proc)

@@ -2,6 +2,7 @@
 import math
 
 import pytest
+from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
 
 from node_harness import markers, wall
@@ -15,7 +16,7 @@ from polyc2bf_ros.obstacle_intake import (
 from test_node_scan import _scan
 
 SPEC = ('unicycle', FilterConfig())
-POSE = (0.0, 0.0, 0.0)
+ODOMETRY = ((0.0, 0.0, 0.0, 0.0),)  # one sample (stamp, x, y, yaw): at the origin
 
 
 def _data(**kwargs):
@@ -26,30 +27,48 @@ def test_bad_scans_are_refused_with_the_reason():
     """No odometry, NaN angles, mismatched intensities, all-NaN ranges: ValueError."""
     settings = IntakeSettings()
     with pytest.raises(ValueError, match='no odometry'):
-        scan_obstacles(_data(wall_x=1.0), None, 'base_link', settings, 0.3)
+        scan_obstacles(_data(wall_x=1.0), (), 'base_link', settings, 0.3)
     msg = _scan(wall_x=1.0)
     msg.angle_increment = math.nan
     with pytest.raises(ValueError, match='angle_increment'):
-        scan_obstacles(serialize_message(msg), POSE, 'base_link', settings, 0.3)
+        scan_obstacles(serialize_message(msg), ODOMETRY, 'base_link', settings, 0.3)
     msg = _scan(wall_x=1.0)
     msg.intensities = [1.0, 2.0]
     with pytest.raises(ValueError, match='intensities'):
-        scan_obstacles(serialize_message(msg), POSE, 'base_link', settings, 0.3)
+        scan_obstacles(serialize_message(msg), ODOMETRY, 'base_link', settings, 0.3)
     with pytest.raises(ValueError, match='all NaN'):
-        scan_obstacles(_data(nan=True), POSE, 'base_link', settings, 0.3)
+        scan_obstacles(_data(nan=True), ODOMETRY, 'base_link', settings, 0.3)
     with pytest.raises(ValueError, match='malformed'):
-        scan_obstacles(b'\x00\x01\x00\x00\x01', POSE, 'base_link', settings, 0.3)
+        scan_obstacles(b'\x00\x01\x00\x00\x01', ODOMETRY, 'base_link', settings, 0.3)
 
 
 def test_sensor_pose_applies_to_scans_in_another_frame():
     """A scan in the base frame is at the base; in ``laser`` it is at ``sensor_pose``."""
     settings = IntakeSettings(sensor_pose=(0.5, 0.0, 0.0))
-    at_base = scan_obstacles(_data(wall_x=1.0), POSE, 'base_link', settings, 0.3)
-    at_sensor = scan_obstacles(_data(wall_x=1.0, frame='laser'), POSE, 'base_link', settings,
+    at_base = scan_obstacles(_data(wall_x=1.0), ODOMETRY, 'base_link', settings, 0.3)
+    at_sensor = scan_obstacles(_data(wall_x=1.0, frame='laser'), ODOMETRY, 'base_link', settings,
                                0.3)
     assert at_base and at_sensor
     assert min(o.polygon[:, 0].min() for o in at_base) == pytest.approx(1.0, abs=0.06)
     assert min(o.polygon[:, 0].min() for o in at_sensor) == pytest.approx(1.5, abs=0.06)
+
+
+def test_a_scan_is_placed_at_the_odometry_stamped_nearest_it():
+    """Odometry at x = 0, 1, 2 (stamps 10, 11, 12 s): a scan at 11.4 s is taken at x = 1.
+
+    An unstamped scan (stamp 0) is taken at the latest odometry.
+    """
+    odometry = ((10.0, 0.0, 0.0, 0.0), (11.0, 1.0, 0.0, 0.0), (12.0, 2.0, 0.0, 0.0))
+    settings = IntakeSettings()
+
+    def wall_x(**kwargs):
+        obstacles = scan_obstacles(_data(wall_x=1.0, **kwargs), odometry, 'base_link',
+                                   settings, 0.3)
+        return min(o.polygon[:, 0].min() for o in obstacles)
+
+    assert wall_x(stamp=Time(sec=11, nanosec=400_000_000)) == pytest.approx(2.0, abs=0.06)
+    assert wall_x(stamp=Time(sec=9)) == pytest.approx(1.0, abs=0.06)
+    assert wall_x() == pytest.approx(3.0, abs=0.06)
 
 
 def test_pipeline_combines_markers_and_scans_and_keeps_a_topic_on_a_bad_scan():
@@ -57,13 +76,13 @@ def test_pipeline_combines_markers_and_scans_and_keeps_a_topic_on_a_bad_scan():
     pipeline = ObstaclePipeline()
     marker = serialize_message(markers(wall([(5.0, -1.0), (5.0, 1.0)])))
     job = ObstacleJob([(marker, 1.0)], 'odom', IntakeSettings(), SPEC, 1.0,
-                      (('scan', _data(wall_x=1.0), 1.0, POSE, 'base_link'),))
+                      (('scan', _data(wall_x=1.0), 1.0, ODOMETRY, 'base_link'),))
     snapshot = pipeline.run(job)
     keys = snapshot.obstacles.keys
     assert 'walls/0' in keys and any(k.startswith('scan:scan/') for k in keys)
     assert pipeline.scan_status['scan'].accepted == 1.0 and snapshot.usable
     bad = ObstacleJob([], 'odom', IntakeSettings(), SPEC, 2.0,
-                      (('scan', _data(nan=True), 2.0, POSE, 'base_link'),))
+                      (('scan', _data(nan=True), 2.0, ODOMETRY, 'base_link'),))
     again = pipeline.run(bad)
     assert again.obstacles.keys == keys
     status = pipeline.scan_status['scan']

@@ -16,7 +16,7 @@ from sim_bridge.cdr import tf_message_cdr
 from test_node_scan import _scan
 
 SPEC = ('unicycle', FilterConfig())
-POSE = (0.0, 0.0, 0.0)
+ODOMETRY = ((0.0, 0.0, 0.0, 0.0),)  # one sample (stamp, x, y, yaw): at the origin
 
 
 def _yaw(angle):
@@ -103,11 +103,11 @@ def test_a_scan_is_placed_by_the_static_transforms_before_sensor_pose():
     laser = serialize_message(_scan(wall_x=1.0, frame='laser'))
     other = serialize_message(_scan(wall_x=1.0, frame='sonar'))
     base = serialize_message(_scan(wall_x=1.0))
-    assert _nearest_x(scan_obstacles(laser, POSE, 'base_link', settings, 0.3, tree)) == \
+    assert _nearest_x(scan_obstacles(laser, ODOMETRY, 'base_link', settings, 0.3, tree)) == \
         pytest.approx(1.5, abs=0.06)
-    assert _nearest_x(scan_obstacles(other, POSE, 'base_link', settings, 0.3, tree)) == \
+    assert _nearest_x(scan_obstacles(other, ODOMETRY, 'base_link', settings, 0.3, tree)) == \
         pytest.approx(1.2, abs=0.06)
-    assert _nearest_x(scan_obstacles(base, POSE, 'base_link', settings, 0.3, tree)) == \
+    assert _nearest_x(scan_obstacles(base, ODOMETRY, 'base_link', settings, 0.3, tree)) == \
         pytest.approx(1.0, abs=0.06)
 
 
@@ -117,14 +117,14 @@ def test_the_worker_pipeline_takes_transforms_and_refuses_scans_through_a_non_fi
     laser = serialize_message(_scan(wall_x=1.0, frame='laser'))
     behind = _tf(('base_link', 'laser', (0.0, 0.0, 0.0), _yaw(math.pi)))
     job = ObstacleJob([], 'odom', IntakeSettings(), SPEC, 1.0,
-                      (('scan', laser, 1.0, POSE, 'base_link'),), (behind,))
+                      (('scan', laser, 1.0, ODOMETRY, 'base_link'),), (behind,))
     snapshot = pipeline.run(job)
     # Turned around, the wall 1 m in front of the laser is 1 m behind the robot.
     assert snapshot.obstacles.footprints.vertices[..., 0].max() == \
         pytest.approx(-1.0, abs=0.06)
     broken = _tf(('base_link', 'laser', (0.0, math.inf, 0.0), _yaw(0.0)))
     again = pipeline.run(ObstacleJob([], 'odom', IntakeSettings(), SPEC, 2.0,
-                                     (('scan', laser, 2.0, POSE, 'base_link'),), (broken,)))
+                                     (('scan', laser, 2.0, ODOMETRY, 'base_link'),), (broken,)))
     assert again.obstacles.keys == snapshot.obstacles.keys  # the topic's last obstacles kept
     status = pipeline.scan_status['scan']
     assert (status.accepted, status.received, status.rejected) == (1.0, 2.0, 1)
