@@ -85,6 +85,8 @@ NODE_PARAMETERS = {
                                'endpoints of one obstacle (core/scan_obstacles.py)', False),
     'scan_footprint_radius': (-1.0, (-1.0, 10.0), 'scan endpoints this close [m] to the base '
                               'are the robot itself; negative: filter.robot_radius', False),
+    'scan_obstacle_depth': (0.10, (0.02, 10.0), 'how far [m] each scan obstacle reaches behind '
+                            'the surface the beams lit (the unseen body behind it)', False),
 }
 
 # FilterConfig field: ((min, max) or None, description); control_period comes from rate.

@@ -82,6 +82,7 @@ class IntakeSettings(NamedTuple):
     sensor_pose: tuple = (0.0, 0.0, 0.0)
     scan_cluster_tolerance: float = 0.15
     scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
+    scan_obstacle_depth: float = 0.10
 
 
 class ScanStatus(NamedTuple):
@@ -228,7 +229,8 @@ def scan_obstacles(data, odometry, base_frame, settings, robot_radius, transform
                                transforms)
     radius = settings.scan_footprint_radius
     scan_settings = ScanSettings(cluster_tolerance=float(settings.scan_cluster_tolerance),
-                                 footprint_radius=float(robot_radius if radius < 0 else radius))
+                                 footprint_radius=float(robot_radius if radius < 0 else radius),
+                                 depth=float(settings.scan_obstacle_depth))
     return scan_to_obstacles(ranges, scan.angle_min, scan.angle_increment, scan.range_min,
                              scan.range_max, sensor_pose, robot_pose, scan_settings)
 

@@ -53,6 +53,15 @@ def test_sensor_pose_applies_to_scans_in_another_frame():
     assert min(o.polygon[:, 0].min() for o in at_sensor) == pytest.approx(1.5, abs=0.06)
 
 
+@pytest.mark.parametrize('depth', [0.05, 0.3])
+def test_scan_obstacle_depth_sets_how_far_obstacles_reach_behind_the_wall(depth):
+    """A wall at x = 1 m: its obstacles end ``scan_obstacle_depth`` beyond it."""
+    settings = IntakeSettings(scan_obstacle_depth=depth)
+    obstacles = scan_obstacles(_data(wall_x=1.0), ODOMETRY, 'base_link', settings, 0.3)
+    assert obstacles
+    assert max(o.polygon[:, 0].max() for o in obstacles) == pytest.approx(1.0 + depth, abs=0.01)
+
+
 def test_a_scan_is_placed_at_the_odometry_stamped_nearest_it():
     """Odometry at x = 0, 1, 2 (stamps 10, 11, 12 s): a scan at 11.4 s is taken at x = 1.
 
