@@ -71,6 +71,11 @@ NODE_PARAMETERS = {
     'deadlock_radius': (DEADLOCK_DEFAULTS[1], (0.0, 10.0), '... while its reference point '
                         'stayed within this distance [m] (core/deadlock.py); reported on '
                         '~/deadlock and in /diagnostics', False),
+    'stuck_time': (DEADLOCK_DEFAULTS[2], (0.0, 3600.0), 'also a deadlock: the nominal asked '
+                   'to move for this long [s] (0 = off) ...', False),
+    'stuck_radius': (DEADLOCK_DEFAULTS[3], (0.0, 100.0), '... while the body stayed within '
+                     'this distance [m] of where it began (circling, held and let go by turns)',
+                     False),
     'deadlock_resolution': ('none', None, "what a reported deadlock does: 'none' (report "
                             "only) or 'circulate' (unicycle: the nominal is steered along the "
                             'blocking obstacle, core/circulation.py; no constraint is relaxed)',
@@ -252,7 +257,8 @@ def build_settings(values, model=None):
         stall_timeout=float(values['stall_timeout']),
         block_if_invalid=bool(values['block_if_invalid']),
         max_extrapolation=float(values['max_extrapolation']),
-        deadlock=(float(values['deadlock_time']), float(values['deadlock_radius'])),
+        deadlock=tuple(float(values[name]) for name in ('deadlock_time', 'deadlock_radius',
+                                                         'stuck_time', 'stuck_radius')),
         resolution=values['deadlock_resolution'], parameters=dict(values))
     if settings.resolution not in RESOLUTIONS:
         raise ParameterError(f"parameter 'deadlock_resolution' must be one of {RESOLUTIONS}, "

@@ -51,7 +51,8 @@ clock), a separate thread publishes the stop and the node's status at level
 ERROR on ``/diagnostics`` (``stall_guard``).
 
 Deadlock: when the filter has held the robot in place against its nominal command for
-``deadlock_time`` (within ``deadlock_radius``; ``core.deadlock``), ``~/deadlock``
+``deadlock_time`` (within ``deadlock_radius``; ``core.deadlock``), or it was asked to
+move for ``stuck_time`` but stayed within ``stuck_radius``, ``~/deadlock``
 (std_msgs/Bool, reliable + transient local, published on every change) turns true and
 ``/diagnostics`` says so at WARN, for a planner or behaviour tree to act on (replan,
 back up).  The node itself keeps filtering: a report changes no command.
@@ -707,6 +708,7 @@ class SafetyFilterMixin:
             'stalls': self._stall_guard.stalls,
             'deadlocked': str(bool(self._deadlocked)).lower(),
             'deadlocks': decision.deadlock.onsets,
+            'stuck_reports': decision.deadlock.stuck_onsets,
             'deadlock_held_s': f'{decision.deadlock.held_s(now):.2f}',
             **self._scan_values(),
             **{f'rejected {key}': reason for key, reason in sorted(rejected.items())},
@@ -734,9 +736,12 @@ class SafetyFilterMixin:
                               'unfiltered', throttle_s=5.0)
         if stale and self._cmd is not None:
             warnings.append(f'stale {", ".join(stale)}: stopping')
-        if self._deadlocked:
+        if self._deadlocked and decision.deadlock.held:
             warnings.append(f'deadlock: held in place by the filter for '
                             f'{decision.deadlock.held_s(now):.1f} s')
+        elif self._deadlocked:
+            warnings.append('deadlock: asked to move, but stayed within stuck_radius for '
+                            'stuck_time')
         fallbacks = [f'{name} x{window[name]}' for name in _FALLBACKS if window[name]]
         if fallbacks:
             warnings.append('fallback ' + ', '.join(fallbacks))

@@ -33,6 +33,10 @@ as long as the plant follows the model.
 Cost: the path (|v| / a_max / T + 8 brake time constants / T rows) is computed in one
 kernel; an obstacle part is only measured against it when its bounding box comes within
 reach of the path's, so the cost grows with the obstacles near the robot, not with all.
+Before any of that, ``clear_around`` asks whether any bounding box comes within
+rho + margin of the robot, rho the model's bound on every path the check could compute
+(``RobotModel.braking_reach``); when none does, c(B(x+)) would be the margin and the input
+is kept without computing x+ or its path.  In open space that is most steps.
 """
 import math
 
@@ -80,3 +84,28 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, ag
             distance = -math.sqrt(square) if inside else math.sqrt(square)
             best = min(best, distance)
     return best
+
+
+@kernel(signature('b1', F2, F2, I1, F2, F2, 'f8', 'f8', 'f8', 'f8'))
+def clear_around(x, y, counts, velocities, offsets, elapsed, cx, cy, reach):
+    """Return True when no polygon's bounding box comes within ``reach`` of (cx, cy).
+
+    Polygon n (rows of ``x``, ``y``) has moved by ``offsets[n]`` and moves at
+    ``velocities[n]`` for up to ``elapsed`` s more.  The square of half-side ``reach`` around
+    (cx, cy) holds the bounding box of any path within that distance of it, so
+    ``path_clearance`` of such a path, with ``cutoff`` <= reach - rho, returns ``cutoff``:
+    the check skips computing the path (``SafetyFilter``).
+    """
+    for n in range(counts.shape[0]):
+        vx, vy = velocities[n, 0], velocities[n, 1]
+        grown = reach + elapsed * math.sqrt(vx * vx + vy * vy)
+        low_x = high_x = x[n, 0]
+        low_y = high_y = y[n, 0]
+        for j in range(counts[n]):
+            low_x, high_x = min(low_x, x[n, j]), max(high_x, x[n, j])
+            low_y, high_y = min(low_y, y[n, j]), max(high_y, y[n, j])
+        px, py = cx - offsets[n, 0], cy - offsets[n, 1]
+        if not (px - grown > high_x or px + grown < low_x
+                or py - grown > high_y or py + grown < low_y):
+            return False
+    return True

@@ -23,8 +23,17 @@ counts as deadlocked, one that stops at its goal (its nominal asks for the stop,
 constraint is active) does not, and one the filter slows but lets through does not either.
 BARN's own stall rule is the same test on the position alone (0.1 m for 10 s).
 
-The detector only reports: it changes no command.  ``onsets`` counts the deadlocks
-(a deadlock that ends and starts again counts twice).
+A robot can also be stuck without standing: circling a cluster, or held and let go by
+turns, as a circulation that keeps finding the way barred does.  So, with ``stuck_time_s``
+= T_s and ``stuck_radius_m`` = R_s, the robot is also **stuck** once the nominal has asked
+it to move (a component above ``MIN_INTERVENTION``) at every step of the last T_s seconds
+while its body stayed within R_s of where it was when they began; a step whose nominal
+asks for a stop, or a body farther than R_s from that anchor, starts that count again.
+The report is a deadlock either way (``deadlocked``).  T_s = 0 turns the rule off.
+
+The detector only reports: it changes no command.  ``onsets`` counts the deadlocks held in
+place (a deadlock that ends and starts again counts twice; circulation engages on them),
+``stuck_onsets`` the stuck reports.
 """
 import math
 
@@ -46,24 +55,43 @@ def holds(info, nominal, safe):
     return any(abs(float(a) - float(b)) > MIN_INTERVENTION for a, b in zip(nominal, safe))
 
 
+def asks_to_move(nominal):
+    """Return True when a ``nominal`` command component exceeds ``MIN_INTERVENTION``."""
+    return any(abs(float(value)) > MIN_INTERVENTION for value in nominal)
+
+
 class DeadlockDetector:
     """The rule of the module docstring, fed one step at a time on a steady clock."""
 
-    def __init__(self, time_s=3.0, radius_m=0.1):
-        """Report a deadlock after ``time_s`` [s] held within ``radius_m`` [m]."""
-        self.configure(time_s, radius_m)
+    def __init__(self, time_s=3.0, radius_m=0.1, stuck_time_s=0.0, stuck_radius_m=1.0):
+        """Report a deadlock after ``time_s`` [s] held within ``radius_m`` [m].
+
+        ``stuck_time_s`` [s] > 0: also once asked to move for that long within
+        ``stuck_radius_m`` [m].
+        """
+        self.configure(time_s, radius_m, stuck_time_s, stuck_radius_m)
         self.onsets = 0
+        self.stuck_onsets = 0
         self.deadlocked = False
+        self.held = False         # the rule of holding in place (``update``)
+        self.stuck = False        # the rule of moving without getting away (``track``)
         self._anchor = None       # reference point where the current hold began
         self._since = math.nan    # steady time it began
+        self._stuck_anchor = None  # body position where the current request to move began
+        self._stuck_since = math.nan
 
-    def configure(self, time_s, radius_m):
+    def configure(self, time_s, radius_m, stuck_time_s=0.0, stuck_radius_m=1.0):
         """Take new thresholds; the current count goes on."""
         if not (time_s > 0.0 and math.isfinite(time_s)):
             raise ValueError(f'deadlock time must be positive and finite, got {time_s!r}')
         if not (radius_m >= 0.0 and math.isfinite(radius_m)):
             raise ValueError(f'deadlock radius must be >= 0 and finite, got {radius_m!r}')
+        if not (stuck_time_s >= 0.0 and math.isfinite(stuck_time_s)):
+            raise ValueError(f'stuck time must be >= 0 and finite, got {stuck_time_s!r}')
+        if not (stuck_radius_m >= 0.0 and math.isfinite(stuck_radius_m)):
+            raise ValueError(f'stuck radius must be >= 0 and finite, got {stuck_radius_m!r}')
         self.time_s, self.radius_m = float(time_s), float(radius_m)
+        self.stuck_time_s, self.stuck_radius_m = float(stuck_time_s), float(stuck_radius_m)
 
     def held_s(self, now):
         """Return for how long [s] the robot has been held in place at ``now`` (0 if not)."""
@@ -76,18 +104,35 @@ class DeadlockDetector:
         hold may pass None); ``holding``: ``holds(...)`` of the step.
         """
         if not holding:
-            self._anchor, self._since, self.deadlocked = None, now, False
-            return False
-        if self._anchor is None or math.dist(position, self._anchor) > self.radius_m:
-            self._anchor, self._since, self.deadlocked = tuple(map(float, position)), now, False
-            return False
-        if not self.deadlocked and now - self._since >= self.time_s:
-            self.deadlocked = True
+            self._anchor, self._since, self.held = None, now, False
+        elif self._anchor is None or math.dist(position, self._anchor) > self.radius_m:
+            self._anchor, self._since, self.held = tuple(map(float, position)), now, False
+        elif not self.held and now - self._since >= self.time_s:
+            self.held = True
             self.onsets += 1
+        self.deadlocked = self.held or self.stuck
         return self.deadlocked
 
+    def track(self, now, body, nominal):
+        """Take one step's body position (x, y: ``body``'s first two entries) and nominal.
+
+        The stuck rule of the module docstring; call before ``update``, which reports it.
+        """
+        if not self.stuck_time_s:
+            return
+        if not asks_to_move(nominal):
+            self._stuck_anchor, self._stuck_since, self.stuck = None, now, False
+        elif (self._stuck_anchor is None
+              or math.hypot(body[0] - self._stuck_anchor[0], body[1] - self._stuck_anchor[1])
+              > self.stuck_radius_m):
+            self._stuck_anchor, self._stuck_since = (float(body[0]), float(body[1])), now
+            self.stuck = False
+        elif not self.stuck and now - self._stuck_since >= self.stuck_time_s:
+            self.stuck = True
+            self.stuck_onsets += 1
+
     def clear(self):
-        """Forget the current hold (the robot is stopped for another reason)."""
-        self._anchor = None
-        self._since = math.nan
-        self.deadlocked = False
+        """Forget the current hold and request to move (stopped for another reason)."""
+        self._anchor = self._stuck_anchor = None
+        self._since = self._stuck_since = math.nan
+        self.deadlocked = self.held = self.stuck = False

@@ -41,7 +41,8 @@ from polyc2bf_ros.core.safety_filter import FilterStatus
 from polyc2bf_ros.core.watchdog import Watchdog
 
 COUNTS = tuple(s.value for s in FilterStatus) + ('stale_stop', 'blocked_stop')
-DEADLOCK_DEFAULTS = (3.0, 0.1)  # deadlock_time [s], deadlock_radius [m]
+# deadlock_time [s], deadlock_radius [m], stuck_time [s], stuck_radius [m]
+DEADLOCK_DEFAULTS = (3.0, 0.1, 8.0, 0.3)
 RESOLUTIONS = ('none', 'circulate')
 
 
@@ -202,12 +203,13 @@ class ControlDecision:
         if holding and position is None:
             position = self._position()
         onsets = self.deadlock.onsets
+        self.deadlock.track(now, self.state, self.command_vector)
         deadlocked = self.deadlock.update(now, position, holding)
         if circulation is not None:
             circulation.observe(info)
             if self.deadlock.onsets > onsets:
                 circulation.engage(now, position, self.yaw, self.command_vector)
-            elif deadlocked and not circulation.active:
+            elif self.deadlock.held and not circulation.active:
                 # Still held after a circulation ran out of time: try the other side.
                 circulation.engage(now, position, self.yaw, self.command_vector, renew=True)
         return Decision('filter', safe, info, deadlocked=deadlocked)

@@ -83,7 +83,7 @@ from typing import Optional
 import numpy as np
 
 from polyc2bf_ros.core.barrier import BarrierTerms
-from polyc2bf_ros.core.braking_check import path_clearance
+from polyc2bf_ros.core.braking_check import clear_around, path_clearance
 from polyc2bf_ros.core.cone_models import CONE_AXES, CONE_MODELS, make_cone_model
 from polyc2bf_ros.core.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K, PLANE_ROWS
 from polyc2bf_ros.core.ground import ground_offsets, grounded
@@ -458,7 +458,8 @@ class SafetyFilter:
             message = f'outside the safe set: min h = {min_h:.3g}; driving h back up'
         if self._braking and status in (FilterStatus.OK, FilterStatus.RECOVERING,
                                         FilterStatus.SLACK, FilterStatus.ESCAPE):
-            if self._must_brake(state, u, prepared, obstacle_age):
+            if (not self._far_from_all(state, prepared, obstacle_age)
+                    and self._must_brake(state, u, prepared, obstacle_age)):
                 u, message = self._backup_input(state, u, prepared, obstacle_age)
                 status = FilterStatus.BACKUP
         return u, FilterInfo(
@@ -512,6 +513,22 @@ class SafetyFilter:
             return False
         now = self._path_clearance(state, prepared, age)
         return after < now and now > self.guard_radius
+
+    def _far_from_all(self, state, prepared, age):
+        """Return True when no obstacle part comes near any path ``_must_brake`` would check.
+
+        ``braking_check.clear_around`` with the model's bound rho on those paths
+        (``RobotModel.braking_reach``) and reach rho + the margin: c(B(x+)) is then the
+        margin, whatever the input.  Unchecked kernel: the filter's own arrays.
+        """
+        reach, duration = self.model.braking_reach(state, self.config.control_period)
+        if reach == math.inf:
+            return False
+        footprints = prepared.footprints
+        return clear_around.unchecked(
+            footprints.x, footprints.y, footprints.counts, prepared.velocities,
+            prepared.offsets, max(abs(age), abs(age + duration)), float(state[0]),
+            float(state[1]), reach + self._clearance)
 
     def _backup_input(self, state, u, prepared, age):
         """Return (input, message) once the braking check refused ``u``.

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.braking_check import path_clearance
+from polyc2bf_ros.core.braking_check import clear_around, path_clearance
 from polyc2bf_ros.core.cones import PlanarPolygons
 from polyc2bf_ros.core.geometry import PolygonBatch, signed_distance
 from polyc2bf_ros.core.models import make_model
@@ -71,6 +71,87 @@ def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     expected = _clearance_by_brute_force(polygons, velocities, path, age, cutoff)
     assert answer == pytest.approx(expected, abs=1e-9)
 
+
+
+def _held_step(model, state, u, period):
+    """Return the state one period after ``state`` with ``u`` held (the filter's midpoint rule)."""
+    middle = state + 0.5 * period * model.state_derivative(state, u)
+    return state + period * model.state_derivative(middle, u)
+
+
+@settings(max_examples=examples(200), deadline=None)
+@given(name=st.sampled_from(['unicycle', 'point_mass_2d']), seed=st.integers(0, 2 ** 32 - 1),
+       period=st.sampled_from([0.001, 0.01, 0.02, 0.05]))
+def test_braking_reach_bounds_every_path_the_check_could_compute(name, seed, period):
+    """From any state and admissible input, the path after one period stays within rho.
+
+    ``RobotModel.braking_reach``: within rho of the body position and ending within t; the
+    filter skips the check on this bound.
+    """
+    rng = np.random.default_rng(seed)
+    model = make_model(name)
+    if name == 'unicycle':
+        state = np.array([*rng.uniform(-5, 5, 2), rng.uniform(-np.pi, np.pi),
+                          rng.uniform(-2.5, 2.5), rng.uniform(-3.0, 3.0)])
+    else:
+        state = np.concatenate([rng.uniform(-5, 5, 2), rng.uniform(-2.5, 2.5, 2)])
+    u = rng.uniform(model.input_lower, model.input_upper)
+    u[rng.random(len(u)) < 0.3] = model.input_upper[0] * rng.choice([-1.0, 1.0])
+    u = np.clip(u, model.input_lower, model.input_upper)
+    reach, duration = model.braking_reach(state, period)
+    path = model.braking_path(_held_step(model, state, u, period), period)
+    distances = np.linalg.norm(path - state[:2], axis=1)
+    assert distances.max() <= reach + 1e-9
+    assert (len(path) + 1) * period <= duration + 1e-12
+
+
+def test_braking_reach_is_unbounded_for_a_period_longer_than_the_brake():
+    """T > tau: the held brake can overshoot, and no bound is claimed."""
+    model = make_model('unicycle', brake_time_constant=0.05)
+    assert model.braking_reach(np.zeros(5), 0.1) == (np.inf, np.inf)
+    assert make_model('point_mass_3d').braking_reach(np.zeros(6), 0.01)[0] < np.inf
+
+
+@settings(max_examples=examples(150), deadline=None)
+@given(polygons=st.lists(convex_polygons(centre_range=4.0), min_size=1, max_size=4),
+       seed=st.integers(0, 2 ** 32 - 1), cutoff=st.floats(0.0, 0.5))
+def test_clear_around_promises_what_path_clearance_returns(polygons, seed, cutoff):
+    """If no box comes within rho + cutoff, any path within rho of the centre gets cutoff."""
+    rng = np.random.default_rng(seed)
+    centre, rho = rng.uniform(-4, 4, 2), float(rng.uniform(0.0, 1.5))
+    angles, radii = rng.uniform(-np.pi, np.pi, 30), rho * np.sqrt(rng.random(30))
+    path = centre + radii[:, None] * np.column_stack([np.cos(angles), np.sin(angles)])
+    velocities = rng.uniform(-0.5, 0.5, (len(polygons), 3)) * rng.integers(0, 2)
+    offsets = rng.uniform(-0.3, 0.3, (len(polygons), 3)) * rng.integers(0, 2)
+    age = float(rng.uniform(0.0, 0.2))
+    prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
+    clear = clear_around(prepared.x, prepared.y, prepared.counts, velocities, offsets,
+                         age + len(path) * PERIOD, float(centre[0]), float(centre[1]),
+                         rho + cutoff)
+    answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                            prepared.inv_sq, prepared.counts, velocities, offsets, age, path,
+                            PERIOD, cutoff)
+    if clear:
+        assert answer == cutoff
+    far = PlanarPolygons.from_batch(PolygonBatch.from_polygons([p + 100.0 for p in polygons]))
+    assert clear_around(far.x, far.y, far.counts, np.zeros_like(velocities),
+                        np.zeros_like(offsets), age, float(centre[0]), float(centre[1]),
+                        rho + cutoff)
+
+
+@pytest.mark.parametrize('wall_x, checked', [(1.0, True), (30.0, False)])
+def test_the_check_is_skipped_only_when_no_obstacle_is_within_reach(wall_x, checked,
+                                                                    monkeypatch):
+    """A wall 1 m ahead of a robot at 1 m/s is checked; one 30 m away is not."""
+    filt, _ = _wall_ahead_filter(True)
+    wall = Obstacle(polygon=np.array([[wall_x, -2.0], [wall_x + 0.2, -2.0],
+                                      [wall_x + 0.2, 2.0], [wall_x, 2.0]]))
+    calls = []
+    original = filt._must_brake
+    monkeypatch.setattr(filt, '_must_brake', lambda *a: calls.append(1) or original(*a))
+    filt.step(np.array([0.0, 0.0, 0.0, 1.0, 0.0]), ObstacleSet.from_obstacles([wall]),
+              np.array([1.0, 0.0]))
+    assert bool(calls) == checked
 
 def _wall_ahead_filter(check, margin=FilterConfig.braking_margin):
     wall = Obstacle(polygon=np.array([[1.0, -2.0], [1.2, -2.0], [1.2, 2.0], [1.0, 2.0]]))

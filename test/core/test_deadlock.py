@@ -59,9 +59,12 @@ def test_holding_means_the_filter_acted_and_changed_the_command():
 @pytest.mark.parametrize('time_s, radius_m', [(0.0, 0.1), (-1.0, 0.1), (math.inf, 0.1),
                                               (1.0, -0.1), (1.0, math.nan)])
 def test_bad_thresholds_are_refused(time_s, radius_m):
-    """T must be positive and finite, R non-negative and finite."""
+    """T must be positive and finite, R non-negative and finite; T_s, R_s >= 0, finite."""
     with pytest.raises(ValueError):
         DeadlockDetector(time_s, radius_m)
+    with pytest.raises(ValueError):
+        DeadlockDetector(1.0, 0.1, stuck_time_s=time_s if time_s < 0 or math.isinf(time_s)
+                         else -1.0, stuck_radius_m=1.0)
 
 
 @settings(max_examples=examples(200), deadline=None)
@@ -88,3 +91,43 @@ def test_a_verdict_always_rests_on_a_held_window(steps, time_s, radius_m):
     verdicts = [held.update(k * 0.01, (0.1, 0.2), True)
                 for k in range(int(time_s / 0.01) + 2)]
     assert verdicts[-1]
+
+
+def _circle(count, radius, nominal=(1.0, 0.0), dt=0.01, speed=0.5):
+    """Return steps of a body circling at ``speed`` on a circle of ``radius``, never held."""
+    return [(k * dt, (radius * math.cos(speed * k * dt / radius),
+                      radius * math.sin(speed * k * dt / radius)), nominal)
+            for k in range(count)]
+
+
+def _track(detector, steps):
+    """Feed ``[(time, body, nominal)]`` to ``track`` then ``update`` (not held)."""
+    verdicts = []
+    for now, body, nominal in steps:
+        detector.track(now, body, nominal)
+        verdicts.append(detector.update(now, None, False))
+    return verdicts
+
+
+def test_circling_within_the_stuck_radius_is_reported_after_the_stuck_time():
+    """Never held, but round and round within R_s: a deadlock from T_s on, not before."""
+    detector = DeadlockDetector(1.0, 0.1, stuck_time_s=5.0, stuck_radius_m=1.0)
+    verdicts = _track(detector, _circle(800, 0.4))
+    assert verdicts.index(True) == 500 and all(verdicts[500:])
+    assert detector.stuck_onsets == 1 and detector.onsets == 0
+
+
+def test_driving_away_or_being_told_to_stop_is_not_stuck():
+    """A circle wider than R_s re-anchors; a nominal stop restarts the count."""
+    wide = DeadlockDetector(1.0, 0.1, stuck_time_s=5.0, stuck_radius_m=1.0)
+    assert not any(_track(wide, _circle(2000, 3.0)))
+    told = DeadlockDetector(1.0, 0.1, stuck_time_s=5.0, stuck_radius_m=1.0)
+    steps = _circle(800, 0.4)
+    steps[400] = (steps[400][0], steps[400][1], (0.0, 0.01))  # one stop request
+    assert not any(_track(told, steps))  # without it: reported from step 500 on
+
+
+def test_the_stuck_rule_is_off_at_zero_time():
+    """stuck_time_s = 0 (the default): circling in place is not reported."""
+    detector = DeadlockDetector(1.0, 0.1)
+    assert not any(_track(detector, _circle(2000, 0.2)))

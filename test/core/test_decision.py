@@ -164,3 +164,22 @@ def test_a_robot_the_filter_does_not_hold_back_is_never_deadlocked(state, comman
         decision.obstacles(_snapshot(received=now))
         assert not decision.step(now).deadlocked
     assert decision.deadlock.onsets == 0
+
+
+def test_a_robot_asked_to_move_that_stays_put_is_reported_stuck():
+    """Nothing holds it, but it stays put while asked for 0.8 m/s: stuck from 8 s on.
+
+    ``stuck_time`` is 8 s by default; not reported before.
+    """
+    decision = ControlDecision(build_filter({}).command_filter,
+                               {'odom': 0.0, 'cmd': 0.0, 'obstacles': 0.0}, True)
+    decision.obstacles(ObstacleSnapshot(obstacles=ObstacleSet.empty(), t_ref=0.0,
+                                        received=0.0))
+    verdicts = []
+    for k in range(1000):
+        now = 0.01 * k
+        decision.odometry(now, STATE, 0.0, now)
+        decision.command(now, (0.8, 0.0))
+        verdicts.append(decision.step(now).deadlocked)
+    assert verdicts.index(True) == 800 and all(verdicts[800:])
+    assert decision.deadlock.stuck_onsets == 1 and decision.deadlock.onsets == 0

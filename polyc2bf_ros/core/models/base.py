@@ -13,6 +13,7 @@ Relative quantities follow (obstacles translate at constant velocity c_dot)::
     p_rel = c - r,   v_rel = c_dot - r_dot,   v_rel_dot = -a_drift - B u
 """
 import abc
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -102,6 +103,16 @@ class RobotModel(abc.ABC):
         has no braking path, and ``braking_check`` does not apply to it.
         """
         return None
+
+    def braking_reach(self, x, period):
+        """Return (rho, t): a bound on the braking check's path from one period after x.
+
+        For every admissible input held over ``period`` from x, ``braking_path`` from the
+        state reached stays within rho of the body position ``x[:position_dim]`` and ends
+        within t of x (``SafetyFilter`` skips the check when nothing comes within rho).
+        (inf, inf): no bound.
+        """
+        return math.inf, math.inf
 
     def as_state(self, x):
         """Return x as a C-contiguous float64 state vector; ValueError on a wrong shape."""

@@ -4,6 +4,8 @@ State x = [p, v] with p, v in R^d, input u = a in R^d::
 
     x_dot = [v, 0] + [0; I] u,   r = p,  r_dot = v,  r_ddot = 0 + I u
 """
+import math
+
 import numpy as np
 
 from polyc2bf_ros.core.jit import F1, F2, kernel, signature
@@ -82,6 +84,22 @@ class PointMass(RobotModel):
         rows = _braking_path.unchecked(x, float(self.input_upper[0]), self.brake_time_constant,
                                        float(period), out)
         return out[:rows]
+
+    def braking_reach(self, x, period):
+        """Return (rho, t) of ``RobotModel.braking_reach``; (inf, inf) when T > tau.
+
+        Over the period each |v_i| <= |v_i0| + a_max T = v'_i; the brake then lowers each
+        (T <= tau: no overshoot), through the path's K rows (``braking_path``: K <=
+        max v'_i / (a_max T) + 8 tau / T + 2): rho = |v'| (K + 1) T, t = (K + 1) T.
+        """
+        if period > self.brake_time_constant:
+            return math.inf, math.inf
+        limit = float(self.input_upper[0])
+        speeds = np.abs(np.asarray(x, dtype=float)[self.position_dim:]) + limit * period
+        rows = int(float(speeds.max()) / limit / period) \
+            + int(8 * self.brake_time_constant / period) + 2
+        duration = (rows + 1) * period
+        return float(np.sqrt(speeds @ speeds)) * duration, duration
 
 
 @register_model

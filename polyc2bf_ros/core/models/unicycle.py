@@ -88,6 +88,7 @@ class Unicycle(RobotModel):
         self.guard_offset = abs(self.offset_l)
         self.input_upper = np.array([max_accel, max_angular_accel], dtype=float)
         self.input_lower = -self.input_upper
+        self._limits = (float(max_accel), float(max_angular_accel))  # plain floats: per step
         self.brake_time_constant = float(brake_time_constant)
 
     def f(self, x):
@@ -128,3 +129,22 @@ class Unicycle(RobotModel):
         rows = _braking_path.unchecked(x, self.offset_l, self.input_upper,
                                        self.brake_time_constant, float(period), out)
         return out[:rows]
+
+    def braking_reach(self, x, period):
+        """Return (rho, t) of ``RobotModel.braking_reach``; (inf, inf) when T > tau.
+
+        Over the period |v| <= |v_0| + a_max T = v' and |omega| <= |omega_0| + alpha_max T =
+        w'; the brake then lowers both (T <= tau: no overshoot), so the reference point moves
+        at most v' + |l| w' through the period and the path's K rows (``braking_path``: K <=
+        (v' / a_max + w' / alpha_max + 8 tau) / T + 2), and starts |l| from the body:
+        rho = |l| + (v' + |l| w') (K + 1) T, t = (K + 1) T.
+        """
+        if period > self.brake_time_constant:
+            return math.inf, math.inf
+        accel, angular = self._limits
+        speed = abs(float(x[3])) + accel * period
+        turn = abs(float(x[4])) + angular * period
+        rows = int((speed / accel + turn / angular) / period) \
+            + int(8 * self.brake_time_constant / period) + 2
+        duration = (rows + 1) * period
+        return self.guard_offset + (speed + self.guard_offset * turn) * duration, duration
