@@ -1,6 +1,7 @@
 """LaserScans in the obstacle pipeline, without DDS: checks, frames, and marker + scan sets."""
 import math
 
+import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
@@ -52,6 +53,21 @@ def test_sensor_pose_applies_to_scans_in_another_frame():
     assert min(o.polygon[:, 0].min() for o in at_base) == pytest.approx(1.0, abs=0.06)
     assert min(o.polygon[:, 0].min() for o in at_sensor) == pytest.approx(1.5, abs=0.06)
 
+
+
+def test_an_obstacle_touching_the_body_is_still_seen():
+    """A wall at 0.28 m from a base of radius 0.3 (touching it): by default only hits within
+    half the radius are the robot's own, so its nearest part stays an obstacle.
+    """
+    obstacles = scan_obstacles(_data(wall_x=0.28), ODOMETRY, 'base_link', IntakeSettings(), 0.3)
+    ahead = np.array([0.285, 0.0])  # just behind the wall's point nearest the base
+
+    def covers(polygon):
+        edges, rel = np.roll(polygon, -1, axis=0) - polygon, ahead - polygon
+        return (edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0] >= 0).all()
+    assert any(covers(o.polygon) for o in obstacles)
+    inside = scan_obstacles(_data(wall_x=0.1), ODOMETRY, 'base_link', IntakeSettings(), 0.3)
+    assert all(np.hypot(*o.polygon.T).min() > 0.15 for o in inside)
 
 @pytest.mark.parametrize('depth', [0.05, 0.3])
 def test_scan_obstacle_depth_sets_how_far_obstacles_reach_behind_the_wall(depth):
