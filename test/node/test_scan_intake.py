@@ -56,8 +56,9 @@ def test_sensor_pose_applies_to_scans_in_another_frame():
 
 
 def test_an_obstacle_touching_the_body_is_still_seen():
-    """A wall at 0.28 m from a base of radius 0.3 (touching it): by default only hits within
-    half the radius are the robot's own, so its nearest part stays an obstacle.
+    """A wall 0.28 m from a base of radius 0.3, touching it, stays an obstacle.
+
+    By default only hits within half the radius are the robot's own.
     """
     obstacles = scan_obstacles(_data(wall_x=0.28), ODOMETRY, 'base_link', IntakeSettings(), 0.3)
     ahead = np.array([0.285, 0.0])  # just behind the wall's point nearest the base
