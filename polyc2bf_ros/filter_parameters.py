@@ -89,8 +89,7 @@ NODE_PARAMETERS = {
     'scan_cluster_tolerance': (0.15, (0.06, 10.0), 'largest gap [m] between neighbouring scan '
                                'endpoints of one obstacle (core/scan_obstacles.py)', False),
     'scan_footprint_radius': (-1.0, (-1.0, 10.0), 'scan endpoints this close [m] to the base '
-                              'are the robot itself; negative: half filter.robot_radius (an '
-                              'obstacle touching the body is still seen)', False),
+                              'are the robot itself; negative: filter.robot_radius', False),
     'scan_obstacle_depth': (0.10, (0.02, 10.0), 'how far [m] each scan obstacle reaches behind '
                             'the surface the beams lit (the unseen body behind it)', False),
 }

@@ -70,11 +70,6 @@ MAX_OBSTACLES = 1000
 ODOMETRY_HISTORY = 200
 _PROTOCOL = pickle.HIGHEST_PROTOCOL
 
-SELF_HITS = 0.5
-"""Scan endpoints within this share of ``robot_radius`` of the base are the robot itself (the
-default ``scan_footprint_radius``).  Not the whole radius: an obstacle touching the body
-lies at that radius, and dropping its returns hid it exactly then (a BARN graze, scan mode)."""
-
 
 class IntakeSettings(NamedTuple):
     """How markers become obstacles (node parameters of the same names)."""
@@ -86,7 +81,7 @@ class IntakeSettings(NamedTuple):
     max_obstacles: int = MAX_OBSTACLES
     sensor_pose: tuple = (0.0, 0.0, 0.0)
     scan_cluster_tolerance: float = 0.15
-    scan_footprint_radius: float = -1.0  # negative: half the filter's robot_radius
+    scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
     scan_obstacle_depth: float = 0.10
 
 
@@ -234,8 +229,7 @@ def scan_obstacles(data, odometry, base_frame, settings, robot_radius, transform
                                transforms)
     radius = settings.scan_footprint_radius
     scan_settings = ScanSettings(cluster_tolerance=float(settings.scan_cluster_tolerance),
-                                 footprint_radius=float(SELF_HITS * robot_radius if radius < 0
-                                                        else radius),
+                                 footprint_radius=float(robot_radius if radius < 0 else radius),
                                  depth=float(settings.scan_obstacle_depth))
     return scan_to_obstacles(ranges, scan.angle_min, scan.angle_increment, scan.range_min,
                              scan.range_max, sensor_pose, robot_pose, scan_settings)

@@ -55,20 +55,21 @@ def test_sensor_pose_applies_to_scans_in_another_frame():
 
 
 
-def test_an_obstacle_touching_the_body_is_still_seen():
-    """A wall 0.28 m from a base of radius 0.3, touching it, stays an obstacle.
+def test_returns_inside_the_footprint_are_the_robot_itself():
+    """By default hits within ``robot_radius`` of the base are dropped, farther ones kept.
 
-    By default only hits within half the radius are the robot's own.
+    A wall 0.28 m ahead: behind its nearest point no polygon of a 0.3 m robot, one of a
+    0.2 m robot.
     """
-    obstacles = scan_obstacles(_data(wall_x=0.28), ODOMETRY, 'base_link', IntakeSettings(), 0.3)
-    ahead = np.array([0.285, 0.0])  # just behind the wall's point nearest the base
+    behind = np.array([0.285, 0.0])
 
     def covers(polygon):
-        edges, rel = np.roll(polygon, -1, axis=0) - polygon, ahead - polygon
+        edges, rel = np.roll(polygon, -1, axis=0) - polygon, behind - polygon
         return (edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0] >= 0).all()
-    assert any(covers(o.polygon) for o in obstacles)
-    inside = scan_obstacles(_data(wall_x=0.1), ODOMETRY, 'base_link', IntakeSettings(), 0.3)
-    assert all(np.hypot(*o.polygon.T).min() > 0.15 for o in inside)
+    for radius, seen in ((0.3, False), (0.2, True)):
+        obstacles = scan_obstacles(_data(wall_x=0.28), ODOMETRY, 'base_link', IntakeSettings(),
+                                   radius)
+        assert obstacles and any(covers(o.polygon) for o in obstacles) is seen
 
 @pytest.mark.parametrize('depth', [0.05, 0.3])
 def test_scan_obstacle_depth_sets_how_far_obstacles_reach_behind_the_wall(depth):
