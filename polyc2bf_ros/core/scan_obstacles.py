@@ -49,22 +49,25 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
    robot grazed cylinders it believed centimetres away: BARN in scan mode.  Moved as a
    whole instead, the near edge stood up to ``split_tolerance`` in front of a box's faces
    next to a corner, and a gap between two pillars narrowed by twice that.)  The move is
-   capped so that the line through the nearest corner, parallel to the chord, stays
-   ``footprint_radius`` from q; a piece whose fifth corner would pass that line keeps four.
+   capped so that the polygon stays ``footprint_radius`` from q: a pentagon's line through
+   its fifth corner, parallel to the chord (a piece whose corner would pass that line keeps
+   four), a rectangle's near edge as a segment.  (Capped by the edge's line instead, a
+   chord beside the robot, whose line passed within ``footprint_radius`` though the chord
+   did not, was never moved, and left the cylinder the robot was passing up to 4 mm in
+   front of its polygon: a BARN graze.)
 
 Guarantees. Every point of a piece lies within ``split_tolerance`` of its chord, an edge of
 its rectangle, or within ``split_tolerance + t / 2`` of its short rectangle;
 ``ScanSettings`` requires that sum to be at most ``cluster_tolerance``. No point lies in
-front of its polygon's near side (step 6) unless that would bring its nearest line within
+front of its polygon's near side (step 6) unless that would bring the polygon within
 ``footprint_radius`` of q. So, unless ``min_cluster_points > 1`` drops a cluster or
 ``max_obstacles`` drops a polygon, every kept endpoint lies within ``cluster_tolerance`` of
 a returned polygon, and so does every segment between two linked endpoints (distance to a
 chord is convex along it): the outline is open only where links break. A polygon extends
-away from q, so its distance from q is at least that of the line through its nearest corner
-parallel to its chord, which is more than ``footprint_radius``: no polygon contains the
-base. Polygons are rectangles, or pentagons with one corner in front of the chord: convex,
-counter-clockwise, area at least ``t D``. At most ``max_obstacles`` are returned; the
-farthest from q (by their chords' rectangles) are dropped.
+away from q from a near side that stays more than ``footprint_radius`` from q (step 6): no
+polygon contains the base. Polygons are rectangles, or pentagons with one corner in front of
+the chord: convex, counter-clockwise, area at least ``t D``. At most ``max_obstacles`` are
+returned; the farthest from q (by their chords' rectangles) are dropped.
 
 Limits.
 - A polygon is the lit side of an object, D deep: the far side and the true depth of the
@@ -411,7 +414,8 @@ def _front(polygons, px, py, first, last, base, footprint_radius):
     deepest = (ahead == depth.repeat(counts)).nonzero()[0]
     apex = deepest[deepest.searchsorted(starts)]
     apex_along = along[apex]
-    room = (ax - base[0]) * nx + (ay - base[1]) * ny - footprint_radius
+    height = (ax - base[0]) * nx + (ay - base[1]) * ny  # of the chord's line above the base
+    room = height - footprint_radius
     pointed = ((depth > MIN_APEX_DEPTH) & (apex_along > 0.0) & (apex_along < length)
                & (room >= depth))
     rise = np.where(pointed, depth / np.where(pointed, apex_along, 1.0), 0.0)
@@ -419,7 +423,15 @@ def _front(polygons, px, py, first, last, base, footprint_radius):
     chain = np.maximum(np.minimum(rise.repeat(counts) * along,
                                   fall.repeat(counts) * (length.repeat(counts) - along)), 0.0)
     residual = np.maximum(np.maximum.reduceat(ahead - chain, starts), 0.0)
-    shift = np.minimum(residual, np.maximum(room - np.where(pointed, depth, 0.0), 0.0))
+    # A rectangle may come as near as its near edge, a segment: beside the base (lateral
+    # offset w > 0 of the base beyond the chord's span) its corner stays footprint_radius
+    # away while the shift is at most height - sqrt(R^2 - w^2), and any shift is fine once
+    # w >= R.
+    lateral = np.maximum(np.maximum(-(base[0] - ax) * ex - (base[1] - ay) * ey,
+                                    (base[0] - ax) * ex + (base[1] - ay) * ey - length), 0.0)
+    clear = footprint_radius ** 2 - lateral * lateral
+    edge_room = np.where(clear > 0.0, height - np.sqrt(np.maximum(clear, 0.0)), np.inf)
+    shift = np.minimum(residual, np.maximum(np.where(pointed, room - depth, edge_room), 0.0))
     corners = np.empty((count, 5, 2))
     corners[:, 0], corners[:, 2:] = polygons[:, 0], polygons[:, 1:]
     corners[:, 1, 0], corners[:, 1, 1] = px[points[apex]], py[points[apex]]

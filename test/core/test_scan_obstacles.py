@@ -546,3 +546,24 @@ def test_pose_at_takes_the_odometry_stamped_nearest_the_scan():
     unstamped = tuple((0.0, float(x), 0.0, 0.0) for x in range(3))
     assert pose_at(unstamped, 7.0) == (2.0, 0.0, 0.0)
     assert pose_at((), 2.0) is None and pose_at((), 0.0) is None
+
+
+def test_a_chord_beside_the_robot_is_still_brought_to_its_points():
+    """A chord whose line passes within the footprint, though the chord does not.
+
+    Its points bulge 3 cm towards the robot; the near edge must still come forward past
+    them (capped by the edge's line it stayed on the chord: a BARN graze in scan mode),
+    and the polygon must stay outside the footprint.
+    """
+    a, b = np.array([0.25, 0.05]), np.array([0.55, 0.35])
+    along = np.linspace(0.0, 1.0, 30)
+    direction = (b - a) / np.linalg.norm(b - a)
+    towards = np.array([direction[1], -direction[0]])
+    if towards @ -a < 0:
+        towards = -towards
+    points = a + along[:, None] * (b - a) + 0.03 * np.sin(np.pi * along)[:, None] * towards
+    assert np.linalg.norm(points, axis=1).min() > 0.2
+    settings = ScanSettings(footprint_radius=0.2)
+    obstacles = scan_obstacles(points, (0.0, 0.0), settings)
+    assert _nearest_polygon_distances(points, obstacles).max() <= 1e-9
+    assert min(_distances(np.zeros((1, 2)), o.polygon)[0] for o in obstacles) >= 0.2 - 1e-9
