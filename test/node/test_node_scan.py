@@ -28,7 +28,7 @@ WAIT = 60.0  # wall-clock bound on each wait: a starved 2-core machine is slow, 
 SPEED = 0.5
 BEAMS = 181
 PARAMS = {'model': 'unicycle', 'rate': 50.0, 'obstacles_timeout': 0.0, 'odom_timeout': 10.0,
-          'cmd_timeout': 10.0, 'stall_timeout': 10.0, 'deadlock_time': 600.0,
+          'cmd_timeout': 10.0, 'stall_timeout': 10.0, 'deadlock_time': 600.0, 'stuck_time': 0.0,
           'scan_topics': '[scan]', 'scan_timeout': 1.0}
 
 

@@ -97,7 +97,8 @@ def test_a_static_transform_chain_puts_the_scan_wall_ahead(tf2_msgs_path, monkey
 
     params = {'model': 'unicycle', 'rate': 50.0, 'obstacles_timeout': 0.0,
               'odom_timeout': 10.0, 'cmd_timeout': 10.0, 'stall_timeout': 10.0,
-              'deadlock_time': 600.0, 'scan_topics': '[scan]', 'scan_timeout': 10.0}
+              'deadlock_time': 600.0, 'stuck_time': 0.0,  # odometry: it does not move
+              'scan_topics': '[scan]', 'scan_timeout': 10.0}
     with running_filter(params=params, env=env) as proc, Harness() as h:
         io = h.filter_io(proc)
         states = h.collect(DiagnosticStatus, '/safety_filter/state', LATCHED)

@@ -35,7 +35,7 @@ def test_state_follows_the_wall_coming_near_and_the_enable_switch():
     """
     params = {'model': 'unicycle', 'rate': RATE, 'obstacles_timeout': 0.0,
               'odom_timeout': 10.0, 'cmd_timeout': 10.0, 'stall_timeout': 10.0,
-              'deadlock_time': 600.0}
+              'deadlock_time': 600.0, 'stuck_time': 0.0}
     with running_filter(params=params) as proc, Harness() as h:
         io = h.filter_io(proc)
         states = h.collect(DiagnosticStatus, '/safety_filter/state', LATCHED)
