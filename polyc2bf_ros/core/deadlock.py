@@ -60,6 +60,35 @@ def asks_to_move(nominal):
     return any(abs(float(value)) > MIN_INTERVENTION for value in nominal)
 
 
+class _Stay:
+    """One rule's count: since when a point has stayed within a radius while a condition held."""
+
+    __slots__ = ('anchor', 'since', 'reached')
+
+    def __init__(self):
+        """Start with nothing counted."""
+        self.clear()
+
+    def clear(self):
+        """Forget the count."""
+        self.anchor, self.since, self.reached = None, math.nan, False
+
+    def update(self, now, point, active, radius, duration):
+        """Take one step; return True on the step the stay reaches ``duration`` (an onset).
+
+        An inactive step, or ``point`` farther than ``radius`` from the anchor (where the stay
+        began), starts the count again; ``point`` is only read on active steps.
+        """
+        if not active:
+            self.anchor, self.since, self.reached = None, now, False
+        elif self.anchor is None or math.dist(point, self.anchor) > radius:
+            self.anchor, self.since, self.reached = tuple(map(float, point)), now, False
+        elif not self.reached and now - self.since >= duration:
+            self.reached = True
+            return True
+        return False
+
+
 class DeadlockDetector:
     """The rule of the module docstring, fed one step at a time on a steady clock."""
 
@@ -73,12 +102,8 @@ class DeadlockDetector:
         self.onsets = 0
         self.stuck_onsets = 0
         self.deadlocked = False
-        self.held = False         # the rule of holding in place (``update``)
-        self.stuck = False        # the rule of moving without getting away (``track``)
-        self._anchor = None       # reference point where the current hold began
-        self._since = math.nan    # steady time it began
-        self._stuck_anchor = None  # body position where the current request to move began
-        self._stuck_since = math.nan
+        self._hold = _Stay()   # the reference point, while held (``update``)
+        self._stuck = _Stay()  # the body position, while asked to move (``track``)
 
     def configure(self, time_s, radius_m, stuck_time_s=0.0, stuck_radius_m=1.0):
         """Take new thresholds; the current count goes on."""
@@ -93,9 +118,20 @@ class DeadlockDetector:
         self.time_s, self.radius_m = float(time_s), float(radius_m)
         self.stuck_time_s, self.stuck_radius_m = float(stuck_time_s), float(stuck_radius_m)
 
+    @property
+    def held(self):
+        """Return whether the rule of holding in place reports a deadlock."""
+        return self._hold.reached
+
+    @property
+    def stuck(self):
+        """Return whether the rule of moving without getting away reports a deadlock."""
+        return self._stuck.reached
+
     def held_s(self, now):
         """Return for how long [s] the robot has been held in place at ``now`` (0 if not)."""
-        return 0.0 if self._anchor is None else max(0.0, now - self._since)
+        hold = self._hold
+        return 0.0 if hold.anchor is None else max(0.0, now - hold.since)
 
     def update(self, now, position, holding):
         """Take one step at steady time ``now``; return whether the robot is deadlocked.
@@ -103,14 +139,9 @@ class DeadlockDetector:
         ``position``: the reference point (only read when ``holding``: a step that does not
         hold may pass None); ``holding``: ``holds(...)`` of the step.
         """
-        if not holding:
-            self._anchor, self._since, self.held = None, now, False
-        elif self._anchor is None or math.dist(position, self._anchor) > self.radius_m:
-            self._anchor, self._since, self.held = tuple(map(float, position)), now, False
-        elif not self.held and now - self._since >= self.time_s:
-            self.held = True
+        if self._hold.update(now, position, holding, self.radius_m, self.time_s):
             self.onsets += 1
-        self.deadlocked = self.held or self.stuck
+        self.deadlocked = self._hold.reached or self._stuck.reached
         return self.deadlocked
 
     def track(self, now, body, nominal):
@@ -118,21 +149,13 @@ class DeadlockDetector:
 
         The stuck rule of the module docstring; call before ``update``, which reports it.
         """
-        if not self.stuck_time_s:
-            return
-        if not asks_to_move(nominal):
-            self._stuck_anchor, self._stuck_since, self.stuck = None, now, False
-        elif (self._stuck_anchor is None
-              or math.hypot(body[0] - self._stuck_anchor[0], body[1] - self._stuck_anchor[1])
-              > self.stuck_radius_m):
-            self._stuck_anchor, self._stuck_since = (float(body[0]), float(body[1])), now
-            self.stuck = False
-        elif not self.stuck and now - self._stuck_since >= self.stuck_time_s:
-            self.stuck = True
+        if self.stuck_time_s and self._stuck.update(now, (body[0], body[1]),
+                                                     asks_to_move(nominal),
+                                                     self.stuck_radius_m, self.stuck_time_s):
             self.stuck_onsets += 1
 
     def clear(self):
         """Forget the current hold and request to move (stopped for another reason)."""
-        self._anchor = self._stuck_anchor = None
-        self._since = self._stuck_since = math.nan
-        self.deadlocked = self.held = self.stuck = False
+        self._hold.clear()
+        self._stuck.clear()
+        self.deadlocked = False
