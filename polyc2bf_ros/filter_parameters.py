@@ -76,6 +76,10 @@ NODE_PARAMETERS = {
     'stuck_radius': (DEADLOCK_DEFAULTS[3], (0.0, 100.0), '... while the body stayed within '
                      'this distance [m] of where it began (circling, held and let go by turns)',
                      False),
+    'deadlock_repeat_count': (DEADLOCK_DEFAULTS[4], (0, 1000), 'also a deadlock: this many '
+                              'deadlock reports (0 = off) ...', False),
+    'deadlock_repeat_window': (DEADLOCK_DEFAULTS[5], (0.1, 3600.0), '... within this long '
+                               '[s], while the nominal still asks to move', False),
     'deadlock_resolution': ('none', None, "what a reported deadlock does: 'none' (report "
                             "only) or 'circulate' (unicycle: the nominal is steered along the "
                             'blocking obstacle, core/circulation.py; no constraint is relaxed)',
@@ -257,8 +261,9 @@ def build_settings(values, model=None):
         stall_timeout=float(values['stall_timeout']),
         block_if_invalid=bool(values['block_if_invalid']),
         max_extrapolation=float(values['max_extrapolation']),
-        deadlock=tuple(float(values[name]) for name in ('deadlock_time', 'deadlock_radius',
-                                                         'stuck_time', 'stuck_radius')),
+        deadlock=tuple(float(values[name]) for name in (
+            'deadlock_time', 'deadlock_radius', 'stuck_time', 'stuck_radius',
+            'deadlock_repeat_count', 'deadlock_repeat_window')),
         resolution=values['deadlock_resolution'], parameters=dict(values))
     if settings.resolution not in RESOLUTIONS:
         raise ParameterError(f"parameter 'deadlock_resolution' must be one of {RESOLUTIONS}, "

@@ -709,6 +709,7 @@ class SafetyFilterMixin:
             'deadlocked': str(bool(self._deadlocked)).lower(),
             'deadlocks': decision.deadlock.onsets,
             'stuck_reports': decision.deadlock.stuck_onsets,
+            'repeat_reports': decision.deadlock.repeat_onsets,
             'deadlock_held_s': f'{decision.deadlock.held_s(now):.2f}',
             **self._scan_values(),
             **{f'rejected {key}': reason for key, reason in sorted(rejected.items())},
@@ -739,9 +740,12 @@ class SafetyFilterMixin:
         if self._deadlocked and decision.deadlock.held:
             warnings.append(f'deadlock: held in place by the filter for '
                             f'{decision.deadlock.held_s(now):.1f} s')
-        elif self._deadlocked:
+        elif self._deadlocked and decision.deadlock.stuck:
             warnings.append('deadlock: asked to move, but stayed within stuck_radius for '
                             'stuck_time')
+        elif self._deadlocked:
+            warnings.append('deadlock: deadlock_repeat_count reports within '
+                            'deadlock_repeat_window')
         fallbacks = [f'{name} x{window[name]}' for name in _FALLBACKS if window[name]]
         if fallbacks:
             warnings.append('fallback ' + ', '.join(fallbacks))

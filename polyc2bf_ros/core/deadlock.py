@@ -31,11 +31,18 @@ while its body stayed within R_s of where it was when they began; a step whose n
 asks for a stop, or a body farther than R_s from that anchor, starts that count again.
 The report is a deadlock either way (``deadlocked``).  T_s = 0 turns the rule off.
 
+A robot can also escape each hold and be held again, on and on: circling a cluster that
+it never leaves, it covers more than R_s between reports.  So, with ``repeat_count`` = N
+and ``repeat_window_s`` = W, the robot is also **deadlocked repeatedly** while at least N
+reports (held or stuck onsets) fell within the last W seconds and the nominal still asks
+it to move; N = 0 turns the rule off.  A robot told to stop (at its goal) is not reported.
+
 The detector only reports: it changes no command.  ``onsets`` counts the deadlocks held in
 place (a deadlock that ends and starts again counts twice; circulation engages on them),
-``stuck_onsets`` the stuck reports.
+``stuck_onsets`` the stuck reports, ``repeat_onsets`` the repeated reports.
 """
 import math
+from collections import deque
 
 from polyc2bf_ros.core.safety_filter import FilterStatus
 
@@ -92,20 +99,28 @@ class _Stay:
 class DeadlockDetector:
     """The rule of the module docstring, fed one step at a time on a steady clock."""
 
-    def __init__(self, time_s=3.0, radius_m=0.1, stuck_time_s=0.0, stuck_radius_m=1.0):
+    def __init__(self, time_s=3.0, radius_m=0.1, stuck_time_s=0.0, stuck_radius_m=1.0,
+                 repeat_count=0, repeat_window_s=60.0):
         """Report a deadlock after ``time_s`` [s] held within ``radius_m`` [m].
 
         ``stuck_time_s`` [s] > 0: also once asked to move for that long within
-        ``stuck_radius_m`` [m].
+        ``stuck_radius_m`` [m]; ``repeat_count`` > 0: also while that many reports fell
+        within the last ``repeat_window_s`` [s] and the nominal asks to move.
         """
-        self.configure(time_s, radius_m, stuck_time_s, stuck_radius_m)
+        self.configure(time_s, radius_m, stuck_time_s, stuck_radius_m, repeat_count,
+                       repeat_window_s)
         self.onsets = 0
         self.stuck_onsets = 0
+        self.repeat_onsets = 0
         self.deadlocked = False
+        self.repeated = False
         self._hold = _Stay()   # the reference point, while held (``update``)
         self._stuck = _Stay()  # the body position, while asked to move (``track``)
+        self._reports = deque()  # steady times of the recent held and stuck onsets
+        self._moving = False     # the last tracked nominal asked to move
 
-    def configure(self, time_s, radius_m, stuck_time_s=0.0, stuck_radius_m=1.0):
+    def configure(self, time_s, radius_m, stuck_time_s=0.0, stuck_radius_m=1.0,
+                  repeat_count=0, repeat_window_s=60.0):
         """Take new thresholds; the current count goes on."""
         if not (time_s > 0.0 and math.isfinite(time_s)):
             raise ValueError(f'deadlock time must be positive and finite, got {time_s!r}')
@@ -116,7 +131,13 @@ class DeadlockDetector:
         if not (stuck_radius_m >= 0.0 and math.isfinite(stuck_radius_m)):
             raise ValueError(f'stuck radius must be >= 0 and finite, got {stuck_radius_m!r}')
         self.time_s, self.radius_m = float(time_s), float(radius_m)
+        if not (repeat_count >= 0 and float(repeat_count).is_integer()):
+            raise ValueError(f'repeat count must be a whole number >= 0, got {repeat_count!r}')
+        if not (repeat_window_s > 0.0 and math.isfinite(repeat_window_s)):
+            raise ValueError(f'repeat window must be positive and finite, got '
+                             f'{repeat_window_s!r}')
         self.stuck_time_s, self.stuck_radius_m = float(stuck_time_s), float(stuck_radius_m)
+        self.repeat_count, self.repeat_window_s = int(repeat_count), float(repeat_window_s)
 
     @property
     def held(self):
@@ -141,21 +162,38 @@ class DeadlockDetector:
         """
         if self._hold.update(now, position, holding, self.radius_m, self.time_s):
             self.onsets += 1
-        self.deadlocked = self._hold.reached or self._stuck.reached
+            self._reports.append(now)
+        self.deadlocked = self._hold.reached or self._stuck.reached or self._repeats(now)
         return self.deadlocked
+
+    def _repeats(self, now):
+        """Return the repeated rule's verdict at ``now``; count its onsets."""
+        reports = self._reports
+        while reports and now - reports[0] > self.repeat_window_s:
+            reports.popleft()
+        repeated = bool(self.repeat_count and self._moving
+                        and len(reports) >= self.repeat_count)
+        if repeated and not self.repeated:
+            self.repeat_onsets += 1
+        self.repeated = repeated
+        return repeated
 
     def track(self, now, body, nominal):
         """Take one step's body position (x, y: ``body``'s first two entries) and nominal.
 
         The stuck rule of the module docstring; call before ``update``, which reports it.
         """
-        if self.stuck_time_s and self._stuck.update(now, (body[0], body[1]),
-                                                     asks_to_move(nominal),
+        self._moving = asks_to_move(nominal)
+        if self.stuck_time_s and self._stuck.update(now, (body[0], body[1]), self._moving,
                                                      self.stuck_radius_m, self.stuck_time_s):
             self.stuck_onsets += 1
+            self._reports.append(now)
 
     def clear(self):
-        """Forget the current hold and request to move (stopped for another reason)."""
+        """Forget the current hold and request to move (stopped for another reason).
+
+        The recent reports are kept: a robot stopped for a moment has not escaped.
+        """
         self._hold.clear()
         self._stuck.clear()
-        self.deadlocked = False
+        self.deadlocked = self.repeated = self._moving = False

@@ -41,8 +41,9 @@ from polyc2bf_ros.core.safety_filter import FilterStatus
 from polyc2bf_ros.core.watchdog import Watchdog
 
 COUNTS = tuple(s.value for s in FilterStatus) + ('stale_stop', 'blocked_stop')
-# deadlock_time [s], deadlock_radius [m], stuck_time [s], stuck_radius [m]
-DEADLOCK_DEFAULTS = (3.0, 0.1, 8.0, 0.3)
+# deadlock_time [s], deadlock_radius [m], stuck_time [s], stuck_radius [m],
+# deadlock_repeat_count, deadlock_repeat_window [s]
+DEADLOCK_DEFAULTS = (3.0, 0.1, 8.0, 0.3, 3, 60.0)
 RESOLUTIONS = ('none', 'circulate')
 
 
@@ -104,7 +105,7 @@ class ControlDecision:
 
         ``'obstacles'`` may be left out (no marker input); other names are more watchdogs.
 
-        ``deadlock`` = (deadlock_time [s], deadlock_radius [m]) of the deadlock detector;
+        ``deadlock``: the ``DeadlockDetector``'s arguments (``DEADLOCK_DEFAULTS``);
         ``resolution`` one of ``RESOLUTIONS``.
         """
         self.watchdog = Watchdog(timeouts)

@@ -131,3 +131,55 @@ def test_the_stuck_rule_is_off_at_zero_time():
     """stuck_time_s = 0 (the default): circling in place is not reported."""
     detector = DeadlockDetector(1.0, 0.1)
     assert not any(_track(detector, _circle(2000, 0.2)))
+
+
+def _held_bursts(detector, bursts, dt=0.01, gap=2.0, nominal=(1.0, 0.0)):
+    """Hold the robot ``bursts`` times for 1.5 s, each after ``gap`` s free; return verdicts.
+
+    Each burst is held at a new place 1 m on, so the other two rules only see it held.
+    """
+    verdicts, now = [], 0.0
+    for burst in range(bursts):
+        for held, duration in ((False, gap), (True, 1.5)):
+            for _ in range(int(round(duration / dt))):
+                body = (float(burst), 0.0)
+                detector.track(now, body, nominal)
+                verdicts.append((now, held, detector.update(now, body, held)))
+                now += dt
+    return verdicts
+
+
+def test_deadlocks_over_and_over_are_reported_while_they_go_on():
+    """Three holds of 1 s within the window: a deadlock from the third on, between holds too."""
+    detector = DeadlockDetector(1.0, 0.1, repeat_count=3, repeat_window_s=20.0)
+    verdicts = _held_bursts(detector, 5)
+    assert detector.onsets == 5 and detector.repeat_onsets == 1
+    third = 2 * 3.5 + 2.0 + 1.0     # the third hold reaches 1 s
+    free = [deadlocked for now, held, deadlocked in verdicts if not held and now > third]
+    assert free and all(free)       # still reported while it drives between the holds
+    assert not any(deadlocked for now, held, deadlocked in verdicts
+                   if not held and now < third)
+
+
+def test_repeated_reports_end_when_the_window_empties_or_the_nominal_stops():
+    """Reports older than the window no longer count; a nominal stop is not a deadlock."""
+    detector = DeadlockDetector(1.0, 0.1, repeat_count=3, repeat_window_s=20.0)
+    _held_bursts(detector, 3)
+    now = 3 * 3.5
+    detector.track(now, (9.0, 0.0), (1.0, 0.0))
+    assert detector.update(now, None, False)
+    detector.track(now, (9.0, 0.0), (0.0, 0.0))
+    assert not detector.update(now, None, False)
+    later = now + 21.0
+    detector.track(later, (9.0, 0.0), (1.0, 0.0))
+    assert not detector.update(later, None, False)
+
+
+def test_the_repeated_rule_is_off_at_a_count_of_zero():
+    """repeat_count 0: five holds give five held reports and nothing between them."""
+    detector = DeadlockDetector(1.0, 0.1, repeat_count=0)
+    verdicts = _held_bursts(detector, 5)
+    assert detector.onsets == 5 and detector.repeat_onsets == 0
+    assert not any(deadlocked for _, held, deadlocked in verdicts if not held)
+    with pytest.raises(ValueError):
+        DeadlockDetector(1.0, 0.1, repeat_count=2.5)
