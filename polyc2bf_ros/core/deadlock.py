@@ -130,12 +130,12 @@ class DeadlockDetector:
             raise ValueError(f'stuck time must be >= 0 and finite, got {stuck_time_s!r}')
         if not (stuck_radius_m >= 0.0 and math.isfinite(stuck_radius_m)):
             raise ValueError(f'stuck radius must be >= 0 and finite, got {stuck_radius_m!r}')
-        self.time_s, self.radius_m = float(time_s), float(radius_m)
         if not (repeat_count >= 0 and float(repeat_count).is_integer()):
             raise ValueError(f'repeat count must be a whole number >= 0, got {repeat_count!r}')
         if not (repeat_window_s > 0.0 and math.isfinite(repeat_window_s)):
             raise ValueError(f'repeat window must be positive and finite, got '
                              f'{repeat_window_s!r}')
+        self.time_s, self.radius_m = float(time_s), float(radius_m)
         self.stuck_time_s, self.stuck_radius_m = float(stuck_time_s), float(stuck_radius_m)
         self.repeat_count, self.repeat_window_s = int(repeat_count), float(repeat_window_s)
 
