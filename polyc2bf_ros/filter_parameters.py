@@ -81,9 +81,10 @@ NODE_PARAMETERS = {
     'deadlock_repeat_window': (DEADLOCK_DEFAULTS[5], (0.1, 3600.0), '... within this long '
                                '[s], while the nominal still asks to move', False),
     'deadlock_resolution': ('none', None, "what a reported deadlock does: 'none' (report "
-                            "only) or 'circulate' (unicycle: the nominal is steered along the "
-                            'blocking obstacle, core/circulation.py; no constraint is relaxed)',
-                            False),
+                            "only), 'circulate' (unicycle: the nominal is steered along the "
+                            "blocking obstacle, core/circulation.py) or 'route' (unicycle: "
+                            'along a grid route past the obstacles, core/escape_route.py); no '
+                            'constraint is relaxed', False),
     'scan_timeout': (1.0, (0.0, 3600.0), 'LaserScan sources (scan_topics) older than this [s] '
                      '-> stop; 0 = never stale once received', True),
     'sensor_pose': ([0.0, 0.0, 0.0], None, '[x, y, yaw] of the laser in the odometry child '

@@ -43,8 +43,15 @@ import math
 import numpy as np
 
 
-def _wrap(angle):
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+def steer_towards(bearing, yaw, speed, turn_gain, max_turn_rate):
+    """Return [v, omega] heading for ``bearing`` [rad], at most ``speed``.
+
+    e = wrap(bearing - yaw), omega = clip(k e, +-omega_max), v = speed max(0, cos e): turn
+    first when facing away.
+    """
+    error = (bearing - yaw + math.pi) % (2.0 * math.pi) - math.pi
+    omega = min(max(turn_gain * error, -max_turn_rate), max_turn_rate)
+    return np.array([speed * max(0.0, math.cos(error)), omega])
 
 
 class Circulation:
@@ -83,10 +90,11 @@ class Circulation:
             if float(np.hypot(*axis)) > 0.0:
                 self._axis = np.array(axis, dtype=float)
 
-    def engage(self, now, position, yaw, nominal, renew=False):
+    def engage(self, now, position, yaw, nominal, obstacles=None, renew=False):
         """Start (or, while circulating, flip) circulation at the robot's reference point.
 
         ``nominal``: the command [v, omega] the robot was held against; its |v| is kept.
+        ``obstacles``: unused (the blocking part's axis comes from ``observe``).
         ``renew``: the deadlock outlasted the last circulation; start on its other side.
         """
         if self._axis is None:
@@ -123,13 +131,14 @@ class Circulation:
         speed = max(abs(float(nominal[0])), 0.5 * self._speed)
         return np.array([math.copysign(speed, float(nominal[0])), float(nominal[1])])
 
-    def command(self, yaw, nominal):
-        """Return the unicycle command [v, omega] to ask the filter for (module docstring)."""
+    def command(self, yaw, nominal, position=None):
+        """Return the unicycle command [v, omega] to ask the filter for (module docstring).
+
+        ``position``: unused (the tangent depends on the heading only).
+        """
         if not self.active or self._axis is None or not any(nominal):
             return nominal
-        speed = max(abs(float(nominal[0])), self._speed)
         ax, ay = self._axis / float(np.hypot(*self._axis))
-        tx, ty = -self.side * ay, self.side * ax
-        error = _wrap(math.atan2(ty, tx) - yaw)
-        omega = min(max(self.turn_gain * error, -self.max_turn_rate), self.max_turn_rate)
-        return np.array([speed * max(0.0, math.cos(error)), omega])
+        return steer_towards(math.atan2(self.side * ax, -self.side * ay), yaw,
+                             max(abs(float(nominal[0])), self._speed), self.turn_gain,
+                             self.max_turn_rate)

@@ -35,6 +35,7 @@ from typing import NamedTuple, Optional
 
 from polyc2bf_ros.core.circulation import Circulation
 from polyc2bf_ros.core.deadlock import DeadlockDetector, holds
+from polyc2bf_ros.core.escape_route import RouteEscape
 from polyc2bf_ros.core.obstacle_tracker import extrapolation_age
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterStatus
@@ -44,7 +45,8 @@ COUNTS = tuple(s.value for s in FilterStatus) + ('stale_stop', 'blocked_stop')
 # deadlock_time [s], deadlock_radius [m], stuck_time [s], stuck_radius [m],
 # deadlock_repeat_count, deadlock_repeat_window [s]
 DEADLOCK_DEFAULTS = (3.0, 0.1, 8.0, 0.3, 3, 60.0)
-RESOLUTIONS = ('none', 'circulate')
+RESOLUTIONS = ('none', 'circulate', 'route')
+ROUTE_MARGIN = 0.02  # m: a route's cells keep the braking check's clearance plus this
 
 
 @dataclass(frozen=True)
@@ -130,11 +132,17 @@ class ControlDecision:
             raise ValueError(f'deadlock resolution must be one of {RESOLUTIONS}, '
                              f'got {resolution!r}')
         self.deadlock.configure(*deadlock)
-        circulate = resolution == 'circulate' and command_filter.model.name == 'unicycle'
-        if not circulate:
+        steer = resolution != 'none' and command_filter.model.name == 'unicycle'
+        if not steer:
             self.circulation = None
-        elif self.circulation is None:
+        elif resolution == 'circulate' and not isinstance(self.circulation, Circulation):
             self.circulation = Circulation()
+        elif resolution == 'route':
+            safety = command_filter.safety_filter
+            free = safety.guard_radius + safety.config.braking_margin + ROUTE_MARGIN
+            if not (isinstance(self.circulation, RouteEscape)
+                    and self.circulation.free_clearance == free):
+                self.circulation = RouteEscape(free, safety.guard_radius)
         self.filter = command_filter
         for name, timeout in timeouts.items():
             self.watchdog.set_timeout(name, timeout)
@@ -195,7 +203,7 @@ class ControlDecision:
             circulation.release_if_done(
                 now, position,
                 lambda: self._passes(circulation.probe(command), snapshot, age))
-            command = circulation.command(self.yaw, command)
+            command = circulation.command(self.yaw, command, position)
         safe, info = self.filter.filter(self.state, self.yaw, command, snapshot.obstacles, age)
         self.counts[info.status.value] += 1
         # The reference point costs a model call: only needed while the filter holds (or
@@ -209,10 +217,12 @@ class ControlDecision:
         if circulation is not None:
             circulation.observe(info)
             if self.deadlock.onsets > onsets:
-                circulation.engage(now, position, self.yaw, self.command_vector)
+                circulation.engage(now, position, self.yaw, self.command_vector,
+                                   snapshot.obstacles)
             elif self.deadlock.held and not circulation.active:
                 # Still held after a circulation ran out of time: try the other side.
-                circulation.engage(now, position, self.yaw, self.command_vector, renew=True)
+                circulation.engage(now, position, self.yaw, self.command_vector,
+                                   snapshot.obstacles, renew=True)
         return Decision('filter', safe, info, deadlocked=deadlocked)
 
     def _passes(self, command, snapshot, age):

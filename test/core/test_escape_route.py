@@ -1,0 +1,134 @@
+"""``escape_route``: the clearance grid, the route past a wall or out of a pocket, following."""
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from hypothesis import given, strategies as st
+
+from polyc2bf_ros.core.cones import PlanarPolygons
+from polyc2bf_ros.core.escape_route import grid_clearance, plan_route, RouteEscape
+from polyc2bf_ros.core.geometry import signed_distance
+from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from strategies import convex_polygons
+
+GUARD = 0.5
+FREE = 0.522
+
+
+def box(x0, y0, x1, y1):
+    """Return the CCW rectangle [x0, x1] x [y0, y1]."""
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
+
+
+def obstacle_set(*polygons):
+    """Return the ``ObstacleSet`` of static ``polygons``."""
+    return ObstacleSet.from_obstacles([Obstacle(polygon=p, key=str(i))
+                                       for i, p in enumerate(polygons)])
+
+
+def clearance_along(route, polygons):
+    """Return the smallest signed distance of each route point to ``polygons``."""
+    return np.array([min(signed_distance(point, p) for p in polygons) for point in route])
+
+
+@given(st.lists(convex_polygons(centre_range=3.0, max_size=1.5), min_size=1, max_size=4),
+       st.floats(-4.0, 4.0), st.floats(-4.0, 4.0), st.floats(0.3, 3.0))
+def test_grid_clearance_is_the_signed_distance_capped_at_the_cutoff(polygons, x0, y0, cutoff):
+    """Every cell centre: min(cutoff, min_n signed distance to polygon n)."""
+    prepared = PlanarPolygons.from_batch(obstacle_set(*polygons).footprints)
+    out = np.empty((9, 11))
+    grid_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
+                   np.ascontiguousarray(prepared.counts, dtype=np.int64), x0, y0, 0.37, cutoff,
+                   out)
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            point = (x0 + 0.37 * j, y0 + 0.37 * i)
+            expected = min(cutoff, min(signed_distance(point, p) for p in polygons))
+            assert out[i, j] == pytest.approx(expected, abs=1e-9)
+
+
+def test_the_route_goes_round_the_wall_ahead_keeping_the_clearance():
+    """A 3 m wall 0.6 m ahead: the route rounds one end and ends 3 m ahead, never too close."""
+    wall = box(2.0, -1.5, 2.3, 1.5)
+    route = plan_route(obstacle_set(wall), (1.45, 0.2), (1.0, 0.0), FREE, GUARD)
+    assert route is not None
+    np.testing.assert_allclose(route[0], (1.45, 0.2))
+    assert route[-1, 0] - 1.45 >= 3.0 - 1e-9
+    clear = clearance_along(route, [wall])
+    far = np.hypot(*(route - (1.45, 0.2)).T) > 0.35   # past the start band
+    assert clear[far].min() >= FREE - 1e-9 and clear.min() > GUARD - 0.1
+    beside = route[(route[:, 0] > 2.0) & (route[:, 0] < 2.3)]
+    assert len(beside) and np.abs(beside[:, 1]).min() >= 1.5 + FREE - 1e-9
+    assert np.all(np.hypot(*np.diff(route, axis=0).T) <= 0.1 * math.sqrt(2) + 0.06)
+
+
+def test_the_route_backs_out_of_a_pocket():
+    """Held at the back of a U open behind the robot: the route leaves the way it came."""
+    walls = [box(4.0, -1.5, 4.3, 1.5), box(1.5, 1.5, 4.3, 1.8), box(1.5, -1.8, 4.3, -1.5)]
+    route = plan_route(obstacle_set(*walls), (3.45, 0.0), (1.0, 0.0), FREE, GUARD, window=12.0)
+    assert route is not None
+    assert route[:, 0].min() < 1.5 - FREE      # out past the open end
+    assert route[-1, 0] >= 3.45 + 3.0 - 1e-9   # then on beyond the back wall
+    far = np.hypot(*(route - (3.45, 0.0)).T) > 0.35
+    assert clearance_along(route[far], walls).min() >= FREE - 1e-9
+
+
+def test_no_route_out_of_a_closed_box_falls_back_to_circulation():
+    """Walled in on all sides: no route; with a cone seen, circulation takes over."""
+    walls = [box(-1.5, -1.5, 1.5, -1.2), box(-1.5, 1.2, 1.5, 1.5), box(-1.5, -1.2, -1.2, 1.2),
+             box(1.2, -1.2, 1.5, 1.2)]
+    obstacles = obstacle_set(*walls)
+    assert plan_route(obstacles, (0.6, 0.0), (1.0, 0.0), FREE, GUARD) is None
+    escape = RouteEscape(FREE, GUARD)
+    cones = SimpleNamespace(p=np.array([[0.6], [0.0]]))
+    escape.observe(SimpleNamespace(h=np.array([0.05]), evaluation=SimpleNamespace(
+        valid=np.array([True]), cones=cones)))
+    escape.engage(0.0, (0.6, 0.0), 0.1, (0.8, 0.0), obstacles)
+    assert escape.active and escape.side == 1 and escape.routes == 0
+    assert escape.engagements == 1
+
+
+def test_following_turns_onto_the_route_then_drives_and_releases_at_its_end():
+    """Facing the wall: turn toward the route's side; aligned: the held speed; end: release."""
+    wall = box(2.0, -1.5, 2.3, 1.5)
+    escape = RouteEscape(FREE, GUARD, lookahead=0.5)
+    escape.engage(0.0, (1.45, 0.2), 0.0, (0.7, 0.0), obstacle_set(wall))
+    assert escape.active and escape.routes == 1 and escape.side == 0
+    route = escape._route
+    v, omega = escape.command(0.0, (0.0, 0.0), (1.45, 0.2))
+    assert v == 0.0 and omega == 0.0                        # a nominal stop stays a stop
+    v, omega = escape.command(0.0, (0.7, 0.0), (1.45, 0.2))
+    turn = math.copysign(1.0, route[5, 1] - 0.2)             # the side the route takes
+    assert omega * turn > 0.0
+    heading = math.atan2(*(route[5] - route[0])[::-1])
+    v, _ = escape.command(heading, (0.0, -1.0), route[0])    # the report's |v| is kept
+    assert v == pytest.approx(0.7, rel=0.1)
+    escape.release_if_done(1.0, route[len(route) // 2], lambda: True)
+    assert escape.active                                     # the probe does not end a route
+    for point in route[len(route) // 2:]:                   # drive on along it
+        escape.release_if_done(2.0, point, lambda: False)
+    assert not escape.active
+
+
+def test_a_route_ends_after_its_time_limit_and_a_second_report_replans():
+    """max(max_time, 3 L / v_n) after the report the nominal takes over; a new report plans."""
+    wall = box(2.0, -1.5, 2.3, 1.5)
+    obstacles = obstacle_set(wall)
+    escape = RouteEscape(FREE, GUARD, max_time=5.0)
+    escape.engage(0.0, (1.45, 0.2), 0.0, (1.0, 0.0), obstacles)
+    length = float(np.hypot(*np.diff(escape._route, axis=0).T).sum())
+    escape.release_if_done(3.0 * length - 0.1, (1.45, 0.2), lambda: True)
+    assert escape.active
+    escape.engage(3.0 * length - 0.05, (1.45, 0.2), 0.0, (1.0, 0.0), obstacles)
+    assert escape.routes == 2
+    escape.release_if_done(6.0 * length, (1.45, 0.2), lambda: True)
+    assert not escape.active
+
+
+def test_bad_settings_are_refused():
+    """Clearances, times, gains and the lookahead must be positive."""
+    with pytest.raises(ValueError):
+        RouteEscape(0.0, GUARD)
+    with pytest.raises(ValueError):
+        RouteEscape(FREE, GUARD, lookahead=0.0)
