@@ -41,6 +41,8 @@ VARIANTS = {
     'polyc2bf_inflated': {'filter.barrier': 'polyc2bf_inflated', **PAPER},
     'c3bf': {'filter.barrier': 'c3bf', **PAPER},
     'default': {},
+    # the default before the route: circulation after 3 s held
+    'circulate': {'deadlock_resolution': 'circulate', 'deadlock_time': 3.0},
 }
 
 

@@ -33,6 +33,9 @@ from sim_bridge.scenario import load_scenario  # noqa: E402
 DATA = Path(__file__).resolve().parent
 MAX_BYTES = 1_000_000
 BARRIER = 'polyc2bf_inflated'
+# The deadlock report runs on the node's steady clock, which a lockstep recording does not
+# reproduce offline to the step: the bags score the filter's commands, so nothing resolves.
+FILTER_PARAMETERS = {'deadlock_resolution': 'none'}
 # name: (scenario, sim duration [s], what the bag is for)
 RECORDINGS = {
     'wall_approach': ('long_wall', 14.0,
@@ -55,11 +58,12 @@ def record(name):
         shutil.rmtree(bag_dir)
     with tempfile.TemporaryDirectory(prefix=f'record_{name}_') as run_dir:
         result = run_closed_loop(scenario, run_dir, barrier=BARRIER, duration=duration,
-                                 bridge_parameters={'bag_path': str(bag_dir)})
+                                 bridge_parameters={'bag_path': str(bag_dir)},
+                                 filter_parameters=FILTER_PARAMETERS)
         if not result.ok:
             raise RuntimeError(f'{name}: the run failed: {result.message}')
         metrics = result.metrics()
-    plan = closed_loop_plan(scenario, BARRIER, {'duration': duration})
+    plan = closed_loop_plan(scenario, BARRIER, {'duration': duration}, FILTER_PARAMETERS)
     (robot,) = scenario.robots
     (spec,) = [p for p in plan if p.executable == 'safety_filter']
     size = sum(f.stat().st_size for f in bag_dir.glob('*.mcap'))

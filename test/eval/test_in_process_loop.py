@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 
 from polyc2bf_ros.core.scan_obstacles import ScanSettings
+from polyc2bf_ros.filter_parameters import load_parameters
 from sim_bridge.closed_loop import _ObstacleView, _Robot, _ScanView, obstacle_free, run_in_process
 from sim_bridge.evaluate import summarise
-from sim_bridge.launcher import scan_parameters
+from sim_bridge.launcher import params_file, scan_parameters
 from sim_bridge.lidar import LidarSettings
 from sim_bridge.scenario import load_scenario, scenario_from_dict
 from sim_bridge.world import SimWorld
@@ -107,7 +108,8 @@ def test_the_deadlock_report_flags_the_popup_box_and_not_the_long_wall(long_wall
     assert record['deadlocked_at_end'] and record['deadlock_detections'] == 1
     trace = run.robots['a1']
     first = int(np.argmax(trace.deadlocked))
-    assert trace.times[first] > 3.0 + 3.0  # the box appears at 3 s; held 3 s at least
+    held = load_parameters([params_file('quadruped')], (), '')['deadlock_time']
+    assert trace.times[first] > 3.0 + held  # the box appears at 3 s; held that long at least
     assert trace.deadlocked[first:].all()
     passed = summarise(long_wall['polyc2bf_inflated'], {'a1': 10.0})
     assert passed['success'] and passed['deadlock_detections'] == 0
@@ -124,6 +126,30 @@ def test_circulation_resolves_the_popup_box_without_collision():
     assert record['success'] and not record['collision']
     assert record['min_clearance_m'] is None or record['min_clearance_m'] > 0.05
     assert record['deadlock_detections'] >= 1 and not record['deadlocked_at_end']
+
+
+# A U open towards the quadruped, its goal straight on beyond the closed end.
+U_POCKET = {'name': 'u_pocket', 'duration': 40.0,
+            'robots': [{'name': 'a1', 'type': 'quadruped', 'start': [0.0, 0.0, 0.0],
+                        'goal': [8.0, 0.0]}],
+            'obstacles': [{'polygon': polygon, 'z': [0.0, 1.0]} for polygon in (
+                [[4.0, -1.5], [4.3, -1.5], [4.3, 1.5], [4.0, 1.5]],
+                [[1.5, 1.5], [4.3, 1.5], [4.3, 1.8], [1.5, 1.8]],
+                [[1.5, -1.8], [4.3, -1.8], [4.3, -1.5], [1.5, -1.5]])]}
+
+
+@pytest.mark.parametrize('resolution, succeeds', [('route', True), ('circulate', False)])
+def test_a_route_backs_out_of_a_u_pocket_that_circulation_cannot_leave(resolution, succeeds):
+    """Go-to-goal into a U: the route leaves by the open end and reaches the goal.
+
+    Circulation follows the back wall into a corner and stays deadlocked.  Neither collides.
+    """
+    run = run_in_process(scenario_from_dict(U_POCKET), 'polyc2bf_horizon',
+                         parameters={'deadlock_resolution': resolution})
+    record = summarise(run, {'a1': 8.0})
+    assert not record['collision'] and record['deadlock_detections'] >= 1
+    assert record['success'] is succeeds
+    assert record['deadlocked_at_end'] is not succeeds
 
 
 def test_scan_mode_filter_holds_only_what_the_node_makes_of_the_lidar_scan():
