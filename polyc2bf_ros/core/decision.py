@@ -26,7 +26,9 @@ model's stop command (``CommandFilter.stop``).  Every filtered step also goes to
 within ``deadlock_radius``), whose verdict the ``Decision`` carries; any other step
 clears it.  With ``deadlock_resolution`` 'circulate' (unicycle only) a reported deadlock
 starts a ``core.circulation.Circulation``: the nominal command handed to the filter is
-steered along the blocking obstacle until it releases; the filter's rows stay as they are.
+steered along the blocking obstacle until it releases; with 'route' (unicycle and
+``point_mass_2d``) a ``core.escape_route.RouteEscape`` steers it along a planned route
+(``RESOLVED_MODELS``).  The filter's rows stay as they are.
 The node, offline bag replay and the evaluation all decide through this class.
 """
 import math
@@ -46,6 +48,8 @@ COUNTS = tuple(s.value for s in FilterStatus) + ('stale_stop', 'blocked_stop')
 # deadlock_repeat_count, deadlock_repeat_window [s]
 DEADLOCK_DEFAULTS = (3.0, 0.1, 8.0, 0.3, 3, 60.0)
 RESOLUTIONS = ('none', 'circulate', 'route')
+#: resolution -> the models it steers (the others keep their nominal)
+RESOLVED_MODELS = {'none': (), 'circulate': ('unicycle',), 'route': ('unicycle', 'point_mass_2d')}
 ROUTE_MARGIN = 0.02  # m: a route's cells keep the braking check's clearance plus this
 
 
@@ -132,17 +136,19 @@ class ControlDecision:
             raise ValueError(f'deadlock resolution must be one of {RESOLUTIONS}, '
                              f'got {resolution!r}')
         self.deadlock.configure(*deadlock)
-        steer = resolution != 'none' and command_filter.model.name == 'unicycle'
-        if not steer:
+        model = command_filter.model.name
+        if model not in RESOLVED_MODELS[resolution]:
             self.circulation = None
         elif resolution == 'circulate' and not isinstance(self.circulation, Circulation):
             self.circulation = Circulation()
         elif resolution == 'route':
             safety = command_filter.safety_filter
             free = safety.guard_radius + safety.config.braking_margin + ROUTE_MARGIN
+            holonomic = model != 'unicycle'
             if not (isinstance(self.circulation, RouteEscape)
-                    and self.circulation.free_clearance == free):
-                self.circulation = RouteEscape(free, safety.guard_radius)
+                    and self.circulation.free_clearance == free
+                    and self.circulation.holonomic == holonomic):
+                self.circulation = RouteEscape(free, safety.guard_radius, holonomic)
         self.filter = command_filter
         for name, timeout in timeouts.items():
             self.watchdog.set_timeout(name, timeout)

@@ -25,8 +25,8 @@ clearance is at least c_min + ``preferred_margin`` / 2: the nearest free place t
 nominal wants, past whatever holds the robot.  That includes backing out of a pocket.
 
 Following.  Per step the target is the route point ``lookahead`` (arc length) beyond the
-point nearest the reference point (searched forward from the last one), and, as
-circulation does, with e = wrap(atan2(target - p) - theta)::
+point nearest the reference point (searched forward from the last one), and, for a
+unicycle as circulation does, with e = wrap(atan2(target - p) - theta)::
 
     omega* = clip(k_theta e, +-omega_max),    v* = v_n max(0, cos e)
 
@@ -38,8 +38,12 @@ after max(``max_time``, 3 L / v_n) s for a route of length L.  A second report w
 following (held again: a part moved, or the route was too tight) plans a new route from
 where the robot stands; so does a deadlock that outlasts a route.  When no route exists in
 the window (every way blocked, or none ``ahead`` far enough), the resolution falls back to
-circulation.  Only unicycle velocity commands [v, omega] are steered; a nominal stop passes
-unchanged.
+circulation.  A nominal stop passes unchanged.
+
+Holonomic bases (``point_mass_2d``, body-frame commands [vx, vy] at the odometry yaw psi)
+take d = Rz(psi) [vx, vy] / |[vx, vy]| and follow with the velocity v_n (target - p) /
+|target - p|, turned back into the body frame; v_n = |[vx, vy]|.  Without a route they
+keep their nominal (there is no circulation for them).
 """
 import math
 
@@ -210,14 +214,19 @@ def plan_route(obstacles, position, direction, free, guard_radius, window=10.0, 
 class RouteEscape:
     """The rule of the module docstring; ``ControlDecision`` drives it like ``Circulation``."""
 
-    def __init__(self, free_clearance, guard_radius, max_time=10.0, turn_gain=2.0,
-                 max_turn_rate=1.5, lookahead=0.5, **route):
-        """Follow routes keeping ``free_clearance`` [m]; ``route``: ``plan_route``'s options."""
+    def __init__(self, free_clearance, guard_radius, holonomic=False, max_time=10.0,
+                 turn_gain=2.0, max_turn_rate=1.5, lookahead=0.5, **route):
+        """Follow routes keeping ``free_clearance`` [m]; ``route``: ``plan_route``'s options.
+
+        ``holonomic``: commands are body-frame velocities [vx, vy] (``point_mass_2d``), not
+        unicycle [v, omega]; there is no circulation to fall back on.
+        """
         if not (free_clearance > 0.0 and guard_radius > 0.0 and max_time > 0.0
                 and turn_gain > 0.0 and max_turn_rate > 0.0 and lookahead > 0.0):
             raise ValueError('escape route: clearances, max_time, turn_gain, max_turn_rate '
                              'and lookahead must be positive')
         self.free_clearance, self.guard_radius = float(free_clearance), float(guard_radius)
+        self.holonomic = bool(holonomic)
         self.max_time, self.lookahead = float(max_time), float(lookahead)
         self.turn_gain, self.max_turn_rate = float(turn_gain), float(max_turn_rate)
         self.route_options = route
@@ -248,9 +257,15 @@ class RouteEscape:
 
     def engage(self, now, position, yaw, nominal, obstacles=None, renew=False):
         """Plan a route from ``position`` the way ``nominal`` points (module docstring)."""
-        self._speed = max(abs(float(nominal[0])), self._speed if self.active or renew else 0.0)
-        lean = min(max(float(nominal[1]) * INTENT_TIME, -0.5 * math.pi), 0.5 * math.pi)
-        direction = (math.cos(yaw + lean), math.sin(yaw + lean))
+        if self.holonomic:
+            bearing = math.atan2(float(nominal[1]), float(nominal[0])) + yaw
+            if not any(nominal):
+                return
+        else:
+            bearing = yaw + min(max(float(nominal[1]) * INTENT_TIME, -0.5 * math.pi),
+                                0.5 * math.pi)
+        self._speed = max(self._speed_of(nominal), self._speed if self.active or renew else 0.0)
+        direction = (math.cos(bearing), math.sin(bearing))
         route = None
         if obstacles is not None and len(obstacles):
             route = plan_route(obstacles, position, direction, self.free_clearance,
@@ -258,7 +273,8 @@ class RouteEscape:
         self.engagements += 1
         if route is None:
             self._route = None
-            self.fallback.engage(now, position, yaw, nominal, renew=renew)
+            if not self.holonomic:
+                self.fallback.engage(now, position, yaw, nominal, renew=renew)
             return
         self.fallback.side = 0
         self.routes += 1
@@ -291,9 +307,17 @@ class RouteEscape:
         target_arc = self._arc[self._progress] + self.lookahead
         target = self._route[min(int(np.searchsorted(self._arc, target_arc)),
                                  len(self._route) - 1)]
-        return steer_towards(math.atan2(target[1] - position[1], target[0] - position[0]), yaw,
-                             max(abs(float(nominal[0])), self._speed), self.turn_gain,
-                             self.max_turn_rate)
+        bearing = math.atan2(target[1] - position[1], target[0] - position[0])
+        speed = max(self._speed_of(nominal), self._speed)
+        if self.holonomic:   # the velocity towards the target, in the body frame
+            return speed * np.array([math.cos(bearing - yaw), math.sin(bearing - yaw)])
+        return steer_towards(bearing, yaw, speed, self.turn_gain, self.max_turn_rate)
+
+    def _speed_of(self, nominal):
+        """Return the nominal's speed: |[vx, vy]| (holonomic) or |v| (unicycle)."""
+        if self.holonomic:
+            return math.hypot(float(nominal[0]), float(nominal[1]))
+        return abs(float(nominal[0]))
 
     def _advance(self, position):
         """Move the progress index to the nearest route point within reach ahead."""

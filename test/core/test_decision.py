@@ -4,7 +4,9 @@ import math
 import numpy as np
 import pytest
 
+from polyc2bf_ros.core.circulation import Circulation
 from polyc2bf_ros.core.decision import ControlDecision, ObstacleSnapshot
+from polyc2bf_ros.core.escape_route import RouteEscape
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter
 
@@ -183,3 +185,24 @@ def test_a_robot_asked_to_move_that_stays_put_is_reported_stuck():
         verdicts.append(decision.step(now).deadlocked)
     assert verdicts.index(True) == 800 and all(verdicts[800:])
     assert decision.deadlock.stuck_onsets == 1 and decision.deadlock.onsets == 0
+
+
+@pytest.mark.parametrize('model, resolution, expected', [
+    ('unicycle', 'route', 'route'), ('point_mass_2d', 'route', 'holonomic route'),
+    ('unicycle', 'circulate', 'circulation'), ('point_mass_2d', 'circulate', None),
+    ('point_mass_3d', 'route', None), ('unicycle', 'none', None)])
+def test_each_resolution_steers_only_the_models_it_knows(model, resolution, expected):
+    """route: unicycle and point_mass_2d (holonomic); circulate: unicycle; else nothing."""
+    settings = build_filter({'model': model})
+    resolver = ControlDecision(settings.command_filter, TIMEOUTS,
+                               resolution=resolution).circulation
+    if expected is None:
+        assert resolver is None
+    elif expected == 'circulation':
+        assert isinstance(resolver, Circulation)
+    else:
+        assert isinstance(resolver, RouteEscape)
+        assert resolver.holonomic is (expected == 'holonomic route')
+        safety = settings.command_filter.safety_filter
+        assert resolver.free_clearance == pytest.approx(
+            safety.guard_radius + safety.config.braking_margin + 0.02)

@@ -126,6 +126,32 @@ def test_a_route_ends_after_its_time_limit_and_a_second_report_replans():
     assert not escape.active
 
 
+def test_a_holonomic_base_follows_the_route_with_a_body_frame_velocity():
+    """point_mass_2d: the way is the nominal velocity turned by the yaw; the command, the
+    velocity towards the target at the report's speed, turned back; no route: no fallback."""
+    wall = box(2.0, -1.5, 2.3, 1.5)
+    escape = RouteEscape(FREE, GUARD, holonomic=True)
+    yaw = math.pi / 2                                     # body x is world +y
+    escape.engage(0.0, (1.45, 0.2), yaw, (0.0, -0.8), obstacle_set(wall))  # world +x
+    assert escape.active and escape.routes == 1
+    route = escape._route
+    assert route[-1, 0] - 1.45 >= 3.0 - 1e-9
+    command = escape.command(yaw, (0.0, -0.1), route[0])
+    assert np.hypot(*command) == pytest.approx(0.8)
+    c, s = math.cos(yaw), math.sin(yaw)
+    world = np.array([c * command[0] - s * command[1], s * command[0] + c * command[1]])
+    target = route[np.searchsorted(escape._arc, 0.5)]
+    toward = (target - route[0]) / np.linalg.norm(target - route[0])
+    np.testing.assert_allclose(world / 0.8, toward, atol=1e-9)
+    walls = [box(-1.5, -1.5, 1.5, -1.2), box(-1.5, 1.2, 1.5, 1.5), box(-1.5, -1.2, -1.2, 1.2),
+             box(1.2, -1.2, 1.5, 1.2)]
+    boxed = RouteEscape(FREE, GUARD, holonomic=True)
+    boxed.engage(0.0, (0.6, 0.0), 0.0, (0.8, 0.0), obstacle_set(*walls))
+    assert not boxed.active and boxed.engagements == 1
+    nominal = np.array([0.8, 0.0])
+    assert boxed.command(0.0, nominal, (0.6, 0.0)) is nominal
+
+
 def test_bad_settings_are_refused():
     """Clearances, times, gains and the lookahead must be positive."""
     with pytest.raises(ValueError):
