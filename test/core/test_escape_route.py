@@ -127,8 +127,11 @@ def test_a_route_ends_after_its_time_limit_and_a_second_report_replans():
 
 
 def test_a_holonomic_base_follows_the_route_with_a_body_frame_velocity():
-    """point_mass_2d: the way is the nominal velocity turned by the yaw; the command, the
-    velocity towards the target at the report's speed, turned back; no route: no fallback."""
+    """point_mass_2d: the way and the command are velocities, turned by the odometry yaw.
+
+    The way is the nominal velocity in the world; the command the velocity towards the
+    target at the report's speed, turned back into the body frame.  No route: no fallback.
+    """
     wall = box(2.0, -1.5, 2.3, 1.5)
     escape = RouteEscape(FREE, GUARD, holonomic=True)
     yaw = math.pi / 2                                     # body x is world +y
