@@ -38,7 +38,8 @@ after max(``max_time``, 3 L / v_n) s for a route of length L.  A second report w
 following (held again: a part moved, or the route was too tight) plans a new route from
 where the robot stands; so does a deadlock that outlasts a route.  When no route exists in
 the window (every way blocked, or none ``ahead`` far enough), the resolution falls back to
-circulation.  A nominal stop passes unchanged.
+circulation, and a deadlock that outlasts that plans again only ``max_time`` later (not
+on every held step).  A nominal stop passes unchanged.
 
 Holonomic bases (``point_mass_2d``, body-frame commands [vx, vy] at the odometry yaw psi)
 take d = Rz(psi) [vx, vy] / |[vx, vy]| and follow with the velocity v_n (target - p) /
@@ -240,6 +241,7 @@ class RouteEscape:
         self._since = math.nan
         self._limit = math.inf
         self._speed = 0.0
+        self._failed = -math.inf  # when planning last found no route
 
     @property
     def active(self):
@@ -256,7 +258,13 @@ class RouteEscape:
         self.fallback.observe(info)
 
     def engage(self, now, position, yaw, nominal, obstacles=None, renew=False):
-        """Plan a route from ``position`` the way ``nominal`` points (module docstring)."""
+        """Plan a route from ``position`` the way ``nominal`` points (module docstring).
+
+        ``renew`` (the deadlock outlasted the last resolution, asked every held step) plans
+        at most once per ``max_time`` after a plan that found no route.
+        """
+        if renew and now - self._failed < self.max_time:
+            return
         if self.holonomic:
             bearing = math.atan2(float(nominal[1]), float(nominal[0])) + yaw
             if not any(nominal):
@@ -272,7 +280,7 @@ class RouteEscape:
                                self.guard_radius, **self.route_options)
         self.engagements += 1
         if route is None:
-            self._route = None
+            self._route, self._failed = None, now
             if not self.holonomic:
                 self.fallback.engage(now, position, yaw, nominal, renew=renew)
             return

@@ -155,6 +155,21 @@ def test_a_holonomic_base_follows_the_route_with_a_body_frame_velocity():
     assert boxed.command(0.0, nominal, (0.6, 0.0)) is nominal
 
 
+def test_after_no_route_a_lasting_deadlock_plans_again_only_after_max_time():
+    """The held steps that follow a failed plan do not each plan again (1 ms apiece)."""
+    walls = [box(-1.5, -1.5, 1.5, -1.2), box(-1.5, 1.2, 1.5, 1.5), box(-1.5, -1.2, -1.2, 1.2),
+             box(1.2, -1.2, 1.5, 1.2)]
+    obstacles = obstacle_set(*walls)
+    escape = RouteEscape(FREE, GUARD, holonomic=True, max_time=10.0)
+    escape.engage(0.0, (0.6, 0.0), 0.0, (0.8, 0.0), obstacles)
+    for now in (0.01, 5.0, 9.99):
+        escape.engage(now, (0.6, 0.0), 0.0, (0.8, 0.0), obstacles, renew=True)
+    assert escape.engagements == 1
+    escape.engage(10.0, (0.6, 0.0), 0.0, (0.8, 0.0), obstacles, renew=True)
+    escape.engage(10.5, (0.6, 0.0), 0.0, (0.8, 0.0), obstacles)   # a new report: at once
+    assert escape.engagements == 3 and not escape.active
+
+
 def test_bad_settings_are_refused():
     """Clearances, times, gains and the lookahead must be positive."""
     with pytest.raises(ValueError):
