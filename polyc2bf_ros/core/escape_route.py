@@ -34,9 +34,14 @@ v_n as in circulation (the larger of the nominal's |v| now and at the report).  
 filter filters that command like any other: no CBF row is dropped or relaxed.
 
 Release.  The nominal takes over again at the route's end (within ``lookahead`` of it) or
-after max(``max_time``, 3 L / v_n) s for a route of length L.  A second report while
-following (held again: a part moved, or the route was too tight) plans a new route from
-where the robot stands; so does a deadlock that outlasts a route.  When no route exists in
+after max(``max_time``, 3 L / v_n) s for a route of length L.  A route the filter holds the
+robot on (the cone of a part it passes close by covers the way to its next point: the
+cones forbid more than the clearance does) is *blocked* once the robot has not moved
+0.1 m in ``PATIENCE`` s; the deadlock still held, the next plan keeps ``WIDEN`` more
+clearance, up to ``MAX_WIDEN`` times in a row, then circulation takes over.  A second
+report while following (held again after moving: a part moved, or the route was too
+tight) plans a new route from where the robot stands; so does a deadlock that outlasts a
+route.  When no route exists in
 the window (every way blocked, or none ``ahead`` far enough), the resolution falls back to
 circulation, and a deadlock that outlasts that plans again only ``max_time`` later (not
 on every held step).  A nominal stop passes unchanged.
@@ -55,6 +60,10 @@ from polyc2bf_ros.core.cones import nearest_edge, PlanarPolygons
 from polyc2bf_ros.core.jit import F1, F2, I1, kernel, signature
 
 START_CELLS = 3
+PATIENCE = 3.0   # s: a route the robot has not moved 0.1 m along in this long is blocked
+#                  (longer than a half turn in place at 1.5 rad/s)
+WIDEN = 0.1      # m: each blocked route in a row plans the next this much wider ...
+MAX_WIDEN = 2    # ... this many times; one more, and circulation takes over
 INTENT_TIME = 1.0  # s: d leans by omega * INTENT_TIME, at most 90 degrees
 _DIAGONAL = math.sqrt(2.0)
 
@@ -242,6 +251,8 @@ class RouteEscape:
         self._limit = math.inf
         self._speed = 0.0
         self._failed = -math.inf  # when planning last found no route
+        self.blocked = 0          # routes in a row the filter held the robot on
+        self._anchor, self._moved = None, math.nan
 
     @property
     def active(self):
@@ -275,11 +286,13 @@ class RouteEscape:
         self._speed = max(self._speed_of(nominal), self._speed if self.active or renew else 0.0)
         direction = (math.cos(bearing), math.sin(bearing))
         route = None
-        if obstacles is not None and len(obstacles):
-            route = plan_route(obstacles, position, direction, self.free_clearance,
-                               self.guard_radius, **self.route_options)
+        if obstacles is not None and len(obstacles) and self.blocked <= MAX_WIDEN:
+            route = plan_route(obstacles, position, direction,
+                               self.free_clearance + WIDEN * self.blocked, self.guard_radius,
+                               **self.route_options)
         self.engagements += 1
         if route is None:
+            self.blocked = 0
             self._route, self._failed = None, now
             if not self.holonomic:
                 self.fallback.engage(now, position, yaw, nominal, renew=renew)
@@ -287,19 +300,29 @@ class RouteEscape:
         self.fallback.side = 0
         self.routes += 1
         self._route, self._progress, self._since = route, 0, now
+        self._anchor, self._moved = np.array(position, dtype=float), now
         self._arc = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(route, axis=0).T))))
         speed = max(self._speed, 1e-3)
         self._limit = max(self.max_time, 3.0 * float(self._arc[-1]) / speed)
 
     def release_if_done(self, now, position, passes):
-        """End the route at its end or after its time limit; the fallback by its own rule."""
+        """End the route at its end, after its time limit or blocked; the fallback by its rule.
+
+        Blocked: the reference point stayed within 0.1 m for ``PATIENCE`` s; the next plan
+        (the deadlock still held) keeps ``WIDEN`` more clearance per blocked route in a row.
+        """
         if self._route is None:
             self.fallback.release_if_done(now, position, passes)
             return
         self._advance(position)
-        if (now - self._since >= self._limit
+        position = np.asarray(position, dtype=float)
+        if np.linalg.norm(position - self._anchor) > 0.1:
+            self._anchor, self._moved = position, now
+        if now - self._moved >= PATIENCE:
+            self._route, self.blocked = None, self.blocked + 1
+        elif (now - self._since >= self._limit
                 or self._arc[-1] - self._arc[self._progress] <= self.lookahead):
-            self._route = None
+            self._route, self.blocked = None, 0
 
     def probe(self, nominal):
         """Return the fallback's probe of ``nominal`` (``Circulation.probe``)."""

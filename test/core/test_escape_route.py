@@ -7,7 +7,14 @@ import pytest
 from hypothesis import given, strategies as st
 
 from polyc2bf_ros.core.cones import PlanarPolygons
-from polyc2bf_ros.core.escape_route import grid_clearance, plan_route, RouteEscape
+from polyc2bf_ros.core.escape_route import (
+    grid_clearance,
+    MAX_WIDEN,
+    PATIENCE,
+    plan_route,
+    RouteEscape,
+    WIDEN,
+)
 from polyc2bf_ros.core.geometry import signed_distance
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from strategies import convex_polygons
@@ -118,7 +125,10 @@ def test_a_route_ends_after_its_time_limit_and_a_second_report_replans():
     escape = RouteEscape(FREE, GUARD, max_time=5.0)
     escape.engage(0.0, (1.45, 0.2), 0.0, (1.0, 0.0), obstacles)
     length = float(np.hypot(*np.diff(escape._route, axis=0).T).sum())
-    escape.release_if_done(3.0 * length - 0.1, (1.45, 0.2), lambda: True)
+    start = escape._route[0]
+    for k, now in enumerate(np.arange(0.5, 3.0 * length - 0.1, 0.5)):
+        # to and fro 0.15 m near the start: moving, never near the end
+        escape.release_if_done(now, start + (0.15 * (k % 2), 0.0), lambda: True)
     assert escape.active
     escape.engage(3.0 * length - 0.05, (1.45, 0.2), 0.0, (1.0, 0.0), obstacles)
     assert escape.routes == 2
@@ -168,6 +178,31 @@ def test_after_no_route_a_lasting_deadlock_plans_again_only_after_max_time():
     escape.engage(10.0, (0.6, 0.0), 0.0, (0.8, 0.0), obstacles, renew=True)
     escape.engage(10.5, (0.6, 0.0), 0.0, (0.8, 0.0), obstacles)   # a new report: at once
     assert escape.engagements == 3 and not escape.active
+
+
+def test_a_blocked_route_is_planned_again_wider_then_circulation_takes_over():
+    """Not 0.1 m on in PATIENCE s: blocked; each next plan keeps WIDEN more, up to MAX_WIDEN."""
+    wall = box(2.0, -1.5, 2.3, 1.5)
+    obstacles = obstacle_set(wall)
+    escape = RouteEscape(FREE, GUARD)
+    cones = SimpleNamespace(p=np.array([[0.55], [0.0]]))
+    escape.observe(SimpleNamespace(h=np.array([0.05]), evaluation=SimpleNamespace(
+        valid=np.array([True]), cones=cones)))
+    now, clearances = 0.0, []
+    for blocked in range(MAX_WIDEN + 1):
+        escape.engage(now, (1.45, 0.2), 0.0, (0.7, 0.0), obstacles, renew=blocked > 0)
+        assert escape.routes == blocked + 1 and escape.blocked == blocked
+        route = escape._route
+        far = np.hypot(*(route - (1.45, 0.2)).T) > 0.35
+        clearances.append(clearance_along(route[far], [wall]).min())
+        escape.release_if_done(now + PATIENCE - 0.01, (1.5, 0.2), lambda: False)
+        assert escape.active                        # moved only 0.05 m, not yet blocked
+        now += PATIENCE
+        escape.release_if_done(now, (1.5, 0.2), lambda: False)
+        assert not escape.active and escape.blocked == blocked + 1
+    assert all(c >= FREE + WIDEN * k - 1e-9 for k, c in enumerate(clearances))
+    escape.engage(now, (1.5, 0.2), 0.0, (0.7, 0.0), obstacles, renew=True)
+    assert escape.routes == MAX_WIDEN + 1 and escape.side != 0 and escape.blocked == 0
 
 
 def test_bad_settings_are_refused():
