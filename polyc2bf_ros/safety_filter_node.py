@@ -711,6 +711,8 @@ class SafetyFilterMixin:
             'stuck_reports': decision.deadlock.stuck_onsets,
             'repeat_reports': decision.deadlock.repeat_onsets,
             'deadlock_held_s': f'{decision.deadlock.held_s(now):.2f}',
+            'resolving': decision.resolving,
+            'resolutions': decision.resolutions,
             **self._scan_values(),
             **{f'rejected {key}': reason for key, reason in sorted(rejected.items())},
         }

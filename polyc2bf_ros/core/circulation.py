@@ -78,6 +78,11 @@ class Circulation:
         """Return True while circulating."""
         return self.side != 0
 
+    @property
+    def mode(self):
+        """Return what steers the nominal now: 'circulate' or 'none'."""
+        return 'circulate' if self.side else 'none'
+
     def observe(self, info):
         """Remember the cone axis of the part with the smallest h in ``info`` (if any)."""
         evaluation = getattr(info, 'evaluation', None)

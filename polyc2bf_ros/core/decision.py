@@ -182,6 +182,16 @@ class ControlDecision:
                 and (snapshot.clean or not self.block_if_invalid)):
             self.watchdog.feed('obstacles', snapshot.received)
 
+    @property
+    def resolving(self):
+        """Return what steers the nominal now: 'route', 'circulate' or 'none'."""
+        return 'none' if self.circulation is None else self.circulation.mode
+
+    @property
+    def resolutions(self):
+        """Return how many resolutions began (routes planned, circulations started)."""
+        return 0 if self.circulation is None else self.circulation.engagements
+
     def stop(self):
         """Return the stop command from the last usable state (zeros before any)."""
         if self.state is None:

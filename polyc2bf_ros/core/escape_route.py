@@ -260,6 +260,11 @@ class RouteEscape:
         return self._route is not None or self.fallback.active
 
     @property
+    def mode(self):
+        """Return what steers the nominal now: 'route', 'circulate' (fallback) or 'none'."""
+        return 'route' if self._route is not None else self.fallback.mode
+
+    @property
     def side(self):
         """Return the fallback circulation's side (0 while following a route)."""
         return self.fallback.side

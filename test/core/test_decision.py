@@ -194,8 +194,9 @@ def test_a_robot_asked_to_move_that_stays_put_is_reported_stuck():
 def test_each_resolution_steers_only_the_models_it_knows(model, resolution, expected):
     """route: unicycle and point_mass_2d (holonomic); circulate: unicycle; else nothing."""
     settings = build_filter({'model': model})
-    resolver = ControlDecision(settings.command_filter, TIMEOUTS,
-                               resolution=resolution).circulation
+    decision = ControlDecision(settings.command_filter, TIMEOUTS, resolution=resolution)
+    resolver = decision.circulation
+    assert decision.resolving == 'none' and decision.resolutions == 0   # nothing began yet
     if expected is None:
         assert resolver is None
     elif expected == 'circulation':

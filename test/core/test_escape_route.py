@@ -93,15 +93,17 @@ def test_no_route_out_of_a_closed_box_falls_back_to_circulation():
         valid=np.array([True]), cones=cones)))
     escape.engage(0.0, (0.6, 0.0), 0.1, (0.8, 0.0), obstacles)
     assert escape.active and escape.side == 1 and escape.routes == 0
-    assert escape.engagements == 1
+    assert escape.engagements == 1 and escape.mode == 'circulate'
 
 
 def test_following_turns_onto_the_route_then_drives_and_releases_at_its_end():
     """Facing the wall: turn toward the route's side; aligned: the held speed; end: release."""
     wall = box(2.0, -1.5, 2.3, 1.5)
     escape = RouteEscape(FREE, GUARD, lookahead=0.5)
+    assert escape.mode == 'none'
     escape.engage(0.0, (1.45, 0.2), 0.0, (0.7, 0.0), obstacle_set(wall))
     assert escape.active and escape.routes == 1 and escape.side == 0
+    assert escape.mode == 'route'
     route = escape._route
     v, omega = escape.command(0.0, (0.0, 0.0), (1.45, 0.2))
     assert v == 0.0 and omega == 0.0                        # a nominal stop stays a stop
