@@ -55,7 +55,7 @@ def run_seed(model_name, variant, seed, duration):
     command_filter = settings.command_filter
     decision = ControlDecision(command_filter, dict.fromkeys(settings.timeouts, 0.0),
                                settings.block_if_invalid, 0.0, settings.deadlock,
-                               settings.resolution)
+                               settings.resolution, settings.route)
     model, period = command_filter.model, command_filter.safety_filter.config.control_period
     radius = command_filter.safety_filter.config.robot_radius
     obstacles = random_clutter(seed)

@@ -17,7 +17,7 @@ from pathlib import Path
 import yaml
 
 from polyc2bf_ros.core.command_filter import CommandFilter
-from polyc2bf_ros.core.decision import DEADLOCK_DEFAULTS, RESOLUTIONS
+from polyc2bf_ros.core.decision import DEADLOCK_DEFAULTS, RESOLUTIONS, ROUTE_DEFAULTS
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import FilterConfig
@@ -85,6 +85,10 @@ NODE_PARAMETERS = {
                             "blocking obstacle, core/circulation.py) or 'route' (unicycle: "
                             'along a grid route past the obstacles, core/escape_route.py); no '
                             'constraint is relaxed', False),
+    'route_ahead': (ROUTE_DEFAULTS[0], (0.5, 14.0), "deadlock_resolution 'route': the route "
+                    'ends this far [m] the way the nominal points', False),
+    'route_window': (ROUTE_DEFAULTS[1], (2.0, 30.0), '... planned on a square grid of this '
+                     'side [m] about the robot (0.1 m cells); must exceed 2 route_ahead', False),
     'scan_timeout': (1.0, (0.0, 3600.0), 'LaserScan sources (scan_topics) older than this [s] '
                      '-> stop; 0 = never stale once received', True),
     'sensor_pose': ([0.0, 0.0, 0.0], None, '[x, y, yaw] of the laser in the odometry child '
@@ -212,6 +216,7 @@ class NodeSettings:
     max_extrapolation: float
     deadlock: tuple
     resolution: str
+    route: tuple
     parameters: dict
     ignored: tuple = ()
 
@@ -265,10 +270,16 @@ def build_settings(values, model=None):
         deadlock=tuple(float(values[name]) for name in (
             'deadlock_time', 'deadlock_radius', 'stuck_time', 'stuck_radius',
             'deadlock_repeat_count', 'deadlock_repeat_window')),
-        resolution=values['deadlock_resolution'], parameters=dict(values))
+        resolution=values['deadlock_resolution'],
+        route=(float(values['route_ahead']), float(values['route_window'])),
+        parameters=dict(values))
     if settings.resolution not in RESOLUTIONS:
         raise ParameterError(f"parameter 'deadlock_resolution' must be one of {RESOLUTIONS}, "
                              f'got {settings.resolution!r}')
+    ahead, window = settings.route
+    if not window > 2.0 * ahead:
+        raise ParameterError(f'route_window ({window:g} m) must exceed 2 route_ahead '
+                             f'({2.0 * ahead:g} m): the route ends inside the window')
     if not settings.stall_timeout > 2.0 * settings.tick:
         raise ParameterError(f'stall_timeout ({settings.stall_timeout:g} s) must exceed two '
                              f'control ticks ({2.0 * settings.tick:g} s)')

@@ -167,7 +167,7 @@ class SafetyFilterMixin:
 
         self._decision = ControlDecision(settings.command_filter, self._timeouts(settings),
                                          settings.block_if_invalid, settings.max_extrapolation,
-                                         settings.deadlock, settings.resolution)
+                                         settings.deadlock, settings.resolution, settings.route)
         self._deadlocked = None  # last state published on ~/deadlock
         self._state = None  # (action, status, active constraints) of the last step
         self._state_published = None  # the action last published on ~/state
@@ -403,7 +403,7 @@ class SafetyFilterMixin:
         self._period = settings.period
         self._decision.configure(settings.command_filter, self._timeouts(settings),
                                  settings.block_if_invalid, settings.max_extrapolation,
-                                 settings.deadlock, settings.resolution)
+                                 settings.deadlock, settings.resolution, settings.route)
         self._intake.configure(settings.intake, self._filter_spec(settings))
         self._stall_guard.timeout = settings.stall_timeout
         self._stall_guard.period = settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT

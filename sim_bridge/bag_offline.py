@@ -178,7 +178,7 @@ class _OfflineNode:
         self.filter = setup.command_filter
         self.decision = ControlDecision(setup.command_filter, setup.timeouts,
                                         setup.block_if_invalid, setup.max_extrapolation,
-                                        setup.deadlock, setup.resolution)
+                                        setup.deadlock, setup.resolution, setup.route)
         self.pipeline = ObstaclePipeline()
         self.spec = (setup.model_name, setup.command_filter.safety_filter.config)
         self.frame = None

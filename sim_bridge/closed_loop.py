@@ -189,7 +189,7 @@ class _Robot:
             self.filter_spec = (robot.model, self.filter.safety_filter.config)
             self.decision = ControlDecision(self.filter, dict.fromkeys(settings.timeouts, 0.0),
                                             settings.block_if_invalid, 0.0, settings.deadlock,
-                                            settings.resolution)
+                                            settings.resolution, settings.route)
         self.robot_radius = self.reference.safety_filter.config.robot_radius
         state = world.robot_state(spec.name)
         dim = 2 if robot.unicycle else 4

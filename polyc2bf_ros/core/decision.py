@@ -51,6 +51,8 @@ RESOLUTIONS = ('none', 'circulate', 'route')
 #: resolution -> the models it steers (the others keep their nominal)
 RESOLVED_MODELS = {'none': (), 'circulate': ('unicycle',), 'route': ('unicycle', 'point_mass_2d')}
 ROUTE_MARGIN = 0.02  # m: a route's cells keep the braking check's clearance plus this
+# route_ahead [m], route_window [m] (``escape_route.plan_route``'s ahead and window)
+ROUTE_DEFAULTS = (3.0, 10.0)
 
 
 @dataclass(frozen=True)
@@ -106,19 +108,19 @@ class ControlDecision:
     """Inputs, watchdogs and the ``CommandFilter``: one call per step (module docstring)."""
 
     def __init__(self, command_filter, timeouts, block_if_invalid=True, max_extrapolation=0.5,
-                 deadlock=DEADLOCK_DEFAULTS, resolution='none'):
+                 deadlock=DEADLOCK_DEFAULTS, resolution='none', route=ROUTE_DEFAULTS):
         """Decide with ``command_filter``; ``timeouts`` = {'odom', 'cmd', 'obstacles': s}.
 
         ``'obstacles'`` may be left out (no marker input); other names are more watchdogs.
 
         ``deadlock``: the ``DeadlockDetector``'s arguments (``DEADLOCK_DEFAULTS``);
-        ``resolution`` one of ``RESOLUTIONS``.
+        ``resolution`` one of ``RESOLUTIONS``; ``route``: (ahead, window) of its routes [m].
         """
         self.watchdog = Watchdog(timeouts)
         self.deadlock = DeadlockDetector(*deadlock)
         self.circulation = None
         self.configure(command_filter, timeouts, block_if_invalid, max_extrapolation, deadlock,
-                       resolution)
+                       resolution, route)
         self.counts = dict.fromkeys(COUNTS, 0)
         self.enabled = True
         self.snapshot = ObstacleSnapshot()
@@ -130,7 +132,7 @@ class ControlDecision:
         self.command_valid = False
 
     def configure(self, command_filter, timeouts, block_if_invalid, max_extrapolation,
-                  deadlock=DEADLOCK_DEFAULTS, resolution='none'):
+                  deadlock=DEADLOCK_DEFAULTS, resolution='none', route=ROUTE_DEFAULTS):
         """Take new settings (a parameter change); the inputs held are kept."""
         if resolution not in RESOLUTIONS:
             raise ValueError(f'deadlock resolution must be one of {RESOLUTIONS}, '
@@ -145,10 +147,12 @@ class ControlDecision:
             safety = command_filter.safety_filter
             free = safety.guard_radius + safety.config.braking_margin + ROUTE_MARGIN
             holonomic = model != 'unicycle'
+            options = {'ahead': float(route[0]), 'window': float(route[1])}
             if not (isinstance(self.circulation, RouteEscape)
                     and self.circulation.free_clearance == free
-                    and self.circulation.holonomic == holonomic):
-                self.circulation = RouteEscape(free, safety.guard_radius, holonomic)
+                    and self.circulation.holonomic == holonomic
+                    and self.circulation.route_options == options):
+                self.circulation = RouteEscape(free, safety.guard_radius, holonomic, **options)
         self.filter = command_filter
         for name, timeout in timeouts.items():
             self.watchdog.set_timeout(name, timeout)

@@ -1,6 +1,7 @@
 """The node's parameter files read without ROS (offline replay, in-process evaluation)."""
 import pytest
 
+from polyc2bf_ros.core.decision import ControlDecision
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters, ParameterError
 
 
@@ -32,3 +33,16 @@ def test_unknown_parameters_are_listed_not_applied():
     assert setup.command_filter.safety_filter.config.gamma == 2.0
     with pytest.raises(ParameterError, match="parameter 'model' must be one of"):
         build_filter({'model': 'tank'})
+
+
+def test_route_parameters_reach_the_resolution_and_must_fit_the_window():
+    """route_ahead / route_window become the route's reach; a window under 2 x reach fails."""
+    setup = build_filter({'deadlock_resolution': 'route', 'route_ahead': 4.0,
+                          'route_window': 12.0})
+    assert setup.route == (4.0, 12.0)
+    decision = ControlDecision(setup.command_filter, setup.timeouts, setup.block_if_invalid,
+                               setup.max_extrapolation, setup.deadlock, setup.resolution,
+                               setup.route)
+    assert decision.circulation.route_options == {'ahead': 4.0, 'window': 12.0}
+    with pytest.raises(ParameterError, match='route_window .* must exceed 2 route_ahead'):
+        build_filter({'route_ahead': 6.0})
