@@ -115,13 +115,14 @@ def test_the_deadlock_report_flags_the_popup_box_and_not_the_long_wall(long_wall
     assert passed['success'] and passed['deadlock_detections'] == 0
 
 
-def test_circulation_resolves_the_popup_box_without_collision():
-    """deadlock_resolution circulate, default barrier: reported, steered round the box, at goal.
+@pytest.mark.parametrize('resolution', ['circulate', 'route'])
+def test_each_resolution_resolves_the_popup_box_without_collision(resolution):
+    """Default barrier: reported, steered round the box, at the goal, no contact.
 
     The report comes deadlock_time after the robot stood; the filter's rows are the same.
     """
     run = run_in_process('popup_obstacle', 'polyc2bf_horizon', duration=30.0,
-                         parameters={'deadlock_resolution': 'circulate'})
+                         parameters={'deadlock_resolution': resolution})
     record = summarise(run, {'a1': 10.0})
     assert record['success'] and not record['collision']
     assert record['min_clearance_m'] is None or record['min_clearance_m'] > 0.05
