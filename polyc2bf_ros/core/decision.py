@@ -152,7 +152,7 @@ class ControlDecision:
                     and self.circulation.free_clearance == free
                     and self.circulation.holonomic == holonomic
                     and self.circulation.route_options == options):
-                self.circulation = RouteEscape(free, safety.guard_radius, holonomic, **options)
+                self.circulation = RouteEscape(free, holonomic, **options)
         self.filter = command_filter
         for name, timeout in timeouts.items():
             self.watchdog.set_timeout(name, timeout)

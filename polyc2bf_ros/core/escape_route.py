@@ -14,8 +14,11 @@ Grid.  A square window of side ``window`` about the reference point p, cells of 
 ``cell``.  Each cell centre q gets its clearance c(q) = min over parts n of the signed
 distance from q to footprint n (negative inside; ``grid_clearance``).  A cell is free when
 c >= c_min = guard radius + braking margin (+ 2 cm), the distance the filter's braking
-check keeps (``core.braking_check``); cells within ``START_CELLS`` of p need only c > R
-less a cell, since the held robot stands on that band.
+check keeps (``core.braking_check``).  The held robot stands closer than that, so cells
+within ``START_CELLS`` of p need only c >= min(c_min, c(p)): no closer to any part than p
+is.  A step that loses clearance there points into the cone of the part it nears, which
+the filter refuses from the boundary (measured: BARN robots turned onto such a first leg
+and stood).
 
 Route.  Dijkstra over the 8-connected free cells from p's cell (``route_search``), each
 step costing its length times 1 + w max(0, c_pref - c) / (c_pref - c_min) with
@@ -186,12 +189,12 @@ def route_search(clearance, start_i, start_j, dir_x, dir_y, ahead, free, start_f
     return -1
 
 
-def plan_route(obstacles, position, direction, free, guard_radius, window=10.0, cell=0.1,
-               ahead=3.0, preferred_margin=0.4, weight=4.0):
+def plan_route(obstacles, position, direction, free, window=10.0, cell=0.1, ahead=3.0,
+               preferred_margin=0.4, weight=4.0):
     """Return the route (K, 2) from ``position`` ``ahead`` m along ``direction``, or None.
 
     ``obstacles``: an ``ObstacleSet``; ``free``: the clearance c_min a cell needs; the
-    start band needs only ``guard_radius`` less a cell (module docstring).
+    start band needs min(c_min, clearance at ``position``) (module docstring).
     """
     count = int(round(window / cell)) | 1
     half = (count // 2) * cell
@@ -208,7 +211,8 @@ def plan_route(obstacles, position, direction, free, guard_radius, window=10.0, 
     heap = np.empty(8 * cells, dtype=np.int64)
     centre = count // 2
     end = route_search(clearance, centre, centre, float(direction[0]), float(direction[1]),
-                       ahead / cell, free, guard_radius - cell, preferred, weight, parent,
+                       ahead / cell, free, min(free, clearance[centre, centre]),
+                       preferred, weight, parent,
                        scratch, heap)
     if end < 0:
         return None
@@ -224,18 +228,18 @@ def plan_route(obstacles, position, direction, free, guard_radius, window=10.0, 
 class RouteEscape:
     """The rule of the module docstring; ``ControlDecision`` drives it like ``Circulation``."""
 
-    def __init__(self, free_clearance, guard_radius, holonomic=False, max_time=10.0,
-                 turn_gain=2.0, max_turn_rate=1.5, lookahead=0.5, **route):
+    def __init__(self, free_clearance, holonomic=False, max_time=10.0, turn_gain=2.0,
+                 max_turn_rate=1.5, lookahead=0.25, **route):
         """Follow routes keeping ``free_clearance`` [m]; ``route``: ``plan_route``'s options.
 
         ``holonomic``: commands are body-frame velocities [vx, vy] (``point_mass_2d``), not
         unicycle [v, omega]; there is no circulation to fall back on.
         """
-        if not (free_clearance > 0.0 and guard_radius > 0.0 and max_time > 0.0
-                and turn_gain > 0.0 and max_turn_rate > 0.0 and lookahead > 0.0):
-            raise ValueError('escape route: clearances, max_time, turn_gain, max_turn_rate '
-                             'and lookahead must be positive')
-        self.free_clearance, self.guard_radius = float(free_clearance), float(guard_radius)
+        if not (free_clearance > 0.0 and max_time > 0.0 and turn_gain > 0.0
+                and max_turn_rate > 0.0 and lookahead > 0.0):
+            raise ValueError('escape route: free_clearance, max_time, turn_gain, '
+                             'max_turn_rate and lookahead must be positive')
+        self.free_clearance = float(free_clearance)
         self.holonomic = bool(holonomic)
         self.max_time, self.lookahead = float(max_time), float(lookahead)
         self.turn_gain, self.max_turn_rate = float(turn_gain), float(max_turn_rate)
@@ -293,8 +297,7 @@ class RouteEscape:
         route = None
         if obstacles is not None and len(obstacles) and self.blocked <= MAX_WIDEN:
             route = plan_route(obstacles, position, direction,
-                               self.free_clearance + WIDEN * self.blocked, self.guard_radius,
-                               **self.route_options)
+                               self.free_clearance + WIDEN * self.blocked, **self.route_options)
         self.engagements += 1
         if route is None:
             self.blocked = 0

@@ -19,7 +19,6 @@ from polyc2bf_ros.core.geometry import signed_distance
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from strategies import convex_polygons
 
-GUARD = 0.5
 FREE = 0.522
 
 
@@ -58,22 +57,37 @@ def test_grid_clearance_is_the_signed_distance_capped_at_the_cutoff(polygons, x0
 def test_the_route_goes_round_the_wall_ahead_keeping_the_clearance():
     """A 3 m wall 0.6 m ahead: the route rounds one end and ends 3 m ahead, never too close."""
     wall = box(2.0, -1.5, 2.3, 1.5)
-    route = plan_route(obstacle_set(wall), (1.45, 0.2), (1.0, 0.0), FREE, GUARD)
+    route = plan_route(obstacle_set(wall), (1.45, 0.2), (1.0, 0.0), FREE)
     assert route is not None
     np.testing.assert_allclose(route[0], (1.45, 0.2))
     assert route[-1, 0] - 1.45 >= 3.0 - 1e-9
     clear = clearance_along(route, [wall])
     far = np.hypot(*(route - (1.45, 0.2)).T) > 0.35   # past the start band
-    assert clear[far].min() >= FREE - 1e-9 and clear.min() > GUARD - 0.1
+    assert clear[far].min() >= FREE - 1e-9 and clear.min() >= min(FREE, clear[0]) - 1e-9
     beside = route[(route[:, 0] > 2.0) & (route[:, 0] < 2.3)]
     assert len(beside) and np.abs(beside[:, 1]).min() >= 1.5 + FREE - 1e-9
     assert np.all(np.hypot(*np.diff(route, axis=0).T) <= 0.1 * math.sqrt(2) + 0.06)
 
 
+def test_from_a_held_robot_the_route_never_starts_closer_to_a_part():
+    """Held 0.45 m from a box (under c_min): no route point comes closer than that.
+
+    A first step that loses clearance points into the cone of the part it nears, and the
+    filter refuses it from the boundary.
+    """
+    post = box(1.0, 0.3, 1.3, 0.6)
+    start = (0.8, 0.3 - 0.45 / math.sqrt(2) + 0.2)
+    held = signed_distance(start, post)
+    assert held < FREE
+    route = plan_route(obstacle_set(post), start, (-1.0, 0.3), FREE)
+    assert route is not None
+    assert clearance_along(route, [post]).min() >= held - 1e-9
+
+
 def test_the_route_backs_out_of_a_pocket():
     """Held at the back of a U open behind the robot: the route leaves the way it came."""
     walls = [box(4.0, -1.5, 4.3, 1.5), box(1.5, 1.5, 4.3, 1.8), box(1.5, -1.8, 4.3, -1.5)]
-    route = plan_route(obstacle_set(*walls), (3.45, 0.0), (1.0, 0.0), FREE, GUARD, window=12.0)
+    route = plan_route(obstacle_set(*walls), (3.45, 0.0), (1.0, 0.0), FREE, window=12.0)
     assert route is not None
     assert route[:, 0].min() < 1.5 - FREE      # out past the open end
     assert route[-1, 0] >= 3.45 + 3.0 - 1e-9   # then on beyond the back wall
@@ -86,8 +100,8 @@ def test_no_route_out_of_a_closed_box_falls_back_to_circulation():
     walls = [box(-1.5, -1.5, 1.5, -1.2), box(-1.5, 1.2, 1.5, 1.5), box(-1.5, -1.2, -1.2, 1.2),
              box(1.2, -1.2, 1.5, 1.2)]
     obstacles = obstacle_set(*walls)
-    assert plan_route(obstacles, (0.6, 0.0), (1.0, 0.0), FREE, GUARD) is None
-    escape = RouteEscape(FREE, GUARD)
+    assert plan_route(obstacles, (0.6, 0.0), (1.0, 0.0), FREE) is None
+    escape = RouteEscape(FREE)
     cones = SimpleNamespace(p=np.array([[0.6], [0.0]]))
     escape.observe(SimpleNamespace(h=np.array([0.05]), evaluation=SimpleNamespace(
         valid=np.array([True]), cones=cones)))
@@ -99,7 +113,7 @@ def test_no_route_out_of_a_closed_box_falls_back_to_circulation():
 def test_following_turns_onto_the_route_then_drives_and_releases_at_its_end():
     """Facing the wall: turn toward the route's side; aligned: the held speed; end: release."""
     wall = box(2.0, -1.5, 2.3, 1.5)
-    escape = RouteEscape(FREE, GUARD, lookahead=0.5)
+    escape = RouteEscape(FREE, lookahead=0.5)
     assert escape.mode == 'none'
     escape.engage(0.0, (1.45, 0.2), 0.0, (0.7, 0.0), obstacle_set(wall))
     assert escape.active and escape.routes == 1 and escape.side == 0
@@ -124,7 +138,7 @@ def test_a_route_ends_after_its_time_limit_and_a_second_report_replans():
     """max(max_time, 3 L / v_n) after the report the nominal takes over; a new report plans."""
     wall = box(2.0, -1.5, 2.3, 1.5)
     obstacles = obstacle_set(wall)
-    escape = RouteEscape(FREE, GUARD, max_time=5.0)
+    escape = RouteEscape(FREE, max_time=5.0)
     escape.engage(0.0, (1.45, 0.2), 0.0, (1.0, 0.0), obstacles)
     length = float(np.hypot(*np.diff(escape._route, axis=0).T).sum())
     start = escape._route[0]
@@ -145,7 +159,7 @@ def test_a_holonomic_base_follows_the_route_with_a_body_frame_velocity():
     target at the report's speed, turned back into the body frame.  No route: no fallback.
     """
     wall = box(2.0, -1.5, 2.3, 1.5)
-    escape = RouteEscape(FREE, GUARD, holonomic=True)
+    escape = RouteEscape(FREE, holonomic=True)
     yaw = math.pi / 2                                     # body x is world +y
     escape.engage(0.0, (1.45, 0.2), yaw, (0.0, -0.8), obstacle_set(wall))  # world +x
     assert escape.active and escape.routes == 1
@@ -155,12 +169,12 @@ def test_a_holonomic_base_follows_the_route_with_a_body_frame_velocity():
     assert np.hypot(*command) == pytest.approx(0.8)
     c, s = math.cos(yaw), math.sin(yaw)
     world = np.array([c * command[0] - s * command[1], s * command[0] + c * command[1]])
-    target = route[np.searchsorted(escape._arc, 0.5)]
+    target = route[np.searchsorted(escape._arc, escape.lookahead)]
     toward = (target - route[0]) / np.linalg.norm(target - route[0])
     np.testing.assert_allclose(world / 0.8, toward, atol=1e-9)
     walls = [box(-1.5, -1.5, 1.5, -1.2), box(-1.5, 1.2, 1.5, 1.5), box(-1.5, -1.2, -1.2, 1.2),
              box(1.2, -1.2, 1.5, 1.2)]
-    boxed = RouteEscape(FREE, GUARD, holonomic=True)
+    boxed = RouteEscape(FREE, holonomic=True)
     boxed.engage(0.0, (0.6, 0.0), 0.0, (0.8, 0.0), obstacle_set(*walls))
     assert not boxed.active and boxed.engagements == 1
     nominal = np.array([0.8, 0.0])
@@ -172,7 +186,7 @@ def test_after_no_route_a_lasting_deadlock_plans_again_only_after_max_time():
     walls = [box(-1.5, -1.5, 1.5, -1.2), box(-1.5, 1.2, 1.5, 1.5), box(-1.5, -1.2, -1.2, 1.2),
              box(1.2, -1.2, 1.5, 1.2)]
     obstacles = obstacle_set(*walls)
-    escape = RouteEscape(FREE, GUARD, holonomic=True, max_time=10.0)
+    escape = RouteEscape(FREE, holonomic=True, max_time=10.0)
     escape.engage(0.0, (0.6, 0.0), 0.0, (0.8, 0.0), obstacles)
     for now in (0.01, 5.0, 9.99):
         escape.engage(now, (0.6, 0.0), 0.0, (0.8, 0.0), obstacles, renew=True)
@@ -186,7 +200,7 @@ def test_a_blocked_route_is_planned_again_wider_then_circulation_takes_over():
     """Not 0.1 m on in PATIENCE s: blocked; each next plan keeps WIDEN more, up to MAX_WIDEN."""
     wall = box(2.0, -1.5, 2.3, 1.5)
     obstacles = obstacle_set(wall)
-    escape = RouteEscape(FREE, GUARD)
+    escape = RouteEscape(FREE)
     cones = SimpleNamespace(p=np.array([[0.55], [0.0]]))
     escape.observe(SimpleNamespace(h=np.array([0.05]), evaluation=SimpleNamespace(
         valid=np.array([True]), cones=cones)))
@@ -210,6 +224,6 @@ def test_a_blocked_route_is_planned_again_wider_then_circulation_takes_over():
 def test_bad_settings_are_refused():
     """Clearances, times, gains and the lookahead must be positive."""
     with pytest.raises(ValueError):
-        RouteEscape(0.0, GUARD)
+        RouteEscape(0.0)
     with pytest.raises(ValueError):
-        RouteEscape(FREE, GUARD, lookahead=0.0)
+        RouteEscape(FREE, lookahead=0.0)
