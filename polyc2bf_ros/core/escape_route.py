@@ -44,10 +44,9 @@ cones forbid more than the clearance does) is *blocked* once the robot has not m
 clearance, up to ``MAX_WIDEN`` times in a row, then circulation takes over.  A second
 report while following (held again after moving: a part moved, or the route was too
 tight) plans a new route from where the robot stands; so does a deadlock that outlasts a
-route.  When no route exists in
-the window (every way blocked, or none ``ahead`` far enough), the resolution falls back to
-circulation, and a deadlock that outlasts that plans again only ``max_time`` later (not
-on every held step).  A nominal stop passes unchanged.
+route.  When no route exists in the window (every way blocked, or none ``ahead`` far
+enough), the resolution falls back to circulation, and a deadlock that outlasts that plans
+again only ``max_time`` later (not on every held step).  A nominal stop passes unchanged.
 
 Holonomic bases (``point_mass_2d``, body-frame commands [vx, vy] at the odometry yaw psi)
 take d = Rz(psi) [vx, vy] / |[vx, vy]| and follow with the velocity v_n (target - p) /
@@ -211,9 +210,8 @@ def plan_route(obstacles, position, direction, free, window=10.0, cell=0.1, ahea
     heap = np.empty(8 * cells, dtype=np.int64)
     centre = count // 2
     end = route_search(clearance, centre, centre, float(direction[0]), float(direction[1]),
-                       ahead / cell, free, min(free, clearance[centre, centre]),
-                       preferred, weight, parent,
-                       scratch, heap)
+                       ahead / cell, free, min(free, clearance[centre, centre]), preferred,
+                       weight, parent, scratch, heap)
     if end < 0:
         return None
     indices = [int(end)]
@@ -286,9 +284,9 @@ class RouteEscape:
         if renew and now - self._failed < self.max_time:
             return
         if self.holonomic:
-            bearing = math.atan2(float(nominal[1]), float(nominal[0])) + yaw
             if not any(nominal):
                 return
+            bearing = math.atan2(float(nominal[1]), float(nominal[0])) + yaw
         else:
             bearing = yaw + min(max(float(nominal[1]) * INTENT_TIME, -0.5 * math.pi),
                                 0.5 * math.pi)
