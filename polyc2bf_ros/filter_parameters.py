@@ -126,6 +126,8 @@ FILTER_PARAMETERS = {
                       'to rest clear of every obstacle afterwards, else brake now '
                       '(core/braking_check.py)'),
     'braking_margin': ((0.0, 1.0), 'braking check: clearance kept beyond robot_radius [m]'),
+    'obstacle_accel': ((0.0, 100.0), 'planar models: bound [m/s^2] on how fast a moving '
+                       'obstacle changes velocity; its rows hold for any such change (0: none)'),
     'ground_z': (None, '3-D models: height of the ground [m], an obstacle like any other '
                  '(core/ground.py); -.inf: no ground'),
 }

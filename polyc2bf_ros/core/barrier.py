@@ -24,13 +24,21 @@ p_dot = v and::
 With these the CBF condition's terms are (paper eq. 2)::
 
     Lf h = <dh/dp, v> + <dh/dv, a>,     Lg h = B_n^T dh/dv
+
+Obstacles that accelerate (other robots): the terms take c_dot_n as constant, but a
+moving obstacle changes it by c_ddot_n, adding <dh/dv, P_n c_ddot_n> to h_dot.  With
+|c_ddot_n| <= a_o (``obstacle_accel``) the worst case is -a_o |dh/dv|, so the robust
+row uses Lf h - a_o |dh/dv| for every part that moves (``tighten_for_obstacle_accel``).
+dh/dv = p + (s / |v|_e) v holds for every cone model here: the horizon term does not
+depend on v, and the bisector cone's L (u + c v / |v|_e) is the same with p = L u,
+s = L c.  A part at rest is taken to stay at rest, as everywhere else in the filter.
 """
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from polyc2bf_ros.core.jit import kernel
+from polyc2bf_ros.core.jit import F1, F2, F3, kernel, signature
 
 
 @dataclass(slots=True)
@@ -89,3 +97,23 @@ def barrier_column(px, py, shape, ds_dpx, ds_dpy, projections, velocities, posit
     out[first + 1, n] = dh_dpx * vx + dh_dpy * vy + (dh_dvx * ax + dh_dvy * ay)
     store_input_column(projections, input_matrix, dh_dvx, dh_dvy, out, first + 2, n)
     return vx, vy
+
+
+@kernel(signature('void', F2, 'i8', F3, F2, F1, 'f8', 'f8'))
+def tighten_for_obstacle_accel(block, first, projections, velocities, position_rate, eps_sq,
+                               accel):
+    """Subtract ``accel`` |dh/dv| from Lf h (row ``first`` + 1) of every moving part.
+
+    ``block`` is a plane block with p in rows 2-3 and s in row 6 (``cones.PLANE_ROWS``
+    layout); v = P_n (c_dot_n - r_dot) as in ``plane_motion``.
+    """
+    for n in range(block.shape[1]):
+        moving = False
+        for d in range(velocities.shape[1]):
+            moving = moving or velocities[n, d] != 0.0
+        if not moving:
+            continue
+        vx, vy, _, _ = plane_motion(projections, velocities, position_rate, position_rate, n)
+        scale = block[6, n] / math.sqrt(vx * vx + vy * vy + eps_sq)
+        gx, gy = block[2, n] + scale * vx, block[3, n] + scale * vy
+        block[first + 1, n] -= accel * math.sqrt(gx * gx + gy * gy)

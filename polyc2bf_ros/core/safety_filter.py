@@ -82,7 +82,7 @@ from typing import Optional
 
 import numpy as np
 
-from polyc2bf_ros.core.barrier import BarrierTerms
+from polyc2bf_ros.core.barrier import BarrierTerms, tighten_for_obstacle_accel
 from polyc2bf_ros.core.braking_check import clear_around, path_clearance
 from polyc2bf_ros.core.cone_models import CONE_AXES, CONE_MODELS, make_cone_model
 from polyc2bf_ros.core.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K, PLANE_ROWS
@@ -138,6 +138,7 @@ class FilterConfig:
     braking_check: bool = True
     braking_margin: float = 0.002
     ground_z: float = -math.inf
+    obstacle_accel: float = 0.0
 
     @property
     def margin(self):
@@ -152,7 +153,8 @@ class FilterConfig:
             raise ValueError(f'solver must be one of {sorted(SOLVERS)}, got {self.solver!r}')
         positive = ('gamma', 'control_period', 'velocity_epsilon', 'slack_weight',
                     'escape_gain')
-        non_negative = ('robot_radius', 'margin_gain', 'escape_speed', 'braking_margin')
+        non_negative = ('robot_radius', 'margin_gain', 'escape_speed', 'braking_margin',
+                        'obstacle_accel')
         for name in positive + non_negative:
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0 or (name in positive and value == 0):
@@ -383,6 +385,10 @@ class SafetyFilter:
         self._row_settings = (float(self.config.margin), float(self.config.gamma),
                               self._lower, self._upper, bool(self.config.prune))
         self._epsilon = float(self.config.velocity_epsilon)
+        # Robust rows for moving parts (barrier.py); planar models: a 3-D model's ground
+        # moves with the robot.
+        self._obstacle_accel = (float(self.config.obstacle_accel)
+                                if model.position_dim == 2 else 0.0)
         self._braking = bool(self.config.braking_check) and model.position_dim == 2
         self._ground = (float(self.config.ground_z) if model.position_dim == 3
                         and math.isfinite(self.config.ground_z) else None)
@@ -622,9 +628,16 @@ class SafetyFilter:
         """Return (block, valid) of one view (``ConeModel.plane``).
 
         Unchecked kernel: every array here is the filter's own (``_prepare``, the model).
+        With ``obstacle_accel`` > 0 the moving parts' Lf h is made robust to their
+        acceleration (``barrier.tighten_for_obstacle_accel``).
         """
-        return self.cone_model.plane(view.prepared, view, prepared.velocities,
-                                     prepared.offsets, age, ref, self._epsilon, False)
+        block, valid = self.cone_model.plane(view.prepared, view, prepared.velocities,
+                                             prepared.offsets, age, ref, self._epsilon, False)
+        if self._obstacle_accel > 0.0:
+            tighten_for_obstacle_accel(block, PLANE_ROWS, view.projections,
+                                       prepared.velocities, ref.velocity,
+                                       self._epsilon * self._epsilon, self._obstacle_accel)
+        return block, valid
 
     def prepare(self, obstacles):
         """Precompute the views of an obstacle set now (``step`` does it on first use).
