@@ -113,6 +113,7 @@ def tighten_for_obstacle_accel(block, first, projections, velocities, position_r
             moving = moving or velocities[n, d] != 0.0
         if not moving:
             continue
+        # Only v is needed: the drift argument (position_rate again) is ignored.
         vx, vy, _, _ = plane_motion(projections, velocities, position_rate, position_rate, n)
         scale = block[6, n] / math.sqrt(vx * vx + vy * vy + eps_sq)
         gx, gy = block[2, n] + scale * vx, block[3, n] + scale * vy

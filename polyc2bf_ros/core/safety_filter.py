@@ -634,9 +634,9 @@ class SafetyFilter:
         block, valid = self.cone_model.plane(view.prepared, view, prepared.velocities,
                                              prepared.offsets, age, ref, self._epsilon, False)
         if self._obstacle_accel > 0.0:
-            tighten_for_obstacle_accel(block, PLANE_ROWS, view.projections,
-                                       prepared.velocities, ref.velocity,
-                                       self._epsilon * self._epsilon, self._obstacle_accel)
+            tighten_for_obstacle_accel.unchecked(
+                block, PLANE_ROWS, view.projections, prepared.velocities, ref.velocity,
+                self._epsilon * self._epsilon, self._obstacle_accel)
         return block, valid
 
     def prepare(self, obstacles):
