@@ -124,21 +124,39 @@ def _drawn_wall_x(drawn):
 
 @pytest.mark.slow
 def test_a_scan_is_placed_at_the_odometry_stamped_nearest_it():
-    """The robot moves 2 m in 50 odometry messages 0.02 s apart (x = 0.04 k), then is silent.
+    """A scan is placed at the odometry stamped nearest it, not at the latest.
 
-    A scan with a wall 1 m ahead, stamped as message 20 (x = 0.8), is drawn on ``~/markers``
-    at x = 1.8, not at 2.96 as from the latest odometry (x = 1.96); stamped past the last
-    message, at 2.96.  No command: the node only builds and draws obstacles.
+    70 odometry messages 0.02 s apart: the robot drives to x = 0.8 (k = 0-20), stands there
+    (k = 20-40), drives on to x = 1.96 (k = 69), then is silent; before them it stands at
+    x = 0 (earlier stamps) until the node's diagnostics show odometry arrived.
+
+    A scan with a wall 1 m ahead, stamped as message 30, is drawn on ``~/markers`` at
+    x = 1.8, not at 2.96 as from the latest odometry (x = 1.96); stamped past the last
+    message, at 2.96.  The node takes odometry best effort with depth 1, so under load it
+    may drop messages; the stand makes every message near stamp 30 say x = 0.8, so a
+    dropped one cannot move the answer.  No command: the node only builds and draws
+    obstacles.
     """
     with running_filter(params=PARAMS) as proc, Harness() as h:
         drawn = h.collect(MarkerArray, 'safety_filter/markers')
         io = h.filter_io(proc)
         scans = h.publisher(LaserScan, 'scan')
         assert h.wait_for_subscribers(scans), node_log(proc)
-        for k in range(50):
-            io.odom.publish(odometry(x=0.04 * k, stamp=_stamp(k)))
+        warm_up = [-1000]
+
+        def stand_at_start():
+            io.odom.publish(odometry(x=0.0, stamp=_stamp(warm_up[0])))
+            warm_up[0] += 1
+
+        def odometry_arrived():
+            values = latest_status(io.diagnostics)[1]
+            return values.get('age_odom_s', 'inf') != 'inf'
+
+        assert h.spin_until(odometry_arrived, WAIT, stand_at_start, 0.02), node_log(proc)
+        for k in range(70):
+            io.odom.publish(odometry(x=0.04 * (min(k, 20) + max(k - 40, 0)), stamp=_stamp(k)))
             h.spin_for(0.02)
-        scan = [_scan(wall_x=1.0, stamp=_stamp(20))]
+        scan = [_scan(wall_x=1.0, stamp=_stamp(30))]
 
         def drawn_at(x):
             wall_x = _drawn_wall_x(drawn)
@@ -146,7 +164,7 @@ def test_a_scan_is_placed_at_the_odometry_stamped_nearest_it():
 
         assert h.spin_until(lambda: drawn_at(1.8), WAIT, lambda: scans.publish(scan[0]), 0.1), \
             (_drawn_wall_x(drawn), node_log(proc))
-        scan[0] = _scan(wall_x=1.0, stamp=_stamp(80))
+        scan[0] = _scan(wall_x=1.0, stamp=_stamp(99))
         assert h.spin_until(lambda: drawn_at(2.96), WAIT, lambda: scans.publish(scan[0]),
                             0.1), (_drawn_wall_x(drawn), node_log(proc))
 
