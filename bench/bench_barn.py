@@ -1,7 +1,8 @@
 """Wall time of ``evaluate --suite barn`` for one filter x one nominal, and its geometry choices.
 
 Usage: python bench/bench_barn.py [--filter default] [--nominal path] [--jobs 2]
-       [--limit K] [--geometry-worlds 10] [--stalls 8] [--out bench/results/barn.json]
+       [--limit K] [--geometry-worlds 10] [--stalls 8] [--check-rounds 3]
+       [--out bench/results/barn.json]
 
 ``wall``: ``barn_suite.run_barn`` over the shipped worlds exactly as ``evaluate``
 runs them (``--jobs`` processes, default the CPU count), against the issue's
@@ -20,6 +21,12 @@ the choices in ``sim_bridge/barn.py`` cost and save.
   cylinder against only those whose centre is within D of the robot, and the
   step time of both (the cut set is built anew each step, which a real cut-off
   would also have to do as the robot moves).
+
+``braking_check_barrier``: the barrier test of the braking check (doc/design.md 3.10)
+against the clearance test alone, in this process, on the runs of ``CHECK_RUNS`` (where
+the clearance test alone left the safe set, and world 1), on and off alternately for
+``--check-rounds`` rounds: per setting the medians over its runs of the step time p50 /
+p99 as ``evaluate`` records it, the successes and the runs with some h < 0.
 
 ``stall``: the first ``--stalls`` deadlocked runs of ``wall``, run again; at
 their last period the filter's status, speed, nominal and safe speed, its active
@@ -40,7 +47,7 @@ from bench_io import require_installed_checkout, write_records
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge.barn import BarnReferee, load_worlds, ROBOT_NAME, STOP_TIME, WORLDS_FILE
-from sim_bridge.barn_suite import run_barn
+from sim_bridge.barn_suite import run_barn, run_world
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluate import resolve_filters
 from sim_bridge.launcher import body_parameters, params_file
@@ -49,6 +56,7 @@ from sim_bridge.world import CLEARANCE_RANGE, SimWorld
 BUDGET_S = 240.0        # the issue: one filter x one nominal over 200 worlds
 CUTOFFS = (1.0, 2.0, 3.0)  # m
 STRIDE = 10             # periods between compared filter steps
+CHECK_RUNS = ((1, 'path'), (13, 'path'), (43, 'goal'), (260, 'goal'))  # (world, nominal)
 
 
 def _cpu_seconds():
@@ -179,6 +187,27 @@ def body_ms(count=200):
         pb.disconnect(physicsClientId=client)
 
 
+def barrier_check_cost(barrier, rounds):
+    """Return one record per ``braking_check_barrier`` setting over ``CHECK_RUNS``."""
+    by_id = {world.world: world for world in load_worlds(WORLDS_FILE)}
+    runs = {True: [], False: []}
+    for _ in range(rounds):
+        for setting, records in runs.items():
+            for number, nominal in CHECK_RUNS:
+                (record, _), = run_world(by_id[number], [(barrier, nominal)], parameters={
+                    'filter.braking_check_barrier': setting})
+                records.append(record)
+    return [{'bench': 'barn', 'case': 'braking_check_barrier', 'filter': barrier,
+             'barrier_test': setting, 'runs': [list(run) for run in CHECK_RUNS],
+             'rounds': rounds,
+             'step_p50_us': round(float(np.median([r['latency_p50_us'] for r in records])), 1),
+             'step_p99_us': round(float(np.median([r['latency_p99_us'] for r in records])), 1),
+             'success': sum(r['success'] for r in records) // rounds,
+             'runs_with_negative_h': sum(r['deepest_h'] < 0 for r in records) // rounds,
+             'load_after': round(os.getloadavg()[0], 2)}
+            for setting, records in runs.items()]
+
+
 def stalls(worlds, records, barrier, nominal, count):
     """Return a record per deadlocked run (the first ``count``): the filter at its end."""
     by_id = {world.world: world for world in worlds}
@@ -219,6 +248,8 @@ def main(argv=None):
     parser.add_argument('--limit', type=int, default=None, help='only the first K worlds')
     parser.add_argument('--geometry-worlds', type=int, default=10)
     parser.add_argument('--stalls', type=int, default=8)
+    parser.add_argument('--check-rounds', type=int, default=3,
+                        help='rounds of the braking check comparison (0: skip it)')
     parser.add_argument('--out', default='bench/results/barn.json')
     args = parser.parse_args(argv)
     require_installed_checkout()
@@ -248,6 +279,16 @@ def main(argv=None):
                   f'{cut["steps_changed_frac"]:>8.1%} {cut["max_command_change"]:>9.3f} '
                   f'{cut["step_p50_us_all"]:>12.0f} {cut["step_p50_us_cut"]:>12.0f}')
         records += extra
+    if args.check_rounds:
+        compared = barrier_check_cost(barrier, args.check_rounds)
+        print(f'\n{"braking check":<22} {"step p50 us":>11} {"step p99 us":>11} '
+              f'{"success":>7} {"runs h<0":>8}')
+        for row in compared:
+            label = 'clearance and barrier' if row['barrier_test'] else 'clearance only'
+            print(f'{label:<22} {row["step_p50_us"]:>11.0f} {row["step_p99_us"]:>11.0f} '
+                  f'{row["success"]:>4}/{len(CHECK_RUNS):<2} '
+                  f'{row["runs_with_negative_h"]:>8}')
+        records += compared
     if args.stalls:
         found = stalls(worlds, runs, barrier, args.nominal, args.stalls)
         print(f'\n{"world":>5} {"t s":>6} {"status":>7} {"v":>7} {"v nom":>6} {"v safe":>7} '

@@ -125,6 +125,8 @@ FILTER_PARAMETERS = {
     'braking_check': (None, 'planar models: keep an input only if the robot can still brake '
                       'to rest clear of every obstacle afterwards, else brake now '
                       '(core/braking_check.py)'),
+    'braking_check_barrier': (None, 'braking check: also keep every barrier h >= 0 along the '
+                              'way to rest (polyc2bf_horizon), else brake now'),
     'braking_margin': ((0.0, 1.0), 'braking check: clearance kept beyond robot_radius [m]'),
     'obstacle_accel': ((0.0, 100.0), 'planar models: bound [m/s^2] on how fast a moving '
                        'obstacle changes velocity; its rows hold for any such change (0: none)'),

@@ -30,6 +30,12 @@ path B(x+) at least that clear, and a brake continues along the rest of B(x).  B
 the robot stays clear of every obstacle that is static or moves as its stated velocity says,
 as long as the plant follows the model.
 
+The same rule on the barrier (``braking_check_barrier``): with H(x) the smallest h at x
+and along B(x) (``ConeModel.min_h_along``, positions and velocities of the path), u is
+kept when H(x+) >= 0 or H(x+) >= H(x), refused only while H(x) >= 0; by the same
+induction h stays >= 0 once it is, which the clearance alone does not give (a robot
+turning past a cylinder can leave the safe set while its disc stays clear).
+
 Cost: the path (|v| / a_max / T + 8 brake time constants / T rows) is computed in one
 kernel; an obstacle part is only measured against it when its bounding box comes within
 reach of the path's, so the cost grows with the obstacles near the robot, not with all.
@@ -47,7 +53,7 @@ from polyc2bf_ros.core.jit import F2, I1, kernel, signature
 @kernel(signature('f8', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8', 'f8'))
 def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, age, path,
                    period, cutoff):
-    """Return min(cutoff, the smallest signed distance of a ``path`` (K, 2) row to a polygon).
+    """Return min(cutoff, the smallest signed distance of a ``path`` row's x, y to a polygon).
 
     Negative inside.  Polygon n (CCW, rows of ``x``, ``y`` as ``cones.PlanarPolygons``) has
     moved by ``offsets[n]`` and moves at ``velocities[n]``; path row k is at

@@ -194,6 +194,17 @@ class ConeModel(abc.ABC):
     def fill_exits(self, prepared, viewpoints, out):
         """Write ``exits`` of ``viewpoints`` (2, 1 or N) into ``out`` (3, N)."""
 
+    def min_h_along(self, prepared, velocities, offsets, age, start, path, period,
+                    velocity_epsilon):
+        """Return the smallest h of any planar obstacle along a braking path; inf: unsupported.
+
+        ``start`` is the reference point's [x, y, vx, vy] at ``age``, ``path`` (K, 4) rows
+        the same (k + 1) periods on (``RobotModel.braking_path``).  The braking check's
+        barrier test (``SafetyFilter``, ``braking_check_barrier``) uses it; a cone model
+        without it (the default here) is checked for clearance alone.
+        """
+        return math.inf
+
 
 @kernel
 def nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy):

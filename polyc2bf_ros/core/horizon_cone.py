@@ -208,6 +208,92 @@ def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, 
             _add_horizon_term(block, n, distance, ddx, ddy, inv_horizon, vx, vy)
 
 
+@kernel
+def _box_gap(low_x, high_x, low_y, high_y, x, y, count, n):
+    """Return the distance between the box [low, high] and polygon n's bounding box."""
+    box_low_x = box_high_x = x[n, 0]
+    box_low_y = box_high_y = y[n, 0]
+    for j in range(count):
+        box_low_x, box_high_x = min(box_low_x, x[n, j]), max(box_high_x, x[n, j])
+        box_low_y, box_high_y = min(box_low_y, y[n, j]), max(box_high_y, y[n, j])
+    gap_x = max(0.0, box_low_x - high_x, low_x - box_high_x)
+    gap_y = max(0.0, box_low_y - high_y, low_y - box_high_y)
+    return math.sqrt(gap_x * gap_x + gap_y * gap_y)
+
+
+@kernel
+def _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon, bisector,
+           eps_sq):
+    """Return h_tau of polygon n seen from q with relative velocity v; inf where no cone."""
+    a, b, seen = silhouette(x, y, count, n, qx, qy)
+    if not seen:
+        return math.inf
+    distance = math.sqrt(nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)[0])
+    ax, ay, bx, by = x[n, a] - qx, y[n, a] - qy, x[n, b] - qx, y[n, b] - qy
+    speed = math.sqrt(vx * vx + vy * vy + eps_sq)
+    if bisector:
+        length, _, _, ux, uy, c, m_norm, _, _, _ = _bisector_frame(x, y, count, n, qx, qy,
+                                                                   ax, ay, bx, by)
+        if not m_norm > _TINY:
+            return math.inf
+        return length * (ux * vx + uy * vy + speed * c + inv_horizon * distance * (1.0 - c))
+    px, py, _, _, shape, _, _ = midpoint_cone(ax, ay, bx, by, 0.0)
+    gap = max(math.sqrt(px * px + py * py), _TINY) - shape
+    return px * vx + py * vy + speed * shape + inv_horizon * distance * gap
+
+
+@kernel(signature('f8', F2, F2, F2, F2, F2, I1, 'f8', 'b1', F2, F2, 'f8', F1, F2, 'f8',
+                  'f8'))
+def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, velocities,
+                offsets, age, start, path, period, eps_sq):
+    """Return the smallest h_tau of any polygon at ``start`` and every ``path`` row.
+
+    ``start`` and the rows are the reference point's [x, y, vx, vy], ``start`` at ``age``
+    and row k at age + (k + 1) period; polygon n has moved by ``offsets[n]`` and moves at
+    ``velocities[n]``.  Points inside a polygon (no cone) are left out, as the filter
+    leaves such a part out of its rows.  Pruning (bisector axis) is exact: with w the
+    relative velocity, h_tau = L [<u, w> + |w|_e c + (d / tau)(1 - c)] >=
+    L (1 - c)(d / tau - |w|), as c = cos(half-angle) >= 0 and |w|_e >= |w|; so a point whose
+    distance to the polygon's bounding box is at least tau |w| has h_tau >= 0 and is not
+    evaluated, nor is a polygon for which that holds along the whole path.  The midpoint
+    axis's s can be negative close to a polygon, so there every point is evaluated.
+    +inf when nothing is evaluated.
+    """
+    rows = path.shape[0]
+    low_x = high_x = start[0]
+    low_y = high_y = start[1]
+    fastest = math.sqrt(start[2] * start[2] + start[3] * start[3])
+    for k in range(rows):
+        low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
+        low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
+        fastest = max(fastest, math.sqrt(path[k, 2] * path[k, 2] + path[k, 3] * path[k, 3]))
+    moved = max(abs(age), abs(age + rows * period))
+    best = math.inf
+    for n in range(counts.shape[0]):
+        ovx, ovy = velocities[n, 0], velocities[n, 1]
+        obstacle_speed = math.sqrt(ovx * ovx + ovy * ovy)
+        reach = moved * obstacle_speed
+        ox, oy = offsets[n, 0], offsets[n, 1]
+        gap = _box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
+                       high_y - oy + reach, x, y, counts[n], n)
+        if bisector and inv_horizon * gap >= fastest + obstacle_speed:
+            continue
+        for k in range(-1, rows):
+            if k < 0:
+                px, py, pvx, pvy = start[0], start[1], start[2], start[3]
+            else:
+                px, py, pvx, pvy = path[k, 0], path[k, 1], path[k, 2], path[k, 3]
+            t = age + (k + 1) * period
+            qx, qy = px - t * ovx - ox, py - t * ovy - oy
+            vx, vy = ovx - pvx, ovy - pvy
+            if bisector and inv_horizon * _box_gap(qx, qx, qy, qy, x, y, counts[n],
+                                                   n) >= math.sqrt(vx * vx + vy * vy):
+                continue
+            best = min(best, _value(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx, qy, vx,
+                                    vy, inv_horizon, bisector, eps_sq))
+    return best
+
+
 class HorizonCone(InflatedCone):
     """Horizon-aware PolyC2BF on the inflated polygon (module docstring).
 
@@ -231,6 +317,14 @@ class HorizonCone(InflatedCone):
         _horizon_cones(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                        prepared.inv_sq, prepared.counts, viewpoints, self.axis == 'bisector',
                        block, valid)
+
+    def min_h_along(self, prepared, velocities, offsets, age, start, path, period,
+                    velocity_epsilon):
+        """Return h_tau's minimum along a braking path (``min_h_along``, the kernel)."""
+        return min_h_along(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                           prepared.inv_sq, prepared.counts, 1.0 / self.horizon,
+                           self.axis == 'bisector', velocities, offsets, float(age), start,
+                           path, float(period), velocity_epsilon * velocity_epsilon)
 
     def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
                    velocity_epsilon, block, valid, checked):

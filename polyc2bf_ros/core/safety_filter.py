@@ -71,7 +71,8 @@ Fallbacks, always flagged in ``FilterInfo.status``:
   gives straight up, not a crawl sideways along the wall.
 * ``backup``: ``braking_check`` (planar models with a ``braking_path``): the input
   found (also an escape's) would leave the robot a less clear way to brake to rest than
-  braking now; brake now (``polyc2bf_ros.core.braking_check``).
+  braking now, or (``braking_check_barrier``) a way to rest along which some h falls
+  lower; brake now (``polyc2bf_ros.core.braking_check``).
 * ``invalid_input``: NaN/Inf in state, nominal input or obstacles; brake.
 """
 import enum
@@ -136,6 +137,7 @@ class FilterConfig:
     horizon: float = 1.0
     cone_axis: str = 'bisector'
     braking_check: bool = True
+    braking_check_barrier: bool = True
     braking_margin: float = 0.002
     ground_z: float = -math.inf
     obstacle_accel: float = 0.0
@@ -390,6 +392,7 @@ class SafetyFilter:
         self._obstacle_accel = (float(self.config.obstacle_accel)
                                 if model.position_dim == 2 else 0.0)
         self._braking = bool(self.config.braking_check) and model.position_dim == 2
+        self._barrier_check = self._braking and bool(self.config.braking_check_barrier)
         self._ground = (float(self.config.ground_z) if model.position_dim == 3
                         and math.isfinite(self.config.ground_z) else None)
         # The braking check measures paths against the footprints themselves: the robot's
@@ -508,17 +511,42 @@ class SafetyFilter:
 
         ``polyc2bf_ros.core.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x));
         braked only while c(B(x)) > 0 (distances to the footprints less the guard radius).
-        x+ by the midpoint rule over the period with u held (exact for the point mass; an
-        Euler step misplaced it by T^2 a / 2).
+        With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept
+        when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+ by the midpoint rule
+        over the period with u held (exact for the point mass; an Euler step misplaced it
+        by T^2 a / 2).
         """
         period = self.config.control_period
         middle = state + 0.5 * period * self.model.state_derivative(state, u)
-        after = self._path_clearance(state + period * self.model.state_derivative(middle, u),
-                                     prepared, age + period)
-        if after >= self._clearance:
+        after_state = state + period * self.model.state_derivative(middle, u)
+        after_path = self.model.braking_path(after_state, period)
+        after = self._path_clearance(after_path, prepared, age + period)
+        now_path = None
+        if after < self._clearance:
+            now_path = self.model.braking_path(state, period)
+            now = self._path_clearance(now_path, prepared, age)
+            if after < now and now > self.guard_radius:
+                return True
+        if not self._barrier_check:
             return False
-        now = self._path_clearance(state, prepared, age)
-        return after < now and now > self.guard_radius
+        after = self._min_h_along(after_state, after_path, prepared, age + period)
+        if after >= 0.0:
+            return False
+        if now_path is None:
+            now_path = self.model.braking_path(state, period)
+        now = self._min_h_along(state, now_path, prepared, age)
+        return after < now and now >= 0.0
+
+    def _min_h_along(self, state, path, prepared, age):
+        """Return H(state): the smallest h at ``state`` and along its braking ``path``.
+
+        ``ConeModel.min_h_along`` (inf for a cone model without it); planar models only.
+        """
+        ref = self.model.reference(state)
+        return self.cone_model.min_h_along(
+            prepared.views[0].prepared, prepared.velocities, prepared.offsets, age,
+            np.concatenate((ref.position, ref.velocity)), path, self.config.control_period,
+            self._epsilon)
 
     def _far_from_all(self, state, prepared, age):
         """Return True when no obstacle part comes near any path ``_must_brake`` would check.
@@ -553,18 +581,17 @@ class SafetyFilter:
                     return steered, f'braking check: braking the speed, {how} the steering'
         return brake, 'braking check: the input leaves no clear way to stop; braking'
 
-    def _path_clearance(self, state, prepared, age):
-        """Return c(B(state)), capped at the margin (``braking_check.path_clearance``).
+    def _path_clearance(self, path, prepared, age):
+        """Return c(B), capped at the margin, of a braking ``path`` (``path_clearance``).
 
         Unchecked kernel: the footprints, velocities and offsets are the filter's own and
-        the path a fresh C-contiguous float64 array.
+        the path a fresh C-contiguous float64 array (``RobotModel.braking_path``).
         """
         footprints = prepared.footprints
         return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
-            float(age), self.model.braking_path(state, self.config.control_period),
-            self.config.control_period, self._clearance)
+            float(age), path, self.config.control_period, self._clearance)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""

@@ -19,7 +19,7 @@ def test_unicycle_braking_path_stops_straight_at_the_braking_distance(speed):
     """Straight ahead at v: the path runs along the heading and ends at rest after ~v^2/2a."""
     model = make_model('unicycle', offset_l=0.2, max_accel=2.0)
     path = model.braking_path(np.array([1.0, 2.0, np.pi / 2, speed, 0.0]), PERIOD)
-    assert path.shape[1] == 2 and len(path) >= 1
+    assert path.shape[1] == 4 and len(path) >= 1
     assert np.allclose(path[:, 0], 1.0)
     travelled = path[-1, 1] - 2.2
     # Euler steps of the held brake, then the damped tail: within two periods of travel.
@@ -32,17 +32,18 @@ def test_unicycle_braking_path_starts_one_period_ahead_and_curves_with_omega():
     model = make_model('unicycle', offset_l=0.0, max_accel=2.0)
     state = np.array([0.0, 0.0, 0.0, 1.0, 1.0])
     path = model.braking_path(state, PERIOD)
-    assert np.allclose(path[0], [PERIOD * (1.0 - 0.5 * PERIOD * 2.0), 0.0], atol=1e-4)
+    assert np.allclose(path[0, :2], [PERIOD * (1.0 - 0.5 * PERIOD * 2.0), 0.0], atol=1e-4)
     assert path[-1, 1] > 0.01  # turned left while stopping
 
 
 def test_point_mass_braking_path_ends_at_rest():
-    """The double integrator stops per axis at its limit; 3-D paths have three columns."""
+    """The double integrator stops per axis at its limit; 3-D rows are [p, v], six numbers."""
     path = make_model('point_mass_2d', max_accel=3.0).braking_path(
         np.array([0.0, 0.0, 1.5, -0.6]), PERIOD)
     assert np.isclose(path[-1, 0], 1.5 ** 2 / 6.0, atol=2 * PERIOD * 1.5)
     assert path[-1, 1] < 0
-    assert make_model('point_mass_3d').braking_path(np.zeros(6), PERIOD).shape == (1, 3)
+    assert np.allclose(path[-1, 2:], 0.0, atol=1e-4)
+    assert make_model('point_mass_3d').braking_path(np.zeros(6), PERIOD).shape == (1, 6)
 
 
 def _clearance_by_brute_force(polygons, velocities, path, age, cutoff):
@@ -100,7 +101,7 @@ def test_braking_reach_bounds_every_path_the_check_could_compute(name, seed, per
     u = np.clip(u, model.input_lower, model.input_upper)
     reach, duration = model.braking_reach(state, period)
     path = model.braking_path(_held_step(model, state, u, period), period)
-    distances = np.linalg.norm(path - state[:2], axis=1)
+    distances = np.linalg.norm(path[:, :2] - state[:2], axis=1)
     assert distances.max() <= reach + 1e-9
     assert (len(path) + 1) * period <= duration + 1e-12
 

@@ -137,3 +137,61 @@ def test_bad_horizon_settings_are_refused(field, value):
     """A horizon that is not positive or an unknown axis is refused, naming the field."""
     with pytest.raises(ValueError, match=field):
         FilterConfig(barrier='polyc2bf_horizon', **{field: value}).validate()
+
+
+def _min_h_by_evaluation(filt, obstacles, start, path, age, period):
+    """Return min h over the usable parts at ``start`` and each path row (``evaluate``)."""
+    best = math.inf
+    for k, point in enumerate([start, *path]):
+        evaluation = filt.evaluate(point, obstacles, age + k * period)
+        if evaluation.valid.any():
+            best = min(best, float(evaluation.terms.h[evaluation.valid].min()))
+    return best
+
+
+@pytest.mark.parametrize('axis', ['midpoint', 'bisector'])
+@settings(max_examples=examples(120), deadline=None)
+@given(polygons=st.lists(convex_polygons(centre_range=2.5), min_size=1, max_size=3),
+       seed=st.integers(0, 2 ** 32 - 1), horizon=st.sampled_from([0.3, 1.0, math.inf]))
+def test_min_h_along_a_path_is_the_smallest_h_the_filter_evaluates(axis, polygons, seed,
+                                                                     horizon):
+    """The braking check's kernel against ``evaluate`` point by point.
+
+    Where some h along the path is negative the kernel finds that minimum; pruned points
+    have h >= 0, so it never reports a negative h the filter would not, and without
+    pruning (midpoint axis, tau = inf) it is the minimum itself.
+    """
+    rng = np.random.default_rng(seed)
+    velocities = rng.uniform(-0.5, 0.5, (len(polygons), 3)) * rng.integers(0, 2)
+    velocities[:, 2] = 0.0
+    obstacles = ObstacleSet.from_obstacles([Obstacle(polygon=p, velocity=v)
+                                            for p, v in zip(polygons, velocities)])
+    filt = SafetyFilter(make_model('point_mass_2d'), FilterConfig(
+        robot_radius=0.2, horizon=horizon, cone_axis=axis))
+    period, age = 0.01, float(rng.uniform(0.0, 0.1))
+    start = np.r_[rng.uniform(-3.0, 3.0, 2), rng.uniform(-1.5, 1.5, 2)]
+    rows = int(rng.integers(1, 30))
+    path = start + np.cumsum(rng.uniform(-0.05, 0.05, (rows, 4)), axis=0)
+    model = HorizonCone(0.2, horizon=horizon, axis=axis)
+    prepared = model.prepare(PolygonBatch.from_polygons(polygons))
+    kernel = model.min_h_along(prepared, np.ascontiguousarray(velocities[:, :2]),
+                               np.zeros((len(polygons), 2)), age, start, path, period,
+                               filt.config.velocity_epsilon)
+    expected = _min_h_by_evaluation(filt, obstacles, start, path, age, period)
+    assert kernel >= expected - 1e-9
+    if expected < 0.0 or axis == 'midpoint' or horizon == math.inf:
+        assert kernel == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+def test_the_papers_cone_models_leave_the_barrier_test_out():
+    """Only the horizon cone has a path minimum; the others answer inf (clearance alone)."""
+    box = PolygonBatch.from_polygons([np.array([[1.0, -1.0], [2.0, -1.0], [2.0, 1.0],
+                                                [1.0, 1.0]])])
+    start, path = np.array([0.0, 0.0, 2.0, 0.0]), np.array([[0.02, 0.0, 2.0, 0.0]])
+    for barrier in ('polyc2bf_paper', 'polyc2bf_inflated', 'c3bf', 'polyc2bf_horizon'):
+        model = _filter('point_mass_2d', barrier=barrier).cone_model
+        value = model.min_h_along(model.prepare(box), np.zeros((1, 2)), np.zeros((1, 2)),
+                                  0.0, start, path, 0.01, 0.05)
+        assert (value == math.inf) == (barrier != 'polyc2bf_horizon')
+        if barrier == 'polyc2bf_horizon':
+            assert value < 0.0  # 2 m/s straight at a box 0.55 m away: inside the horizon

@@ -96,11 +96,12 @@ class RobotModel(abc.ABC):
         return np.asarray(x, dtype=float)[:self.position_dim]
 
     def braking_path(self, x, period):
-        """Return the reference point's positions (K, position_dim) under ``braking_input``.
+        """Return the reference point's path (K, 2 position_dim) under ``braking_input``.
 
         Row k is where the point is (k + 1) periods after applying the brake at x (held
-        for one period at a time, as the node does), the last at rest.  None: the model
-        has no braking path, and ``braking_check`` does not apply to it.
+        for one period at a time, as the node does), then its velocity there; the last row
+        is at rest.  None: the model has no braking path, and ``braking_check`` does not
+        apply to it.
         """
         return None
 

@@ -19,11 +19,13 @@ from polyc2bf_ros.core.models.base import (
 
 @kernel(signature('i8', F1, 'f8', 'f8', 'f8', F2))
 def _braking_path(x, limit, time_constant, period, out):
-    """Write the positions along the per-axis damped brake into ``out``; return the rows.
+    """Write positions, then velocities along the per-axis damped brake into ``out``.
+
+    Return the rows.
 
     Each period holds the brake's acceleration, as the node holds its input: exact steps.
     """
-    dim = out.shape[1]
+    dim = out.shape[1] // 2
     position, velocity = x[:dim].copy(), x[dim:].copy()
     rows = 0
     for k in range(out.shape[0]):
@@ -33,7 +35,7 @@ def _braking_path(x, limit, time_constant, period, out):
             position[d] += period * (velocity[d] + 0.5 * period * accel)  # exact, a held
             velocity[d] += period * accel
             moving = moving or abs(velocity[d]) >= 1e-4  # then < 1e-4 time_constant to go
-            out[k, d] = position[d]
+            out[k, d], out[k, dim + d] = position[d], velocity[d]
         rows = k + 1
         if not moving:
             break
@@ -79,7 +81,8 @@ class PointMass(RobotModel):
         x = self.as_state(x)
         d = self.position_dim
         stop = float(np.max(np.abs(x[d:]))) / self.input_upper[0]
-        out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2, d))
+        out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2,
+                        2 * d))
         # Unchecked: as_state and out are C-contiguous float64.
         rows = _braking_path.unchecked(x, float(self.input_upper[0]), self.brake_time_constant,
                                        float(period), out)

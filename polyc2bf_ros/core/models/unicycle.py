@@ -46,7 +46,7 @@ def _offset_point(x, offset, position, velocity, drift, input_matrix):
 
 @kernel(signature('i8', F1, 'f8', F1, 'f8', 'f8', F2))
 def _braking_path(x, offset, limits, time_constant, period, out):
-    """Write the reference point's positions along the brake into ``out``; return the rows.
+    """Write the reference point's [x, y, vx, vy] along the brake into ``out``; return the rows.
 
     One midpoint step of the dynamics per period, the damped brake held over it
     (``damped_brake``; exact for a straight stop); ends at rest (|v|, |omega| < 1e-4)
@@ -64,7 +64,9 @@ def _braking_path(x, offset, limits, time_constant, period, out):
         theta += period * (omega + 0.5 * period * alpha)
         v += period * a
         omega += period * alpha
-        out[k, 0], out[k, 1] = px + offset * math.cos(theta), py + offset * math.sin(theta)
+        c, s = math.cos(theta), math.sin(theta)
+        out[k, 0], out[k, 1] = px + offset * c, py + offset * s
+        out[k, 2], out[k, 3] = v * c - offset * omega * s, v * s + offset * omega * c
         rows = k + 1
         if abs(v) < 1e-4 and abs(omega) < 1e-4:
             break  # the rest of the damped stop moves the point by < 1e-4 time_constant
@@ -124,7 +126,7 @@ class Unicycle(RobotModel):
         """Return the reference point's path under the brake (``RobotModel.braking_path``)."""
         x = self.as_state(x)
         stop = abs(x[3]) / self.input_upper[0] + abs(x[4]) / self.input_upper[1]
-        out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2, 2))
+        out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2, 4))
         # Unchecked: as_state, input_upper and out are C-contiguous float64.
         rows = _braking_path.unchecked(x, self.offset_l, self.input_upper,
                                        self.brake_time_constant, float(period), out)
