@@ -46,7 +46,7 @@ is kept without computing x+ or its path.  In open space that is most steps.
 """
 import math
 
-from polyc2bf_ros.core.cones import nearest_edge
+from polyc2bf_ros.core.cones import nearest_edge, polygon_box
 from polyc2bf_ros.core.jit import F2, I1, kernel, signature
 
 
@@ -73,11 +73,7 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, ag
     for n in range(counts.shape[0]):
         vx, vy = velocities[n, 0], velocities[n, 1]
         reach = cutoff + max(abs(age), abs(last)) * math.sqrt(vx * vx + vy * vy)
-        box_low_x = box_high_x = x[n, 0]
-        box_low_y = box_high_y = y[n, 0]
-        for j in range(counts[n]):
-            box_low_x, box_high_x = min(box_low_x, x[n, j]), max(box_high_x, x[n, j])
-            box_low_y, box_high_y = min(box_low_y, y[n, j]), max(box_high_y, y[n, j])
+        box_low_x, box_high_x, box_low_y, box_high_y = polygon_box(x, y, counts[n], n)
         ox, oy = offsets[n, 0], offsets[n, 1]
         if (low_x - ox - reach > box_high_x or high_x - ox + reach < box_low_x
                 or low_y - oy - reach > box_high_y or high_y - oy + reach < box_low_y):
@@ -105,11 +101,7 @@ def clear_around(x, y, counts, velocities, offsets, elapsed, cx, cy, reach):
     for n in range(counts.shape[0]):
         vx, vy = velocities[n, 0], velocities[n, 1]
         grown = reach + elapsed * math.sqrt(vx * vx + vy * vy)
-        low_x = high_x = x[n, 0]
-        low_y = high_y = y[n, 0]
-        for j in range(counts[n]):
-            low_x, high_x = min(low_x, x[n, j]), max(high_x, x[n, j])
-            low_y, high_y = min(low_y, y[n, j]), max(high_y, y[n, j])
+        low_x, high_x, low_y, high_y = polygon_box(x, y, counts[n], n)
         px, py = cx - offsets[n, 0], cy - offsets[n, 1]
         if not (px - grown > high_x or px + grown < low_x
                 or py - grown > high_y or py + grown < low_y):

@@ -207,6 +207,17 @@ class ConeModel(abc.ABC):
 
 
 @kernel
+def polygon_box(x, y, count, n):
+    """Return (low_x, high_x, low_y, high_y): the bounding box of polygon n."""
+    low_x = high_x = x[n, 0]
+    low_y = high_y = y[n, 0]
+    for k in range(count):
+        low_x, high_x = min(low_x, x[n, k]), max(high_x, x[n, k])
+        low_y, high_y = min(low_y, y[n, k]), max(high_y, y[n, k])
+    return low_x, high_x, low_y, high_y
+
+
+@kernel
 def nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy):
     """Return (|d|^2, k, d_x, d_y, inside) for the edge of polygon ``n`` nearest to q.
 

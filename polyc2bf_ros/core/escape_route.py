@@ -58,7 +58,7 @@ import math
 import numpy as np
 
 from polyc2bf_ros.core.circulation import Circulation, steer_towards
-from polyc2bf_ros.core.cones import nearest_edge, PlanarPolygons
+from polyc2bf_ros.core.cones import nearest_edge, PlanarPolygons, polygon_box
 from polyc2bf_ros.core.jit import F1, F2, I1, kernel, signature
 
 START_CELLS = 3
@@ -83,11 +83,7 @@ def grid_clearance(x, y, edge_x, edge_y, inv_sq, counts, x0, y0, cell, cutoff, o
         for j in range(columns):
             out[i, j] = cutoff
     for n in range(counts.shape[0]):
-        low_x = high_x = x[n, 0]
-        low_y = high_y = y[n, 0]
-        for k in range(counts[n]):
-            low_x, high_x = min(low_x, x[n, k]), max(high_x, x[n, k])
-            low_y, high_y = min(low_y, y[n, k]), max(high_y, y[n, k])
+        low_x, high_x, low_y, high_y = polygon_box(x, y, counts[n], n)
         first_i = max(0, int(math.floor((low_y - cutoff - y0) / cell)))
         last_i = min(rows - 1, int(math.ceil((high_y + cutoff - y0) / cell)))
         first_j = max(0, int(math.floor((low_x - cutoff - x0) / cell)))

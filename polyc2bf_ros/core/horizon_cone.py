@@ -64,6 +64,7 @@ from polyc2bf_ros.core.cones import (
     midpoint_cone,
     nearest_edge,
     PLANE_ROWS,
+    polygon_box,
     silhouette,
 )
 from polyc2bf_ros.core.jit import B1, F1, F2, F3, I1, kernel, signature
@@ -209,15 +210,10 @@ def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, 
 
 
 @kernel
-def _box_gap(low_x, high_x, low_y, high_y, x, y, count, n):
-    """Return the distance between the box [low, high] and polygon n's bounding box."""
-    box_low_x = box_high_x = x[n, 0]
-    box_low_y = box_high_y = y[n, 0]
-    for j in range(count):
-        box_low_x, box_high_x = min(box_low_x, x[n, j]), max(box_high_x, x[n, j])
-        box_low_y, box_high_y = min(box_low_y, y[n, j]), max(box_high_y, y[n, j])
-    gap_x = max(0.0, box_low_x - high_x, low_x - box_high_x)
-    gap_y = max(0.0, box_low_y - high_y, low_y - box_high_y)
+def _box_gap(low_x, high_x, low_y, high_y, box):
+    """Return the distance between the box [low, high] and ``box`` (``polygon_box``)."""
+    gap_x = max(0.0, box[0] - high_x, low_x - box[1])
+    gap_y = max(0.0, box[2] - high_y, low_y - box[3])
     return math.sqrt(gap_x * gap_x + gap_y * gap_y)
 
 
@@ -274,8 +270,9 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, vel
         obstacle_speed = math.sqrt(ovx * ovx + ovy * ovy)
         reach = moved * obstacle_speed
         ox, oy = offsets[n, 0], offsets[n, 1]
+        box = polygon_box(x, y, counts[n], n)
         gap = _box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
-                       high_y - oy + reach, x, y, counts[n], n)
+                       high_y - oy + reach, box)
         if bisector and inv_horizon * gap >= fastest + obstacle_speed:
             continue
         for k in range(-1, rows):
@@ -286,8 +283,8 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, vel
             t = age + (k + 1) * period
             qx, qy = px - t * ovx - ox, py - t * ovy - oy
             vx, vy = ovx - pvx, ovy - pvy
-            if bisector and inv_horizon * _box_gap(qx, qx, qy, qy, x, y, counts[n],
-                                                   n) >= math.sqrt(vx * vx + vy * vy):
+            if bisector and inv_horizon * _box_gap(qx, qx, qy, qy, box) >= math.sqrt(
+                    vx * vx + vy * vy):
                 continue
             best = min(best, _value(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx, qy, vx,
                                     vy, inv_horizon, bisector, eps_sq))

@@ -76,6 +76,7 @@ Fallbacks, always flagged in ``FilterInfo.status``:
 * ``invalid_input``: NaN/Inf in state, nominal input or obstacles; brake.
 """
 import enum
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -362,6 +363,31 @@ def _all_finite(array):
     return all(map(math.isfinite, array.ravel().tolist()))
 
 
+class _BrakingNow:
+    """What braking at the step's state x gives: B(x), c(B(x)) and H(x), each once, on use."""
+
+    def __init__(self, safety_filter, state, prepared, age):
+        """Keep what the values are computed from."""
+        self._filter, self._state, self._prepared, self._age = (safety_filter, state,
+                                                                prepared, age)
+
+    @functools.cached_property
+    def path(self):
+        """Return B(x) (``RobotModel.braking_path``)."""
+        return self._filter.model.braking_path(self._state,
+                                               self._filter.config.control_period)
+
+    @functools.cached_property
+    def clearance(self):
+        """Return c(B(x)), capped at the margin."""
+        return self._filter._path_clearance(self.path, self._prepared, self._age)
+
+    @functools.cached_property
+    def min_h(self):
+        """Return H(x), the smallest h at x and along B(x)."""
+        return self._filter._min_h_along(self._state, self.path, self._prepared, self._age)
+
+
 class SafetyFilter:
     """PolyC2BF / C3BF safety filter for one robot model.
 
@@ -467,10 +493,11 @@ class SafetyFilter:
             message = f'outside the safe set: min h = {min_h:.3g}; driving h back up'
         if self._braking and status in (FilterStatus.OK, FilterStatus.RECOVERING,
                                         FilterStatus.SLACK, FilterStatus.ESCAPE):
-            if (not self._far_from_all(state, prepared, obstacle_age)
-                    and self._must_brake(state, u, prepared, obstacle_age)):
-                u, message = self._backup_input(state, u, prepared, obstacle_age)
-                status = FilterStatus.BACKUP
+            if not self._far_from_all(state, prepared, obstacle_age):
+                now = _BrakingNow(self, state, prepared, obstacle_age)
+                if self._must_brake(state, u, prepared, obstacle_age, now):
+                    u, message = self._backup_input(state, u, prepared, obstacle_age, now)
+                    status = FilterStatus.BACKUP
         return u, FilterInfo(
             status=status, h=h, min_h=min_h, active=active,
             solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
@@ -506,7 +533,7 @@ class SafetyFilter:
                                        ACTIVE_TOLERANCE + slack, active)]
         return u, slack, status, message, active
 
-    def _must_brake(self, state, u, prepared, age):
+    def _must_brake(self, state, u, prepared, age, now):
         """Return True when holding ``u`` leaves a less clear way to stop than braking now.
 
         ``polyc2bf_ros.core.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x));
@@ -514,28 +541,21 @@ class SafetyFilter:
         With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept
         when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+ by the midpoint rule
         over the period with u held (exact for the point mass; an Euler step misplaced it
-        by T^2 a / 2).
+        by T^2 a / 2).  ``now`` (``_BrakingNow``) holds what braking at x gives, computed
+        once per step however many inputs are tested.
         """
         period = self.config.control_period
         middle = state + 0.5 * period * self.model.state_derivative(state, u)
         after_state = state + period * self.model.state_derivative(middle, u)
         after_path = self.model.braking_path(after_state, period)
         after = self._path_clearance(after_path, prepared, age + period)
-        now_path = None
-        if after < self._clearance:
-            now_path = self.model.braking_path(state, period)
-            now = self._path_clearance(now_path, prepared, age)
-            if after < now and now > self.guard_radius:
-                return True
+        if (after < self._clearance and after < now.clearance
+                and now.clearance > self.guard_radius):
+            return True
         if not self._barrier_check:
             return False
         after = self._min_h_along(after_state, after_path, prepared, age + period)
-        if after >= 0.0:
-            return False
-        if now_path is None:
-            now_path = self.model.braking_path(state, period)
-        now = self._min_h_along(state, now_path, prepared, age)
-        return after < now and now >= 0.0
+        return after < 0.0 and after < now.min_h and now.min_h >= 0.0
 
     def _min_h_along(self, state, path, prepared, age):
         """Return H(state): the smallest h at ``state`` and along its braking ``path``.
@@ -564,7 +584,7 @@ class SafetyFilter:
             prepared.offsets, max(abs(age), abs(age + duration)), float(state[0]),
             float(state[1]), reach + self._clearance)
 
-    def _backup_input(self, state, u, prepared, age):
+    def _backup_input(self, state, u, prepared, age, now):
         """Return (input, message) once the braking check refused ``u``.
 
         The brake with the model's steering inputs taken from ``u``, if the check keeps
@@ -577,7 +597,7 @@ class SafetyFilter:
             for sign, how in ((1.0, 'keeping'), (-1.0, 'reversing')):
                 steered = brake.copy()
                 steered[steering] = sign * u[steering]
-                if not self._must_brake(state, steered, prepared, age):
+                if not self._must_brake(state, steered, prepared, age, now):
                     return steered, f'braking check: braking the speed, {how} the steering'
         return brake, 'braking check: the input leaves no clear way to stop; braking'
 
