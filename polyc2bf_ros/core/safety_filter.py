@@ -2,9 +2,12 @@
 
 Per control step, for every convex obstacle part i (paper eq. 5)::
 
-    minimise   ||u - u_nom||^2
+    minimise   sum_j W_j (u_j - u_nom_j)^2
     subject to Lf h_i + Lg h_i u + gamma h_i >= m        for every obstacle part i
                u_min <= u <= u_max
+
+W = ``RobotModel.input_weights``: all ones (the paper's ||u - u_nom||^2) unless the
+model is told otherwise (the unicycle's ``steering_weight``).
 
 Discrete time: the node holds u for one control period T, while the
 continuous CBF condition only holds at the sample instants.  Over a hold
@@ -406,7 +409,7 @@ class SafetyFilter:
                                           self.config.cone_axis)
         self.solver = make_solver(self.config.solver)
         self._state_shape, self._input_shape = (model.state_dim,), (model.input_dim,)
-        self._weights = np.ones(model.input_dim)
+        self._weights = np.ascontiguousarray(model.input_weights, dtype=np.float64)
         self._lower = np.ascontiguousarray(model.input_lower, dtype=np.float64)
         self._upper = np.ascontiguousarray(model.input_upper, dtype=np.float64)
         # Plain floats and bools, so every filter shares one compiled version of each kernel.

@@ -122,6 +122,35 @@ def test_one_pass_answer_is_the_solvers(model_name, polygons, seed):
     assert sorted(info.active) == sorted(index[:rows][residuals <= ACTIVE_TOLERANCE])
 
 
+@SETTINGS
+@given(polygons=obstacle_lists.filter(len), seed=st.integers(0, 2 ** 32 - 1),
+       weight=st.floats(0.01, 4.0))
+def test_a_steering_weight_gives_the_weighted_qps_answer(polygons, seed, weight):
+    """Unicycle ``steering_weight`` w: the step minimises (a - a_n)^2 + w (alpha - alpha_n)^2.
+
+    Reference: the plain QP in z = sqrt(W) u (rows A W^-1/2, box scaled), mapped back.
+    """
+    _, state, obstacles, u_nom = _case('unicycle', seed, polygons)
+    model = make_model('unicycle', steering_weight=weight)
+    filt = SafetyFilter(model, FilterConfig(braking_check=False))
+    u, info = filt.step(state, obstacles, u_nom)
+    assume(info.status == FilterStatus.OK)
+    A, b, usable = _constraint_rows(filt, state, obstacles)
+    scale = np.sqrt(np.array([1.0, weight]))
+    result = filt.solver.solve_checked(
+        scale * u_nom, np.ones(2), np.ascontiguousarray(A[usable] / scale), b[usable],
+        scale * model.input_lower, scale * model.input_upper)
+    assume(result.status == QPStatus.OPTIMAL)
+    np.testing.assert_allclose(u, result.x / scale, atol=1e-6)
+
+
+def test_steering_weight_must_be_positive():
+    """A zero, negative or non-finite weight is refused by name."""
+    for bad in (0.0, -1.0, np.inf, np.nan):
+        with pytest.raises(ValueError, match='steering_weight'):
+            make_model('unicycle', steering_weight=bad)
+
+
 BAD = st.sampled_from([np.nan, np.inf, -np.inf])
 
 

@@ -11,6 +11,10 @@ from sim_bridge.lidar import LidarSettings
 from sim_bridge.scenario import load_scenario, scenario_from_dict
 from sim_bridge.world import SimWorld
 
+# The paper's QP cost |u - u_nom|^2 (quadruped.yaml weighs alpha by offset_l^2): braking
+# straight, it stands before a box ahead, the boundary equilibrium a deadlock report is for.
+PAPER_COST = {'model_params.steering_weight': 1.0}
+
 # A diff-drive base heading for a goal behind a wall across its way (face at x = 2.5).
 WALL_AHEAD = {'name': 'wall_ahead', 'duration': 8.0,
               'robots': [{'name': 'base', 'type': 'diff_drive', 'start': [0.0, 0.0, 0.0],
@@ -102,7 +106,7 @@ def test_the_deadlock_report_flags_the_popup_box_and_not_the_long_wall(long_wall
     Slowed and steered along the long wall, then through to the goal: never reported.
     """
     run = run_in_process('popup_obstacle', 'polyc2bf_inflated',
-                         parameters={'deadlock_resolution': 'none'})
+                         parameters={'deadlock_resolution': 'none', **PAPER_COST})
     record = summarise(run, {'a1': 10.0})
     assert record['outcome'] == 'deadlock'
     assert record['deadlocked_at_end'] and record['deadlock_detections'] == 1
@@ -117,16 +121,36 @@ def test_the_deadlock_report_flags_the_popup_box_and_not_the_long_wall(long_wall
 
 @pytest.mark.parametrize('resolution', ['circulate', 'route'])
 def test_each_resolution_resolves_the_popup_box_without_collision(resolution):
-    """Default barrier: reported, steered round the box, at the goal, no contact.
+    """Default barrier, the paper's cost: reported, steered round the box, at the goal.
 
     The report comes deadlock_time after the robot stood; the filter's rows are the same.
     """
     run = run_in_process('popup_obstacle', 'polyc2bf_horizon', duration=30.0,
-                         parameters={'deadlock_resolution': resolution})
+                         parameters={'deadlock_resolution': resolution, **PAPER_COST})
     record = summarise(run, {'a1': 10.0})
     assert record['success'] and not record['collision']
     assert record['min_clearance_m'] is None or record['min_clearance_m'] > 0.05
     assert record['deadlock_detections'] >= 1 and not record['deadlocked_at_end']
+
+
+def test_the_shipped_steering_weight_turns_round_the_popup_box_without_a_deadlock():
+    """quadruped.yaml's cost (steering_weight = offset_l^2): no boundary equilibrium.
+
+    The box appears 1.75 m ahead, straight across the way: the QP turns as it brakes, so
+    the robot never stands, is never reported, and reaches the goal without contact,
+    sooner than the paper's cost with a route after the report.
+    """
+    runs = {name: run_in_process('popup_obstacle', 'polyc2bf_horizon', duration=30.0,
+                                 parameters=parameters)
+            for name, parameters in (('shipped', None), ('paper', PAPER_COST))}
+    shipped, paper = (summarise(runs[name], {'a1': 10.0}) for name in ('shipped', 'paper'))
+    assert shipped['success'] and not shipped['collision']
+    assert shipped['min_clearance_m'] is None or shipped['min_clearance_m'] > 0.05
+    assert shipped['deadlock_detections'] == 0
+    assert not runs['shipped'].robots['a1'].deadlocked.any()
+    assert paper['deadlock_detections'] >= 1
+    times = {name: run.metrics['a1']['time_to_goal_s'] for name, run in runs.items()}
+    assert times['shipped'] < times['paper'], times
 
 
 # A U open towards the quadruped, its goal straight on beyond the closed end.

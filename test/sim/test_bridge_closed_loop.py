@@ -60,8 +60,11 @@ def processes(tmp_path, *commands):
         stop_processes(procs, timeout=10)
 
 
-def controllers(robot, robot_type, goal, with_filter=True):
-    """Return the nominal controller (and filter) commands for one robot namespace."""
+def controllers(robot, robot_type, goal, with_filter=True, **filter_overrides):
+    """Return the nominal controller (and filter) commands for one robot namespace.
+
+    ``filter_overrides``: more filter parameters, over its parameter file.
+    """
     goal_text = '[' + ','.join(f'{g:.1f}' for g in goal) + ']'
     nominal = {'robot_type': robot_type, 'goal': goal_text}
     if not with_filter:
@@ -79,6 +82,7 @@ def controllers(robot, robot_type, goal, with_filter=True):
         params_file = 'quadruped.yaml'
     else:
         params_file = 'crazyflie_thrust.yaml'
+    filter_params.update(filter_overrides)
     return [('nominal', 'sim_bridge.nominal_controller_node', _ros_args(nominal, (), robot)),
             ('filter', 'polyc2bf_ros.safety_filter_node',
              _ros_args(filter_params, (), robot, params_file))]
@@ -260,10 +264,15 @@ def test_popup_marker_goes_out_when_it_appears(tmp_path):
 
 @pytest.mark.slow
 def test_filter_stops_before_a_popup_obstacle(tmp_path):
-    """popup_obstacle with the filter in the loop: the box appears 1.75 m ahead; no collision."""
+    """popup_obstacle with the filter in the loop: the box appears 1.75 m ahead; no collision.
+
+    With the paper's QP cost (steering_weight 1), which brakes straight: the shipped
+    weight turns round the box instead (test_in_process_loop).
+    """
     run_to_end(tmp_path, {'scenario': 'popup_obstacle', 'duration': 6.0, 'record': True,
                           'bag_path': 'bag/run'},
-               *controllers('a1', 'quadruped', (10.0, 0.0)), timeout=120.0)
+               *controllers('a1', 'quadruped', (10.0, 0.0),
+                            **{'model_params.steering_weight': 1.0}), timeout=120.0)
     poses = odometry(read_bag(tmp_path / 'bag' / 'run')[1])
     at_popup = next(p for p in poses if p[0] == 3 * 10 ** 9)
     assert at_popup[1] > 2.0 and at_popup[4] > 0.9  # driving at speed when it appears

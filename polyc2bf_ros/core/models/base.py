@@ -85,6 +85,14 @@ class RobotModel(abc.ABC):
     #: an obstacle's band can still turn away from it (``SafetyFilter``, design.md 3.10).
     steering_inputs = ()
 
+    @property
+    def input_weights(self):
+        """Return W (input_dim,): the filter minimises sum_j W_j (u_j - u_nom_j)^2.
+
+        All ones, the paper's min-norm QP (eq. 3), unless a model says otherwise.
+        """
+        return np.ones(self.input_dim)
+
     #: Distance from the body's centre to the guarded reference point (the offset l of the
     #: unicycle and the quadrotor): the filter keeps the point ``robot_radius`` + this from
     #: every obstacle, so the body's disc (sphere) of ``robot_radius`` around its centre is

@@ -84,14 +84,29 @@ class Unicycle(RobotModel):
     steering_inputs = (1,)   # alpha
 
     def __init__(self, offset_l=0.2, max_accel=2.0, max_angular_accel=4.0,
-                 brake_time_constant=0.05):
-        """Set the offset l [m], |a| <= max_accel, |alpha| <= max_angular_accel."""
+                 brake_time_constant=0.05, steering_weight=1.0):
+        """Set the offset l [m], |a| <= max_accel, |alpha| <= max_angular_accel.
+
+        ``steering_weight`` w [m^2]: the filter's cost is (a - a_nom)^2 + w (alpha -
+        alpha_nom)^2 (``input_weights``).  1 is the paper's QP; w = l^2 makes it the squared
+        change of the guarded point's acceleration |B du|^2 (B^T B = diag(1, l^2), module
+        docstring), so the filter turns as readily as it brakes.
+        """
+        if not (math.isfinite(steering_weight) and steering_weight > 0.0):
+            raise ValueError(f'steering_weight must be positive and finite, '
+                             f'got {steering_weight!r}')
         self.offset_l = float(offset_l)
+        self._weights = np.array([1.0, float(steering_weight)])
         self.guard_offset = abs(self.offset_l)
         self.input_upper = np.array([max_accel, max_angular_accel], dtype=float)
         self.input_lower = -self.input_upper
         self._limits = (float(max_accel), float(max_angular_accel))  # plain floats: per step
         self.brake_time_constant = float(brake_time_constant)
+
+    @property
+    def input_weights(self):
+        """Return [1, steering_weight]: the cost's weights on a and alpha."""
+        return self._weights.copy()
 
     def f(self, x):
         """Return [v cos(theta), v sin(theta), omega, 0, 0]."""
