@@ -89,7 +89,7 @@ class RobotModel(abc.ABC):
     def input_weights(self):
         """Return W (input_dim,): the filter minimises sum_j W_j (u_j - u_nom_j)^2.
 
-        All ones, the paper's min-norm QP (eq. 3), unless a model says otherwise.
+        All ones, the paper's min-norm QP (eq. 5), unless a model says otherwise.
         """
         return np.ones(self.input_dim)
 
