@@ -130,6 +130,9 @@ FILTER_PARAMETERS = {
     'braking_margin': ((0.0, 1.0), 'braking check: clearance kept beyond robot_radius [m]'),
     'obstacle_accel': ((0.0, 100.0), 'planar models: bound [m/s^2] on how fast a moving '
                        'obstacle changes velocity; its rows hold for any such change (0: none)'),
+    'obstacle_velocity_error': ((0.0, 10.0), 'planar models: bound [m/s] on the error of a '
+                                "moving obstacle's estimated velocity; its rows hold for any "
+                                'such error (0: velocities are exact)'),
     'ground_z': (None, '3-D models: height of the ground [m], an obstacle like any other '
                  '(core/ground.py); -.inf: no ground'),
 }

@@ -32,6 +32,14 @@ row uses Lf h - a_o |dh/dv| for every part that moves (``tighten_for_obstacle_ac
 dh/dv = p + (s / |v|_e) v holds for every cone model here: the horizon term does not
 depend on v, and the bisector cone's L (u + c v / |v|_e) is the same with p = L u,
 s = L c.  A part at rest is taken to stay at rest, as everywhere else in the filter.
+
+Velocities that are estimated (tracked scans, marker poses): the true c_dot_n is the
+estimate plus an error delta with |delta| <= e (``obstacle_velocity_error``).  h is convex
+in v wherever s >= 0 (a linear term plus |v|_e s), so the true h >= h - e |dh/dv|, and to
+first order the error moves h_dot by <dh/dp, delta>, at least -e |dh/dp|.  The row
+Lf h + Lg h u + gamma h >= m then holds for every such delta when Lf h is lowered by
+e (|dh/dp| + gamma |dh/dv|) as well, with dh/dp = v + |v|_e ds/dp (the cone's part; the
+horizon term's own gradient, of order d / tau, does not depend on the velocity).
 """
 import math
 from dataclasses import dataclass
@@ -99,13 +107,15 @@ def barrier_column(px, py, shape, ds_dpx, ds_dpy, projections, velocities, posit
     return vx, vy
 
 
-@kernel(signature('void', F2, 'i8', F3, F2, F1, 'f8', 'f8'))
+@kernel(signature('void', F2, 'i8', F3, F2, F1, 'f8', 'f8', 'f8', 'f8'))
 def tighten_for_obstacle_accel(block, first, projections, velocities, position_rate, eps_sq,
-                               accel):
-    """Subtract ``accel`` |dh/dv| from Lf h (row ``first`` + 1) of every moving part.
+                               accel, velocity_error, gamma):
+    """Make the rows of every moving part robust to its acceleration and velocity error.
 
-    ``block`` is a plane block with p in rows 2-3 and s in row 6 (``cones.PLANE_ROWS``
-    layout); v = P_n (c_dot_n - r_dot) as in ``plane_motion``.
+    Lf h (row ``first`` + 1) loses ``accel`` |dh/dv| + ``velocity_error`` (|dh/dp| +
+    ``gamma`` |dh/dv|) (module docstring).  ``block`` is a plane block with p in rows 2-3,
+    s in row 6 and ds/dp in rows 7-8 (``cones.PLANE_ROWS`` layout); v = P_n (c_dot_n -
+    r_dot) as in ``plane_motion``.
     """
     for n in range(block.shape[1]):
         moving = False
@@ -115,6 +125,10 @@ def tighten_for_obstacle_accel(block, first, projections, velocities, position_r
             continue
         # Only v is needed: the drift argument (position_rate again) is ignored.
         vx, vy, _, _ = plane_motion(projections, velocities, position_rate, position_rate, n)
-        scale = block[6, n] / math.sqrt(vx * vx + vy * vy + eps_sq)
+        speed = math.sqrt(vx * vx + vy * vy + eps_sq)
+        scale = block[6, n] / speed
         gx, gy = block[2, n] + scale * vx, block[3, n] + scale * vy
-        block[first + 1, n] -= accel * math.sqrt(gx * gx + gy * gy)
+        dh_dv = math.sqrt(gx * gx + gy * gy)
+        px, py = vx + speed * block[7, n], vy + speed * block[8, n]
+        dh_dp = math.sqrt(px * px + py * py)
+        block[first + 1, n] -= accel * dh_dv + velocity_error * (dh_dp + gamma * dh_dv)

@@ -145,6 +145,7 @@ class FilterConfig:
     braking_margin: float = 0.002
     ground_z: float = -math.inf
     obstacle_accel: float = 0.0
+    obstacle_velocity_error: float = 0.0
 
     @property
     def margin(self):
@@ -160,7 +161,7 @@ class FilterConfig:
         positive = ('gamma', 'control_period', 'velocity_epsilon', 'slack_weight',
                     'escape_gain')
         non_negative = ('robot_radius', 'margin_gain', 'escape_speed', 'braking_margin',
-                        'obstacle_accel')
+                        'obstacle_accel', 'obstacle_velocity_error')
         for name in positive + non_negative:
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0 or (name in positive and value == 0):
@@ -418,8 +419,9 @@ class SafetyFilter:
         self._epsilon = float(self.config.velocity_epsilon)
         # Robust rows for moving parts (barrier.py); planar models: a 3-D model's ground
         # moves with the robot.
-        self._obstacle_accel = (float(self.config.obstacle_accel)
-                                if model.position_dim == 2 else 0.0)
+        planar = model.position_dim == 2
+        self._obstacle_accel = float(self.config.obstacle_accel) if planar else 0.0
+        self._velocity_error = float(self.config.obstacle_velocity_error) if planar else 0.0
         self._braking = bool(self.config.braking_check) and model.position_dim == 2
         self._barrier_check = self._braking and bool(self.config.braking_check_barrier)
         self._ground = (float(self.config.ground_z) if model.position_dim == 3
@@ -678,15 +680,17 @@ class SafetyFilter:
         """Return (block, valid) of one view (``ConeModel.plane``).
 
         Unchecked kernel: every array here is the filter's own (``_prepare``, the model).
-        With ``obstacle_accel`` > 0 the moving parts' Lf h is made robust to their
-        acceleration (``barrier.tighten_for_obstacle_accel``).
+        With ``obstacle_accel`` or ``obstacle_velocity_error`` > 0 the moving parts' Lf h is
+        made robust to their acceleration and velocity error
+        (``barrier.tighten_for_obstacle_accel``).
         """
         block, valid = self.cone_model.plane(view.prepared, view, prepared.velocities,
                                              prepared.offsets, age, ref, self._epsilon, False)
-        if self._obstacle_accel > 0.0:
+        if self._obstacle_accel > 0.0 or self._velocity_error > 0.0:
             tighten_for_obstacle_accel.unchecked(
                 block, PLANE_ROWS, view.projections, prepared.velocities, ref.velocity,
-                self._epsilon * self._epsilon, self._obstacle_accel)
+                self._epsilon * self._epsilon, self._obstacle_accel, self._velocity_error,
+                self._row_settings[1])
         return block, valid
 
     def prepare(self, obstacles):

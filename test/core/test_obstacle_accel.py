@@ -69,3 +69,57 @@ def test_obstacle_accel_must_be_finite_and_non_negative(value):
     """A negative or non-finite bound is refused, naming the field."""
     with pytest.raises(ValueError, match='obstacle_accel'):
         FilterConfig(obstacle_accel=value).validate()
+
+
+@SETTINGS
+@given(model_name=st.sampled_from(PLANAR),
+       barrier=st.sampled_from(['polyc2bf_horizon', 'polyc2bf_inflated']),
+       polygons=st.lists(convex_polygons(centre_range=6.0), min_size=1, max_size=4),
+       seed=st.integers(0, 2**31 - 1), error=st.floats(0.05, 0.5))
+def test_a_velocity_error_lowers_lf_h_by_its_worst_first_order_effect(model_name, barrier,
+                                                                     polygons, seed, error):
+    """Moving parts: Lf h drops by e (|dh/dp| + gamma |dh/dv|); h, Lg h and static parts stay.
+
+    And the bound on h is true: h at any velocity within e of the estimate is at least
+    h - e |dh/dv| (h is convex in v where s >= 0).
+    """
+    rng = np.random.default_rng(seed)
+    moving = rng.random(len(polygons)) < 0.6
+    velocities = [rng.uniform(-1.0, 1.0, 3) * [1, 1, 0] if m else np.zeros(3) for m in moving]
+    obstacles = ObstacleSet.from_obstacles(
+        [Obstacle(polygon=p, velocity=v) for p, v in zip(polygons, velocities)])
+    state = random_state(model_name, rng)
+    model = make_model(model_name)
+    config = FilterConfig(barrier=barrier)
+    plain = SafetyFilter(model, config).evaluate(state, obstacles).block.copy()
+    robust = SafetyFilter(model, FilterConfig(barrier=barrier, obstacle_velocity_error=error)
+                          ).evaluate(state, obstacles).block.copy()
+    lf = PLANE_ROWS + 1
+    assert np.array_equal(np.delete(robust, lf, axis=0), np.delete(plain, lf, axis=0),
+                          equal_nan=True)
+    ref = model.reference(state)
+    eps = config.velocity_epsilon
+    single = SafetyFilter(model, config)
+    for n, v_obs in enumerate(velocities):
+        v = v_obs[:2] - ref.velocity
+        speed = np.sqrt(v @ v + eps * eps)
+        dh_dv = np.linalg.norm(plain[2:4, n] + plain[6, n] / speed * v)
+        dh_dp = np.linalg.norm(v + speed * plain[7:9, n])
+        drop = error * (dh_dp + config.gamma * dh_dv) if moving[n] else 0.0
+        assert robust[lf, n] == pytest.approx(plain[lf, n] - drop, rel=1e-12, abs=1e-12)
+        if not moving[n] or plain[6, n] < 0.0 or not np.isfinite(plain[PLANE_ROWS, n]):
+            continue
+        h_plain = single.evaluate(state, ObstacleSet.from_obstacles(
+            [Obstacle(polygon=polygons[n], velocity=v_obs)])).block[PLANE_ROWS, 0]
+        for angle in np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False):
+            delta = error * np.array([np.cos(angle), np.sin(angle), 0.0])
+            h_true = single.evaluate(state, ObstacleSet.from_obstacles(
+                [Obstacle(polygon=polygons[n], velocity=v_obs + delta)])).block[PLANE_ROWS, 0]
+            assert h_true >= h_plain - error * dh_dv - 1e-9
+
+
+@pytest.mark.parametrize('value', [-0.1, float('nan'), float('inf')])
+def test_obstacle_velocity_error_must_be_finite_and_non_negative(value):
+    """A bad velocity error bound is refused, naming the field."""
+    with pytest.raises(ValueError, match='obstacle_velocity_error'):
+        FilterConfig(obstacle_velocity_error=value).validate()
