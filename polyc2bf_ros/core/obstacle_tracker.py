@@ -3,11 +3,13 @@
 Markers arrive as ADD/MODIFY (replace the obstacle with that key), DELETE (drop
 it) and DELETEALL (drop every obstacle, like RViz does).  Each update carries a
 stamp ``t`` [s] and a reference position ``p`` (the marker pose, or the
-vertices' centroid); the velocity of a key is estimated from successive updates
-and smoothed exponentially::
-
-    v_raw = (p_k - p_{k-1}) / (t_k - t_{k-1})
-    v_k   = a v_raw + (1 - a) v_{k-1}          a = ``smoothing`` in (0, 1]
+vertices' centroid); the velocity of a key is estimated from successive updates by
+the constant-velocity Kalman filter of ``core.constant_velocity``, the one the scan
+tracker uses: in the plane, position measured with standard deviation
+``position_std`` [m] per axis, acceleration noise ``accel_std`` [m/s^2], and a first
+velocity unknown with ``speed_std`` [m/s].  A marker that stands still keeps velocity 0
+exactly (every innovation is 0).  The vertical velocity is the raw difference
+``(z_k - z_{k-1}) / (t_k - t_{k-1})`` (3-D models only).
 
 The previous update is remembered across DELETE/DELETEALL for ``max_gap``
 seconds, so a publisher that clears and re-adds its markers every message still
@@ -43,6 +45,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from polyc2bf_ros.core import constant_velocity
 from polyc2bf_ros.core.geometry import clean_polygon
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.polygon_limits import enclosing_polygon, MAX_PARTS
@@ -125,7 +128,10 @@ IDENTITY = Placement()
 
 @dataclass
 class _Track:
-    """One obstacle: shape and placement at ``stamp`` plus its velocity estimate."""
+    """One obstacle: shape and placement at ``stamp`` plus its velocity estimate.
+
+    ``estimate``: the Kalman filter's (state (4,), covariance (4, 4)) in the plane.
+    """
 
     frame: str
     shape: Shape
@@ -133,6 +139,7 @@ class _Track:
     position: np.ndarray
     stamp: float
     velocity: np.ndarray
+    estimate: tuple
 
     def parts(self, key):
         """``(key, rotated polygon)`` per polygon; ``key#i`` for multi-polygon shapes."""
@@ -152,12 +159,19 @@ class _Track:
 class ObstacleTracker:
     """Obstacles by key, with velocity estimates, rejections and extrapolation."""
 
-    def __init__(self, smoothing=0.5, max_gap=1.0):
-        """``smoothing`` in (0, 1] (1 = raw differences), ``max_gap`` [s] > 0."""
-        if not (0.0 < smoothing <= 1.0 and max_gap > 0.0):
-            raise ValueError('need 0 < smoothing <= 1 and max_gap > 0, '
-                             f'got {smoothing}, {max_gap}')
-        self.smoothing = float(smoothing)
+    def __init__(self, accel_std=2.0, position_std=0.01, speed_std=2.0, max_gap=1.0):
+        """Kalman filter settings (module docstring), all > 0, and ``max_gap`` [s] > 0.
+
+        Defaults: a walker's acceleration (1-2 m/s^2), marker poses good to a centimetre, a
+        first velocity anywhere up to a run.
+        """
+        values = {'accel_std': accel_std, 'position_std': position_std,
+                  'speed_std': speed_std, 'max_gap': max_gap}
+        for name, value in values.items():
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f'{name} must be finite and positive, got {value!r}')
+        self.accel_std, self.speed_std = float(accel_std), float(speed_std)
+        self._noise = float(position_std) ** 2 * np.eye(2)
         self.max_gap = float(max_gap)
         self._tracks = {}
         self._history = {}
@@ -196,16 +210,18 @@ class ObstacleTracker:
         ``position`` (3,) in ``frame`` is the reference point of the velocity estimate.
         """
         position = np.array(position, dtype=float).reshape(3)
-        velocity = np.zeros(3)
         previous = self._history.get(key)
-        if previous is not None:
-            dt = stamp - previous.stamp
-            if dt == 0.0:
-                velocity = previous.velocity
-            elif 0.0 < dt <= self.max_gap:
-                raw = (position - previous.position) / dt
-                velocity = self.smoothing * raw + (1.0 - self.smoothing) * previous.velocity
-        track = _Track(frame, shape, placement, position, float(stamp), velocity)
+        dt = stamp - previous.stamp if previous is not None else math.inf
+        if dt == 0.0:
+            velocity, estimate = previous.velocity, previous.estimate
+        elif 0.0 < dt <= self.max_gap:
+            state, covariance = constant_velocity.predict(*previous.estimate, dt, self.accel_std)
+            estimate = constant_velocity.update(state, covariance, position[:2], self._noise)
+            velocity = np.array([*estimate[0][2:], (position[2] - previous.position[2]) / dt])
+        else:
+            velocity = np.zeros(3)
+            estimate = constant_velocity.initial(position[:2], self._noise, self.speed_std)
+        track = _Track(frame, shape, placement, position, float(stamp), velocity, estimate)
         self._tracks[key] = track
         self._history[key] = track
         self._rejected.pop(key, None)
