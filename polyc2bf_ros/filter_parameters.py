@@ -101,6 +101,9 @@ NODE_PARAMETERS = {
                               'are the robot itself; negative: filter.robot_radius', False),
     'scan_obstacle_depth': (0.10, (0.02, 10.0), 'how far [m] each scan obstacle reaches behind '
                             'the surface the beams lit (the unseen body behind it)', False),
+    'scan_tracking': (True, None, 'track scan clusters from scan to scan (core/scan_tracker.py): '
+                      'obstacles of a confirmed, moving track get its velocity; false: every '
+                      'scan obstacle stands still', False),
 }
 
 # FilterConfig field: ((min, max) or None, description); control_period comes from rate.
@@ -128,6 +131,9 @@ FILTER_PARAMETERS = {
     'braking_check_barrier': (None, 'braking check: also keep every barrier h >= 0 along the '
                               'way to rest (polyc2bf_horizon), else brake now'),
     'braking_margin': ((0.0, 1.0), 'braking check: clearance kept beyond robot_radius [m]'),
+    'braking_dwell': ((0.0, 10.0), 'braking check: how long [s] the robot must stay clear '
+                      'of moving obstacles once at rest; one that would reach it sooner lets '
+                      'the filter back away or move aside instead of braking'),
     'obstacle_accel': ((0.0, 100.0), 'planar models: bound [m/s^2] on how fast a moving '
                        'obstacle changes velocity; its rows hold for any such change (0: none)'),
     'obstacle_velocity_error': ((0.0, 10.0), 'planar models: bound [m/s] on the error of a '

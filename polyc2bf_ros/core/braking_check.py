@@ -30,6 +30,16 @@ path B(x+) at least that clear, and a brake continues along the rest of B(x).  B
 the robot stays clear of every obstacle that is static or moves as its stated velocity says,
 as long as the plant follows the model.
 
+Rest must also be safe from what moves (``braking_dwell`` D): the path ends at rest, and a
+moving part keeps coming.  So c(B) also measures the resting point against each moving part
+for D seconds after the path ends (``DWELL_SAMPLES`` samples, each lowered by half the
+distance the part moves between two, so no sample claims more than the true sweep).  A part
+that would reach the stopped robot within D makes c(B(x)) <= 0: braking promises nothing,
+and the filter's input stands, so a robot may back away from, or move aside for, an obstacle
+that comes at it faster than braking can handle instead of standing to be hit.  (Without it
+the check refused such a flight: fleeing faster means stopping later, nearer the oncoming
+part, so every flight looked worse than braking now.)
+
 The same rule on the barrier (``braking_check_barrier``): with H(x) the smallest h at x
 and along B(x) (``ConeModel.min_h_along``, positions and velocities of the path), u is
 kept when H(x+) >= 0 or H(x+) >= H(x), refused only while H(x) >= 0; by the same
@@ -49,16 +59,28 @@ import math
 from polyc2bf_ros.core.cones import nearest_edge, polygon_box
 from polyc2bf_ros.core.jit import F2, I1, kernel, signature
 
+DWELL_SAMPLES = 20
+"""Samples of the resting point against each moving part over ``braking_dwell``."""
 
-@kernel(signature('f8', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8', 'f8'))
+
+@kernel
+def _signed_distance(x, y, edge_x, edge_y, inv_sq, count, n, px, py):
+    """Return the signed distance (negative inside) of (px, py) to polygon n."""
+    square, _, _, _, inside = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, px, py)
+    return -math.sqrt(square) if inside else math.sqrt(square)
+
+
+@kernel(signature('f8', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8', 'f8', 'f8'))
 def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, age, path,
-                   period, cutoff):
+                   period, cutoff, dwell):
     """Return min(cutoff, the smallest signed distance of a ``path`` row's x, y to a polygon).
 
     Negative inside.  Polygon n (CCW, rows of ``x``, ``y`` as ``cones.PlanarPolygons``) has
     moved by ``offsets[n]`` and moves at ``velocities[n]``; path row k is at
-    age + (k + 1) period.  A polygon whose bounding box stays farther than ``cutoff`` from
-    the path's is not measured.
+    age + (k + 1) period.  A moving polygon is also measured from the last row for ``dwell``
+    seconds after it (module docstring: ``DWELL_SAMPLES`` samples, each less half the
+    polygon's move between two).  A polygon whose bounding box stays farther than ``cutoff``
+    from the path's is not measured.
     """
     rows = path.shape[0]
     if rows == 0:
@@ -69,10 +91,13 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, ag
         low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
         low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
     last = age + rows * period
+    step = dwell / DWELL_SAMPLES
     best = cutoff
     for n in range(counts.shape[0]):
         vx, vy = velocities[n, 0], velocities[n, 1]
-        reach = cutoff + max(abs(age), abs(last)) * math.sqrt(vx * vx + vy * vy)
+        speed = math.sqrt(vx * vx + vy * vy)
+        end = last + dwell if speed > 0.0 else last
+        reach = cutoff + max(abs(age), abs(end)) * speed
         box_low_x, box_high_x, box_low_y, box_high_y = polygon_box(x, y, counts[n], n)
         ox, oy = offsets[n, 0], offsets[n, 1]
         if (low_x - ox - reach > box_high_x or high_x - ox + reach < box_low_x
@@ -80,11 +105,17 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, ag
             continue
         for k in range(rows):
             t = age + (k + 1) * period
-            square, _, _, _, inside = nearest_edge(
-                x, y, edge_x, edge_y, inv_sq, counts[n], n, path[k, 0] - t * vx - ox,
-                path[k, 1] - t * vy - oy)
-            distance = -math.sqrt(square) if inside else math.sqrt(square)
-            best = min(best, distance)
+            best = min(best, _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
+                                              path[k, 0] - t * vx - ox,
+                                              path[k, 1] - t * vy - oy))
+        if speed == 0.0 or dwell <= 0.0:
+            continue
+        for j in range(1, DWELL_SAMPLES + 1):
+            t = last + j * step
+            best = min(best, _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
+                                              path[rows - 1, 0] - t * vx - ox,
+                                              path[rows - 1, 1] - t * vy - oy)
+                       - 0.5 * speed * step)
     return best
 
 

@@ -143,6 +143,7 @@ class FilterConfig:
     braking_check: bool = True
     braking_check_barrier: bool = True
     braking_margin: float = 0.002
+    braking_dwell: float = 1.0
     ground_z: float = -math.inf
     obstacle_accel: float = 0.0
     obstacle_velocity_error: float = 0.0
@@ -161,7 +162,7 @@ class FilterConfig:
         positive = ('gamma', 'control_period', 'velocity_epsilon', 'slack_weight',
                     'escape_gain')
         non_negative = ('robot_radius', 'margin_gain', 'escape_speed', 'braking_margin',
-                        'obstacle_accel', 'obstacle_velocity_error')
+                        'braking_dwell', 'obstacle_accel', 'obstacle_velocity_error')
         for name in positive + non_negative:
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0 or (name in positive and value == 0):
@@ -429,6 +430,7 @@ class SafetyFilter:
         # The braking check measures paths against the footprints themselves: the robot's
         # disc keeps braking_margin, i.e. the guarded point guard_radius + braking_margin.
         self._clearance = self.guard_radius + float(self.config.braking_margin)
+        self._dwell = float(self.config.braking_dwell)
         # The step's reference kinematics, refilled each step (it never leaves the step).
         self._reference = ReferenceKinematics.empty(model.position_dim, model.input_dim)
         # What prepared views depend on: the cone model's settings, dimension and radius.
@@ -586,8 +588,8 @@ class SafetyFilter:
         footprints = prepared.footprints
         return clear_around.unchecked(
             footprints.x, footprints.y, footprints.counts, prepared.velocities,
-            prepared.offsets, max(abs(age), abs(age + duration)), float(state[0]),
-            float(state[1]), reach + self._clearance)
+            prepared.offsets, max(abs(age), abs(age + duration + self._dwell)),
+            float(state[0]), float(state[1]), reach + self._clearance)
 
     def _backup_input(self, state, u, prepared, age, now):
         """Return (input, message) once the braking check refused ``u``.
@@ -616,7 +618,8 @@ class SafetyFilter:
         return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
-            float(age), path, self.config.control_period, self._clearance)
+            float(age), path, self.config.control_period, self._clearance,
+            self._dwell)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.braking_check import clear_around, path_clearance
+from polyc2bf_ros.core.braking_check import clear_around, DWELL_SAMPLES, path_clearance
 from polyc2bf_ros.core.cones import PlanarPolygons
 from polyc2bf_ros.core.geometry import PolygonBatch, signed_distance
 from polyc2bf_ros.core.models import make_model
@@ -46,10 +46,15 @@ def test_point_mass_braking_path_ends_at_rest():
     assert make_model('point_mass_3d').braking_path(np.zeros(6), PERIOD).shape == (1, 6)
 
 
-def _clearance_by_brute_force(polygons, velocities, path, age, cutoff):
+def _clearance_by_brute_force(polygons, velocities, path, age, cutoff, dwell=0.0):
+    """Point-polygon distances along the path, then (moving polygons) densely at rest."""
     distances = [signed_distance(point, polygon + (age + (k + 1) * PERIOD) * velocity)
                  for polygon, velocity in zip(polygons, velocities)
                  for k, point in enumerate(path)]
+    last = age + len(path) * PERIOD
+    distances += [signed_distance(path[-1], polygon + t * velocity)
+                  for polygon, velocity in zip(polygons, velocities) if velocity.any()
+                  for t in last + np.linspace(0.0, dwell, 400)]
     return min(cutoff, min(distances))
 
 
@@ -68,9 +73,42 @@ def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
     answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                             prepared.inv_sq, prepared.counts, velocities,
-                            np.zeros_like(velocities), age, path, PERIOD, cutoff)
+                            np.zeros_like(velocities), age, path, PERIOD, cutoff, 0.0)
     expected = _clearance_by_brute_force(polygons, velocities, path, age, cutoff)
     assert answer == pytest.approx(expected, abs=1e-9)
+
+
+@settings(max_examples=examples(100), deadline=None)
+@given(polygons=st.lists(convex_polygons(centre_range=3.0), min_size=1, max_size=4),
+       seed=st.integers(0, 2 ** 32 - 1), dwell=st.floats(0.05, 2.0))
+def test_the_dwell_at_rest_never_claims_more_room_than_there_is(polygons, seed, dwell):
+    """With a dwell the kernel is at most the dense clearance, and within a sample's move."""
+    rng = np.random.default_rng(seed)
+    start, heading = rng.uniform(-3, 3, 2), rng.uniform(-np.pi, np.pi)
+    path = start + np.outer(np.arange(1, rng.integers(1, 40) + 1) * 0.05,
+                            [np.cos(heading), np.sin(heading)])
+    velocities = rng.uniform(-2.0, 2.0, (len(polygons), 2))
+    velocities[rng.random(len(polygons)) < 0.3] = 0.0
+    prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
+    answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                            prepared.inv_sq, prepared.counts, velocities,
+                            np.zeros_like(velocities), 0.0, path, PERIOD, 0.5, dwell)
+    expected = _clearance_by_brute_force(polygons, velocities, path, 0.0, 0.5, dwell)
+    speed = np.linalg.norm(velocities, axis=1).max()
+    assert answer <= expected + 1e-9
+    assert answer >= expected - speed * dwell / DWELL_SAMPLES - 1e-9
+
+
+def test_a_part_that_would_reach_the_stopped_robot_makes_braking_promise_nothing():
+    """A box 1 m ahead coming at 1.4 m/s: clear along the short stop, not within the dwell."""
+    box = np.array([[1.0, -0.5], [2.0, -0.5], [2.0, 0.5], [1.0, 0.5]])
+    prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box]))
+    path = np.array([[0.0, 0.0]])
+    velocities = np.array([[-1.4, 0.0]])
+    args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
+            prepared.counts, velocities, np.zeros((1, 2)), 0.0, path, PERIOD, 0.5)
+    assert path_clearance(*args, 0.0) == 0.5
+    assert path_clearance(*args, 1.0) < 0.0
 
 
 
@@ -131,7 +169,7 @@ def test_clear_around_promises_what_path_clearance_returns(polygons, seed, cutof
                          rho + cutoff)
     answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                             prepared.inv_sq, prepared.counts, velocities, offsets, age, path,
-                            PERIOD, cutoff)
+                            PERIOD, cutoff, 0.0)
     if clear:
         assert answer == cutoff
     far = PlanarPolygons.from_batch(PolygonBatch.from_polygons([p + 100.0 for p in polygons]))
