@@ -26,18 +26,20 @@ end there.
 (default), what the bridge publishes as markers, or ``scan``, a simulated lidar
 (``lidar``, a ``sim_bridge.lidar.LidarSettings``; default its defaults) on every
 filtered robot, converted as the node converts its ``scan_topics`` (``_ScanView``):
-no ground-truth polygon reaches the filter then.
+no ground-truth polygon reaches the filter then.  With ``marker_pipeline`` (markers
+only) the markers the bridge would publish go through the node's own obstacle pipeline
+(``_MarkerView``), so the filter gets the node's velocity estimates, not the true ones.
 
-Marker obstacles are what the bridge publishes, built as the node builds them:
-static and moving prisms from their footprint polygons and z ranges; other
-robots as the node's polygon for the bridge's CYLINDER marker
+Marker obstacles (without ``marker_pipeline``) are what the bridge publishes, built as
+the node builds them: static and moving prisms from their footprint polygons and z
+ranges; other robots as the node's polygon for the bridge's CYLINDER marker
 (``marker_obstacles.marker_geometry``: ``cylinder_sides`` = 12, circumscribing the
 robot's footprint radius).  Differences from the DDS path, all on the side of
 the exact information:
 
-- obstacle and robot velocities are the true ones; the node estimates them
-  from successive marker poses (``ObstacleTracker``, smoothing 0.5), so it
-  sees a moving obstacle's velocity only a few periods after it appears;
+- obstacle and robot velocities are the true ones (without ``marker_pipeline``); the
+  node estimates them from successive marker poses (``ObstacleTracker``), so it sees a
+  moving obstacle's velocity only a few periods after it appears;
 - the state is the plant's, not the odometry message's (equal up to the
   quaternion round trip of the Crazyflie's attitude);
 - obstacles are never stale and their age is 0 (lockstep markers are stamped
@@ -61,6 +63,7 @@ from pathlib import Path
 
 import numpy as np
 from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Point
 from rclpy.serialization import serialize_message
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -87,6 +90,8 @@ from sim_bridge.scenario import load_scenario
 from sim_bridge.world import SimWorld
 
 NOMINALS = ('goal', 'path')
+MARKER_FRAME = 'world'       # the bridge's default frame_id
+BRIDGE_LINE_WIDTH = 0.02     # m: scale.x of the bridge's outline markers (bridge_node.LINE_WIDTH)
 
 
 def default_barrier(robot_type):
@@ -158,6 +163,7 @@ class ClosedLoopRun:
     ended: object = None
     obstacle_source: str = 'markers'
     lidar: LidarSettings = None
+    marker_pipeline: bool = False
 
 
 class _Robot:
@@ -404,6 +410,102 @@ class _ScanView:
         return self._snapshots[robot]
 
 
+class _MarkerView:
+    """Per filtered robot, the obstacles the node makes of the bridge's obstacle markers.
+
+    Each control period the MarkerArray the bridge would publish to the robot
+    (``bridge_node``: a static prism as its LINE_STRIP outline at z_min with ``scale.z`` its
+    height; a moving one as the same outline about a pose at its vertex mean; every other
+    robot as a CYLINDER of its radius; frame ``world``, stamped with the period's time) runs
+    through the robot's own ``obstacle_intake.ObstaclePipeline``, as the node's obstacle
+    worker runs it: conflation, the ``ObstacleTracker`` (shapes kept while only poses
+    change, the set translated, not rebuilt) and the prepared ``ObstacleSet``.  It goes as
+    the message, not serialized (the pipeline's offline-replay input; the marker functions
+    read a message and the node's CDR view alike): rclpy's serialization alone cost about
+    1 ms per period for 20 outlines, more than the rest of the pass.
+    The full set goes out at the start and whenever an obstacle pops up; in between a
+    period carries the moving markers only, and a period without any runs no pass (the
+    snapshot holds).  The filter thus gets the tracker's velocity estimates from successive
+    marker poses (``core.obstacle_tracker``: zero at first sight), never the true ones.
+    Over DDS the node may still hold the previous period's markers when it answers; here a
+    period's markers always serve it.
+    """
+
+    def __init__(self, world, robots):
+        """Prepare a pipeline per filtered robot; the full set goes out with the first period."""
+        self.world = world
+        self._robots = {name: robot for name, robot in robots.items() if robot.filter is not None}
+        self._pipelines = {name: ObstaclePipeline() for name in self._robots}
+        self._markers = {}  # (footprint.robot, footprint.index) -> (Marker, dynamic)
+        self._version = None  # the obstacle version of the last full set
+        self._step = None  # the physics step the pending messages were built at
+        self._pending = {}  # robot: serialized MarkerArray not yet run through its pipeline
+        self._snapshots = {name: ObstacleSnapshot() for name in self._robots}
+
+    def _marker(self, footprint):
+        """Return (Marker, dynamic) of a footprint as the bridge makes it, then reused."""
+        key = (footprint.robot, footprint.index)
+        entry = self._markers.get(key)
+        if entry is not None:
+            return entry
+        marker = Marker(action=Marker.ADD)
+        marker.header.frame_id = MARKER_FRAME
+        marker.pose.orientation.w = 1.0
+        marker.scale.z = footprint.z_max - footprint.z_min
+        if footprint.robot:
+            diameter = 2.0 * self.world.robot_spec(footprint.name).radius
+            marker.ns, marker.id, marker.type = 'robots', footprint.index, Marker.CYLINDER
+            marker.scale.x = marker.scale.y = diameter
+            dynamic = True
+        else:
+            dynamic = bool(np.any(footprint.velocity))
+            centre = footprint.polygon.mean(axis=0) if dynamic else np.zeros(2)
+            ring = np.vstack([footprint.polygon, footprint.polygon[:1]]) - centre
+            marker.ns, marker.id, marker.type = 'obstacles', footprint.index, Marker.LINE_STRIP
+            marker.points = [Point(x=x, y=y) for x, y in ring.tolist()]
+            marker.scale.x = BRIDGE_LINE_WIDTH
+            marker.pose.position = Point(x=float(centre[0]), y=float(centre[1]),
+                                         z=float(footprint.z_min))
+        entry = self._markers[key] = (marker, dynamic)
+        return entry
+
+    def _publish(self):
+        """Build this step's serialized MarkerArray per filtered robot (module docstring)."""
+        world = self.world
+        self._step = world.steps
+        full = self._version != world.obstacle_version
+        self._version = world.obstacle_version
+        sec, nanosec = divmod(round(world.time * 1e9), 1_000_000_000)
+        stamp = Time(sec=sec, nanosec=nanosec)
+        markers = []
+        for footprint in world.obstacle_footprints(moving_only=not full):
+            marker, dynamic = self._marker(footprint)
+            if dynamic:
+                position = marker.pose.position
+                position.x, position.y = footprint.polygon.mean(axis=0).tolist()
+                if footprint.robot:
+                    position.z = 0.5 * (footprint.z_min + footprint.z_max)
+            marker.header.stamp = stamp
+            markers.append((footprint.name if footprint.robot else None, marker))
+        self._pending = {}
+        for name in self._robots:
+            own = [marker for owner, marker in markers if owner != name]
+            if own or full:
+                self._pending[name] = MarkerArray(markers=own)
+
+    def snapshot(self, robot, state, yaw, now):
+        """Return ``robot``'s snapshot after this period's markers ran through its pipeline."""
+        if self._step != self.world.steps:
+            self._publish()
+        data = self._pending.pop(robot, None)
+        if data is not None:
+            spec = self._robots[robot]
+            self._snapshots[robot] = self._pipelines[robot].run(ObstacleJob(
+                [(data, self.world.time)], MARKER_FRAME, spec.intake, spec.filter_spec,
+                self.world.time))
+        return self._snapshots[robot]
+
+
 def obstacle_free(scenario):
     """Return ``scenario`` without its obstacles (listed and random): the nominal reference."""
     return dataclasses.replace(scenario, obstacles=(), random_obstacles=None)
@@ -411,13 +513,15 @@ def obstacle_free(scenario):
 
 def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=None,
                    progress=None, nominal='goal', until=None, parameters=None,
-                   obstacle_source='markers', lidar=None):
+                   obstacle_source='markers', lidar=None, marker_pipeline=False):
     """Run ``scenario`` (Scenario or name) in lockstep in this process; return ClosedLoopRun.
 
     ``progress(sim_time, duration)`` is called about once per simulated second;
     ``until(sim_time, world, metrics)`` after every period: anything true ends the run;
     ``parameters``: node parameters that override the parameter file's;
-    ``obstacle_source``: 'markers' or 'scan' (by ``lidar``, default ``LidarSettings()``).
+    ``obstacle_source``: 'markers' or 'scan' (by ``lidar``, default ``LidarSettings()``);
+    ``marker_pipeline`` (markers only): the markers go through the node's obstacle
+    pipeline (``_MarkerView``: estimated velocities), not straight to the filter.
     """
     if barrier not in FILTER_CHOICES:
         raise ValueError(f'filter must be one of {", ".join(FILTER_CHOICES)}, got {barrier!r}')
@@ -427,6 +531,8 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
         raise ValueError(f'obstacle source must be one of {", ".join(OBSTACLE_SOURCES)}, '
                          f'got {obstacle_source!r}')
     scanning = obstacle_source == 'scan'
+    if scanning and marker_pipeline:
+        raise ValueError('marker_pipeline needs obstacle_source markers, not scan')
     lidar = (lidar or LidarSettings()).validate() if scanning else None
     if scanning:
         parameters = {**scan_parameters(lidar), **(parameters or {})}
@@ -443,7 +549,10 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
         metrics = RunMetrics(world)
         robots = {spec.name: _Robot(spec, barrier, nominal, period, steps, world, parameters)
                   for spec in scenario.robots}
-        view = _ScanView(world, robots, lidar) if scanning else _ObstacleView(world)
+        if scanning:
+            view = _ScanView(world, robots, lidar)
+        else:
+            view = _MarkerView(world, robots) if marker_pipeline else _ObstacleView(world)
         report_every = max(1, round(1.0 / period))
         start, ended = time.perf_counter(), None
         for k in range(steps):
@@ -476,6 +585,7 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
                              robots={n: r.trace() for n, r in robots.items()},
                              metrics=metrics.to_json(), wall_time_s=wall, robot_radius=radius,
                              nominal=nominal, ended=ended or None,
-                             obstacle_source=obstacle_source, lidar=lidar)
+                             obstacle_source=obstacle_source, lidar=lidar,
+                             marker_pipeline=bool(marker_pipeline))
     finally:
         world.close()

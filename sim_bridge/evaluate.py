@@ -7,22 +7,31 @@ Usage::
              [--obstacle-source markers|scan] [--lidar FIELD=VALUE ...]
     evaluate --suite barn [--worlds FILE] [--nominal path|goal ...] [--filters ...]
              [--jobs N] [--limit K] [--out runs/barn] [--no-plots] [--obstacle-source ...]
+    evaluate --suite dynamic [--worlds 0-19 45 ...] [--difficulty easy medium hard]
+             [--nominal goal|path ...] [--filters ...] [--jobs N] [--out runs/dynamic]
+             [--no-plots] [--obstacle-source ...]
 
 ``--filters`` takes ``polyc2bf_paper``, ``polyc2bf_inflated``, ``c3bf``, ``none``
 and ``default`` (the barrier the robot type's shipped parameter file runs).  The
 BARN suite (``sim_bridge.barn``, ``sim_bridge.barn_suite``) runs the worlds of
 ``--worlds`` (default: the shipped ``bench/data/barn/barn_worlds.json``; ``--limit``:
 the first K) with each nominal (default ``path``) and filter (default
-``default``) over ``--jobs`` processes (default: the CPU count).
+``default``) over ``--jobs`` processes (default: the CPU count).  The dynamic suite
+(``sim_bridge.dynamic_worlds``, ``sim_bridge.dynamic_suite``) runs the 60 generated
+worlds of moving cylinders (``--worlds``: ids and ranges; ``--difficulty``: some of
+easy, medium, hard) with each nominal (default ``goal``) and filter (default
+``default``), also over ``--jobs`` processes.
 
-``--obstacle-source`` (both suites): ``markers`` (default), the ground-truth
+``--obstacle-source`` (every suite): ``markers`` (default), the ground-truth
 polygons the bridge publishes, or ``scan``: each filtered robot carries the
 simulated 2-D lidar of ``sim_bridge.lidar`` (``LidarSettings`` defaults: 360
 beams over 360 deg, 10 m, 10 Hz, no noise, the scan plane through the base
 origin; ``--lidar FIELD=VALUE`` changes one) and its filter gets only what the
-node makes of the scans (``closed_loop``).  Every record carries
-``obstacle_source`` (and ``lidar``, the settings, in scan mode); the tables have
-an ``obstacles`` column.  What follows describes the scenario suite.
+node makes of the scans (``closed_loop``).  The dynamic suite's markers go through
+the node's obstacle pipeline, so its filter uses estimated velocities, not the true
+ones.  Every record carries ``obstacle_source`` (and ``lidar``, the settings, in scan
+mode); the tables have an ``obstacles`` column.  What follows describes the scenario
+suite.
 
 Each run is the in-process lockstep loop of ``sim_bridge.closed_loop`` (the
 PyBullet world, the ``nominal_controller`` law and the node's ``CommandFilter``),
@@ -86,6 +95,7 @@ import yaml
 from polyc2bf_ros.core.decision import RESOLUTIONS
 from sim_bridge import plots
 from sim_bridge.closed_loop import default_barrier, NOMINALS, obstacle_free, run_in_process
+from sim_bridge.dynamic_worlds import DIFFICULTIES
 from sim_bridge.launcher import FILTER_CHOICES, OBSTACLE_SOURCES
 from sim_bridge.lidar import lidar_settings, PARAMETER_FIELDS as LIDAR_FIELDS
 from sim_bridge.metrics import GOAL_TOLERANCE
@@ -99,7 +109,7 @@ FALLBACKS = ('slack', 'brake', 'escape', 'backup')
 GRAZE = 0.01          # m: clearances below this are reported as near-contacts
 DEFAULT_RANDOM_SEEDS = 3
 FILTER_NAMES = FILTER_CHOICES + ('default',)
-SUITES = ('scenarios', 'barn')
+SUITES = ('scenarios', 'barn', 'dynamic')
 KEYS = ('scenario', 'filter', 'seed', 'obstacle_source', 'success', 'collision', 'deadlock',
         'min_clearance_m', 'time_to_goal_ratio', 'mean_intervention', 'fallback_rate',
         'latency_p50_us', 'latency_p99_us')
@@ -569,15 +579,16 @@ def _plots(out, runs, rows):
 
 
 def _parser():
-    """Return the command line parser of both suites."""
+    """Return the command line parser of every suite."""
     parser = argparse.ArgumentParser(prog='evaluate', description=__doc__.split('\n')[0])
     parser.add_argument('--suite', choices=SUITES, default='scenarios',
-                        help='scenarios (default): the shipped scenario files; barn: BARN worlds')
+                        help='scenarios (default): the shipped scenario files; barn: BARN worlds; '
+                        'dynamic: the generated worlds of moving cylinders')
     parser.add_argument('--filters', nargs='+', default=None, choices=FILTER_NAMES,
                         metavar='FILTER', help=f'filters among {", ".join(FILTER_NAMES)} '
-                        '(default: all but default for scenarios, default for barn)')
+                        '(default: all but default for scenarios, default for barn and dynamic)')
     parser.add_argument('--out', default=None,
-                        help='output directory (default runs/eval, runs/barn for barn)')
+                        help='output directory (default runs/eval, runs/barn, runs/dynamic)')
     parser.add_argument('--no-plots', action='store_true', help='skip the PNG plots')
     parser.add_argument('--deadlock-resolution', choices=RESOLUTIONS, default=None,
                         help="the filter's deadlock_resolution (default: the parameter "
@@ -601,15 +612,19 @@ def _parser():
                            f'(default {DEFAULT_RANDOM_SEEDS})')
     scenarios.add_argument('--duration', type=float, default=None,
                            help="sim seconds per run (default: each scenario's)")
-    barn = parser.add_argument_group('barn suite')
-    barn.add_argument('--worlds', default=None, metavar='FILE',
-                      help='BARN world file (default: the shipped bench/data/barn copy)')
+    barn = parser.add_argument_group('barn and dynamic suites')
+    barn.add_argument('--worlds', nargs='+', default=None, metavar='FILE|ID',
+                      help='barn: the world file (default: the shipped bench/data/barn copy); '
+                      'dynamic: world ids and ranges, e.g. 0-19 45 (default: all 60)')
     barn.add_argument('--nominal', nargs='+', choices=NOMINALS, default=None,
-                      help='nominal controller(s): path (default) and/or goal')
+                      help='nominal controller(s): path and/or goal (default: path for barn, '
+                      'goal for dynamic)')
     barn.add_argument('--jobs', type=int, default=None,
                       help='processes (default: the CPU count)')
     barn.add_argument('--limit', type=int, default=None, metavar='K',
-                      help='only the first K worlds of the file')
+                      help='barn: only the first K worlds of the file')
+    barn.add_argument('--difficulty', nargs='+', choices=list(DIFFICULTIES), default=None,
+                      help='dynamic: only worlds of these difficulties (default: all)')
     return parser
 
 
@@ -642,22 +657,43 @@ def lidar_from_args(parser, args):
 
 
 SUITE_OPTIONS = {'scenarios': ('scenarios', 'seeds', 'random_seeds', 'duration'),
-                 'barn': ('worlds', 'nominal', 'jobs', 'limit')}
+                 'barn': ('worlds', 'nominal', 'jobs', 'limit'),
+                 'dynamic': ('worlds', 'nominal', 'jobs', 'difficulty')}
+
+
+def _misplaced_options(suite, args):
+    """Return {owning suites: [given options]} for options given that ``suite`` does not take."""
+    owners = {}
+    for name, options in SUITE_OPTIONS.items():
+        for option in options:
+            owners.setdefault(option, []).append(name)
+    misplaced = {}
+    for option, suites in owners.items():
+        if suite not in suites and getattr(args, option) is not None:
+            misplaced.setdefault(' or '.join(suites), []).append(
+                f'--{option.replace("_", "-")}')
+    return misplaced
 
 
 def main(argv=None):
     """Run the evaluation suite and write its outputs; exit 0, 2 on bad arguments, 130 on ^C."""
     parser = _parser()
     args = parser.parse_args(argv)
-    for suite, options in SUITE_OPTIONS.items():
-        given = [f'--{o.replace("_", "-")}' for o in options if getattr(args, o) is not None]
-        if suite != args.suite and given:
-            parser.error(f'{", ".join(given)} belong(s) to --suite {suite}')
+    for suites, given in _misplaced_options(args.suite, args).items():
+        parser.error(f'{", ".join(given)} belong(s) to --suite {suites}')
     command = ('evaluate ' + ' '.join(sys.argv[1:] if argv is None else argv)).strip()
     if args.suite == 'barn':
+        if args.worlds is not None:
+            if len(args.worlds) != 1:
+                parser.error('--suite barn takes one --worlds FILE')
+            args.worlds = args.worlds[0]
         # Imported here: the BARN suite builds on this module's record helpers.
         from sim_bridge.barn_suite import main_barn
         return main_barn(parser, args, command)
+    if args.suite == 'dynamic':
+        # Imported here, as for BARN: the dynamic suite builds on this module's helpers.
+        from sim_bridge.dynamic_suite import main_dynamic
+        return main_dynamic(parser, args, command)
     scenarios = args.scenarios or scenario_names()
     unknown = [s for s in scenarios if s not in scenario_names() and not Path(s).is_file()]
     if unknown:

@@ -15,7 +15,8 @@ Quadrotor scenarios add a side view (x, z) with each prism's x extent and z rang
 
 BARN figures (``barn_*``): outcome shares per filter x nominal beside the DWA
 baseline, sample worlds' cylinders with each filter's path, and the metric's
-histogram.
+histogram.  Dynamic-world figures (``dynamic_*``): outcome shares per difficulty, and
+sample worlds' cylinder loops, the cylinders where a run ended and each filter's path.
 """
 import math
 
@@ -25,6 +26,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, FancyArrowPatch, Polygon, Rectangle
 
 from polyc2bf_ros.core.geometry import minimum_enclosing_circle
+from sim_bridge.dynamic_worlds import COURSE, CYLINDER_RADIUS, GOAL, START
 from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.world import CLEARANCE_RANGE
 
@@ -323,3 +325,95 @@ def barn_metric_figure(path_png, records, combos, baseline_metric):
     ax.legend(fontsize=7)
     ax.grid(True, linewidth=0.3)
     figure.savefig(path_png, dpi=90)
+
+
+DYNAMIC_OUTCOME_COLORS = {'success': 'tab:green', 'contact_at_fault': 'tab:red',
+                          'contact_passive': 'tab:orange', 'timeout': '0.6'}
+
+
+def dynamic_outcomes_figure(path_png, rows):
+    """Stacked bars per filter x nominal x source and difficulty: shares of each outcome.
+
+    ``rows`` are ``dynamic_suite.aggregate_dynamic`` rows (a row per difficulty and 'all').
+    """
+    labels = [f'{r["filter"]}\n{r["nominal"]}, {r["obstacle_source"]}\n{r["difficulty"]}'
+              for r in rows]
+    figure = Figure(figsize=(max(6.0, 1.0 * len(labels) + 1.5), 5.0), layout='constrained')
+    ax = figure.subplots()
+    x = np.arange(len(labels))
+    bottom = np.zeros(len(labels))
+    for outcome, color in DYNAMIC_OUTCOME_COLORS.items():
+        shares = np.array([r[outcome] / r['runs'] for r in rows])
+        ax.bar(x, shares, 0.7, bottom=bottom, color=color, label=outcome.replace('_', ' '))
+        bottom += shares
+    for index, r in enumerate(rows):
+        share = r['success'] / r['runs']
+        ax.annotate(f'{share:.2f}', (index, share / 2), ha='center', va='center', fontsize=8)
+    ax.set_xticks(x, labels, fontsize=7)
+    ax.set_ylim(0.0, 1.0)
+    ax.set_ylabel('share of worlds')
+    ax.grid(True, axis='y', linewidth=0.3)
+    ax.legend(loc='upper center', bbox_to_anchor=(0.5, -0.2), ncols=4, fontsize=8)
+    ax.set_title('Dynamic worlds: outcomes per difficulty')
+    figure.savefig(path_png, dpi=90)
+
+
+def _draw_dynamic_world(ax, world, end_time, contact):
+    """Draw a dynamic world's course, start, goal, cylinder loops and cylinders at ``end_time``."""
+    (x0, y0), (x1, y1) = COURSE
+    ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor='0.5',
+                           linewidth=0.6, linestyle='--'))
+    for trajectory in world.cylinders:
+        ax.plot(*trajectory.points(16).T, color='0.6', linewidth=0.6)
+    touched = None if contact is None else contact['cylinder']
+    circles = [Circle(c.position(end_time), CYLINDER_RADIUS) for c in world.cylinders]
+    colors = ['tab:red' if f'cylinder_{i}' == touched else 'lightsteelblue'
+              for i in range(len(circles))]
+    ax.add_collection(PatchCollection(circles, facecolor=colors, edgecolor='0.2', alpha=0.7,
+                                      linewidth=0.5))
+    ax.plot(*START[:2], 'ok', markersize=4)
+    ax.plot(*GOAL, '*k', markersize=9)
+    ax.add_patch(Circle(GOAL, 1.0, fill=False, edgecolor='0.4', linewidth=0.6))
+    ax.set_xlim(x0 - 1.0, x1 + 1.0)
+    ax.set_ylim(y0 - 1.0, y1 + 1.0)
+    ax.set_aspect('equal')
+    ax.tick_params(labelsize=7)
+
+
+def dynamic_trajectories_figure(path_png, worlds, trajectories, combos):
+    """Grid of sample worlds: the cylinders' loops and where they were when the run ended.
+
+    One panel per world (``DynamicWorld``), every (filter, nominal) of ``combos`` drawn;
+    cylinders at the end of the first combo's run (red: the one touched).
+    ``trajectories[(world id, filter, nominal)]`` holds ``positions`` (K, 2),
+    ``end_time`` [s] and ``contact`` (None or the referee's contact).
+    """
+    columns = min(3, max(1, len(worlds)))
+    rows = math.ceil(len(worlds) / columns)
+    figure = Figure(figsize=(5.2 * columns, 3.6 * rows + 0.4), layout='constrained')
+    axes = np.atleast_1d(figure.subplots(rows, columns, squeeze=False).ravel())
+    for ax in axes[len(worlds):]:
+        ax.set_visible(False)
+    for ax, world in zip(axes, worlds):
+        runs = [(name, nominal, trajectories.get((world.world, name, nominal)))
+                for name, nominal in combos]
+        runs = [run for run in runs if run[2] is not None]
+        first = runs[0][2] if runs else {'end_time': 0.0, 'contact': None}
+        _draw_dynamic_world(ax, world, first['end_time'], first['contact'])
+        for name, nominal, trajectory in runs:
+            ax.plot(*trajectory['positions'].T, color=FILTER_COLORS.get(name, 'tab:blue'),
+                    linestyle=NOMINAL_STYLES.get(nominal, '-'), linewidth=1.3,
+                    label=f'{name} / {nominal}')
+            if trajectory['contact'] is not None:
+                ax.plot(*trajectory['contact']['robot_position'], 'x', color='red',
+                        markersize=8, markeredgewidth=2)
+        contact = first['contact']
+        outcome = 'no contact' if contact is None else f'contact, {contact["kind"]}'
+        outcome = outcome.replace('_', ' ')
+        ax.set_title(f'world {world.world} ({world.difficulty}, {len(world.cylinders)} '
+                     f'cylinders): {outcome} at {first["end_time"]:.1f} s', fontsize=8)
+    if len(worlds):
+        axes[0].legend(loc='lower right', fontsize=6)
+    figure.suptitle('Dynamic sample worlds: loops (grey), cylinders at the end of the run '
+                    '(red: touched), paths (x: contact)')
+    figure.savefig(path_png, dpi=80)

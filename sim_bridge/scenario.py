@@ -201,6 +201,12 @@ class ObstacleSpec:
     It exists from sim time ``appear_at`` [s] on (0: from the start).  With ``radius``
     it is the cylinder of that radius about the footprint's vertex mean, and the
     footprint is the polygon circumscribing it (``cylinder_polygon``).
+
+    ``trajectory`` (instead of a constant ``velocity``, which must then be 0): any object
+    with ``position(t)`` (2,) [m] and ``velocity(t)`` (2,) [m/s] at sim time t, e.g.
+    ``sim_bridge.dynamic_worlds.LoopTrajectory``.  The prism translates rigidly by
+    ``position(t) - position(appear_at)`` (``offset``), so ``polygon`` is still its footprint
+    at ``appear_at``, and its published velocity is ``velocity(t)``.  Not in scenario files.
     """
 
     name: str
@@ -209,11 +215,34 @@ class ObstacleSpec:
     velocity: np.ndarray = dataclasses.field(default_factory=lambda: _frozen([0.0, 0.0]))
     appear_at: float = 0.0
     radius: float = None
+    trajectory: object = None
+
+    def __post_init__(self):
+        """Refuse a trajectory together with a constant velocity."""
+        if self.trajectory is not None and np.any(self.velocity != 0.0):
+            raise ScenarioError(f'obstacle {self.name!r}: a trajectory and a velocity '
+                                f'{np.asarray(self.velocity).tolist()} exclude each other')
 
     @property
     def moving(self):
-        """Return True when the obstacle translates."""
-        return bool(np.any(self.velocity != 0.0))
+        """Return True when the obstacle translates (a velocity or a trajectory)."""
+        return self.trajectory is not None or bool(np.any(self.velocity != 0.0))
+
+    def offset(self, time):
+        """Return its translation (2,) at sim ``time`` from its footprint ``polygon``.
+
+        velocity (t - appear_at), or position(t) - position(appear_at) on a trajectory.
+        """
+        if self.trajectory is None:
+            return self.velocity * (time - self.appear_at)
+        return (np.asarray(self.trajectory.position(time), dtype=float)
+                - self.trajectory.position(self.appear_at))
+
+    def velocity_at(self, time):
+        """Return its velocity (2,) at sim ``time``: ``velocity``, or the trajectory's."""
+        if self.trajectory is None:
+            return self.velocity
+        return np.asarray(self.trajectory.velocity(time), dtype=float)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -11,7 +11,11 @@ physics step of ``dt = 1 / physics_rate``; commands are held between
 ``set_command`` calls (zero-order hold).  A pop-up obstacle (``appear_at`` =
 t_a > 0) gets its bodies at the first step with t >= t_a; until then it is in
 no footprint list, clearance or collision, and ``obstacle_version`` counts
-the appearances so a publisher can send the new set at once.
+the appearances so a publisher can send the new set at once.  A moving obstacle
+translates at a constant velocity, or along its ``trajectory``
+(``ObstacleSpec``): each physics step moves its bodies (and, on ``ray_scene()``,
+its copy for the lidars) to the step's time, and its footprint carries the
+instantaneous velocity.
 
 Quadruped (Unitree A1, ``pybullet_data/a1/a1.urdf``, a dynamic body) and
 diff-drive base (an upright PyBullet cylinder of the scenario's ``radius`` and
@@ -133,11 +137,13 @@ def _finite(cmd, size, what):
 
 
 class _Obstacle:
-    """Static or constant-velocity prism: one mass-0 body per convex part, sharing an anchor.
+    """Static, constant-velocity or trajectory prism: a mass-0 body per convex part, one anchor.
 
     It is present from ``appear()`` on (at construction when ``appear_at`` is 0); its
     bodies are made then, or with ``lazy`` on the first ``bodies_at``.  ``exact``: collision
     margin 0 (exact closest points; rays miss most such shapes), else Bullet's default.
+    A moving one is translated by ``offset(t)`` (``ObstacleSpec.offset``): v (t - t_a), or
+    p(t) - p(t_a) along its ``trajectory``, whose ``velocity(t)`` its footprint carries.
     """
 
     def __init__(self, spec, index, client, lazy, exact=True):
@@ -146,6 +152,9 @@ class _Obstacle:
         self.client = client
         self.exact = exact
         self.moving = spec.moving
+        self.trajectory = spec.trajectory
+        if self.trajectory is not None:  # where the trajectory is when ``polygon`` holds
+            self.origin = np.asarray(self.trajectory.position(spec.appear_at), dtype=float)
         self.anchor = np.mean(spec.polygon, axis=0)
         velocity = np.append(spec.velocity, 0.0)
         self.footprint = Footprint(spec.name, spec.polygon, spec.z[0], spec.z[1], velocity,
@@ -195,11 +204,15 @@ class _Obstacle:
         return self.bodies
 
     def offset(self, time):
-        """Return the translation since it appeared: velocity * (time - appear_at)."""
-        return self.spec.velocity * (time - self.spec.appear_at)
+        """Return the translation since it appeared: v (t - t_a), or p(t) - p(t_a)."""
+        if self.trajectory is None:
+            return self.spec.velocity * (time - self.spec.appear_at)
+        return np.asarray(self.trajectory.position(time), dtype=float) - self.origin
 
     def place(self, time):
-        """Move every part to its position at ``time``."""
+        """Move every part to its position at ``time`` (nothing while it has no bodies)."""
+        if not self.bodies:
+            return
         x, y = self.anchor + self.offset(time)
         for body, z in zip(self.bodies, self.heights):
             pb.resetBasePositionAndOrientation(body, (x, y, z), (0.0, 0.0, 0.0, 1.0),
@@ -210,8 +223,11 @@ class _Obstacle:
         if not self.moving:
             return self.footprint
         spec = self.spec
+        velocity = self.footprint.velocity
+        if self.trajectory is not None:  # the instantaneous velocity
+            velocity = np.append(self.trajectory.velocity(time), 0.0)
         return Footprint(spec.name, spec.polygon + self.offset(time), spec.z[0], spec.z[1],
-                         self.footprint.velocity, self.footprint.index)
+                         velocity, self.footprint.index)
 
 
 class _Robot:
@@ -538,6 +554,11 @@ class SimWorld:
         self._near = {}  # (robot, search distance) -> listed obstacles (_near_obstacles)
         self._velocities = np.array([o.spec.velocity for o in self._obstacles]).reshape(-1, 2)
         self._appear_at = np.array([o.spec.appear_at for o in self._obstacles]).reshape(-1, 1)
+        # Obstacles on a trajectory: their rows of _offsets come from it (here: t = 0).
+        self._trajectories = [(index, o) for index, o in enumerate(self._obstacles)
+                              if o.trajectory is not None]
+        for index, obstacle in self._trajectories:
+            self._offsets[index] = obstacle.offset(0.0)
 
     @property
     def time(self):
@@ -592,6 +613,8 @@ class SimWorld:
             for obstacle in self._moving:
                 obstacle.place(time)
             np.multiply(self._velocities, time - self._appear_at, out=self._offsets)
+            for index, obstacle in self._trajectories:
+                self._offsets[index] = obstacle.offset(time)
 
     def _reveal(self):
         """Create the bodies of pop-up obstacles whose ``appear_at`` has come."""
