@@ -131,9 +131,9 @@ FILTER_PARAMETERS = {
     'braking_check_barrier': (None, 'braking check: also keep every barrier h >= 0 along the '
                               'way to rest (polyc2bf_horizon), else brake now'),
     'braking_margin': ((0.0, 1.0), 'braking check: clearance kept beyond robot_radius [m]'),
-    'braking_dwell': ((0.0, 10.0), 'braking check: how long [s] the robot must stay clear '
-                      'of moving obstacles once at rest; one that would reach it sooner lets '
-                      'the filter back away or move aside instead of braking'),
+    'braking_obstacle_accel': ((0.0, 100.0), 'braking check: bound [m/s^2] on how fast a '
+                               'moving obstacle changes velocity on the way to rest; a '
+                               'point t s ahead loses a t^2 / 2 of its clearance to it'),
     'obstacle_accel': ((0.0, 100.0), 'planar models: bound [m/s^2] on how fast a moving '
                        'obstacle changes velocity; its rows hold for any such change (0: none)'),
     'obstacle_velocity_error': ((0.0, 10.0), 'planar models: bound [m/s] on the error of a '

@@ -23,22 +23,30 @@ again and again (BARN go-to-goal with circulation: 76 % -> 20 % of the first 50 
 u is kept when c(B(x+)) >= margin, or when c(B(x+)) >= c(B(x)), no worse than braking now
 (a robot at rest within the margin may still slide along the boundary or leave it);
 otherwise the filter brakes, unless c(B(x)) <= 0 (an obstacle appeared, or the robot
-started inside: braking promises nothing, and the filter's input stands).
+started inside: braking promises nothing, and the filter's input stands).  Moving parts have
+no such exception: their clearance is taken apart (``path_clearance`` returns both), and an
+input that closes on a moving part more than braking now does is refused even when braking
+cannot avoid the contact either (a part coming at the robot too fast): the robot then meets
+it as slowly as it can, or backing away.  A moving part's velocity is an estimate and
+changes, so at a path point t seconds ahead it may be ``obstacle_velocity_error`` t +
+``braking_obstacle_accel`` t^2 / 2 nearer than its stated velocity says; that much is taken
+off its clearance there.  (Without it the check let the robot race a cylinder across its path,
+since its stated velocity said the race was won; the cylinder turned, and the robot hit it.)
 
 Once c(B(x)) > 0 it stays >= min(margin, its first value): a kept u hands the next step a
 path B(x+) at least that clear, and a brake continues along the rest of B(x).  By induction
 the robot stays clear of every obstacle that is static or moves as its stated velocity says,
 as long as the plant follows the model.
 
-Rest must also be safe from what moves (``braking_dwell`` D): the path ends at rest, and a
-moving part keeps coming.  So c(B) also measures the resting point against each moving part
-for D seconds after the path ends (``DWELL_SAMPLES`` samples, each lowered by half the
-distance the part moves between two, so no sample claims more than the true sweep).  A part
-that would reach the stopped robot within D makes c(B(x)) <= 0: braking promises nothing,
-and the filter's input stands, so a robot may back away from, or move aside for, an obstacle
-that comes at it faster than braking can handle instead of standing to be hit.  (Without it
-the check refused such a flight: fleeing faster means stopping later, nearer the oncoming
-part, so every flight looked worse than braking now.)
+What moves is measured only where the robot closes on it (``path_clearance``): a path
+point counts against a moving part when the robot's velocity there points towards the
+part's nearest point, or the point is inside it.  A moving part may still reach the robot
+while it backs away or stands: such a contact is passive, and the check does not refuse
+an input for it.  So a robot may back away from something that comes at it faster than
+braking can handle (every such flight ends nearer the oncoming part than braking now, and
+a clearance counted at every point refused it), and by the induction above it never
+touches a moving part while closing on it, as long as the part moves as its velocity
+says.  Static parts count at every point, as before.
 
 The same rule on the barrier (``braking_check_barrier``): with H(x) the smallest h at x
 and along B(x) (``ConeModel.min_h_along``, positions and velocities of the path), u is
@@ -59,45 +67,49 @@ import math
 from polyc2bf_ros.core.cones import nearest_edge, polygon_box
 from polyc2bf_ros.core.jit import F2, I1, kernel, signature
 
-DWELL_SAMPLES = 20
-"""Samples of the resting point against each moving part over ``braking_dwell``."""
-
 
 @kernel
 def _signed_distance(x, y, edge_x, edge_y, inv_sq, count, n, px, py):
-    """Return the signed distance (negative inside) of (px, py) to polygon n."""
-    square, _, _, _, inside = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, px, py)
-    return -math.sqrt(square) if inside else math.sqrt(square)
+    """Return (signed distance, negative inside, of (px, py) to polygon n; its offset d).
+
+    d = q - the nearest boundary point (``cones.nearest_edge``).
+    """
+    square, _, dx, dy, inside = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, px, py)
+    return (-math.sqrt(square) if inside else math.sqrt(square)), dx, dy
 
 
-@kernel(signature('f8', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8', 'f8', 'f8'))
+@kernel(signature('UniTuple(f8, 2)', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8',
+                  'f8', 'f8', 'f8'))
 def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, age, path,
-                   period, cutoff, dwell):
+                   period, cutoff, accel, velocity_error):
     """Return min(cutoff, the smallest signed distance of a ``path`` row's x, y to a polygon).
 
-    Negative inside.  Polygon n (CCW, rows of ``x``, ``y`` as ``cones.PlanarPolygons``) has
-    moved by ``offsets[n]`` and moves at ``velocities[n]``; path row k is at
-    age + (k + 1) period.  A moving polygon is also measured from the last row for ``dwell``
-    seconds after it (module docstring: ``DWELL_SAMPLES`` samples, each less half the
-    polygon's move between two).  A polygon whose bounding box stays farther than ``cutoff``
-    from the path's is not measured.
+    Two values: over the static polygons, and over the moving ones.  Negative inside.
+    Polygon n (CCW, rows of ``x``, ``y`` as ``cones.PlanarPolygons``) has moved by
+    ``offsets[n]`` and moves at ``velocities[n]``; path row k ([x, y, vx, vy]) is at
+    age + (k + 1) period.  A moving polygon counts only at the rows where the path's
+    velocity closes on it (points towards its nearest point) or that lie inside it (module
+    docstring), and there less ``velocity_error`` t + ``accel`` t^2 / 2, t = age + (k + 1)
+    period: as far as it may stray from its stated velocity by then.  A polygon whose
+    bounding box stays farther than ``cutoff`` from the path's is not measured.
     """
     rows = path.shape[0]
     if rows == 0:
-        return cutoff
+        return cutoff, cutoff
     low_x = high_x = path[0, 0]
     low_y = high_y = path[0, 1]
     for k in range(rows):
         low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
         low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
     last = age + rows * period
-    step = dwell / DWELL_SAMPLES
-    best = cutoff
+    best, best_moving = cutoff, cutoff
     for n in range(counts.shape[0]):
         vx, vy = velocities[n, 0], velocities[n, 1]
-        speed = math.sqrt(vx * vx + vy * vy)
-        end = last + dwell if speed > 0.0 else last
-        reach = cutoff + max(abs(age), abs(end)) * speed
+        moving = vx != 0.0 or vy != 0.0
+        horizon = max(abs(age), abs(last))
+        reach = cutoff + horizon * math.sqrt(vx * vx + vy * vy)
+        if moving:
+            reach += horizon * (velocity_error + 0.5 * accel * horizon)
         box_low_x, box_high_x, box_low_y, box_high_y = polygon_box(x, y, counts[n], n)
         ox, oy = offsets[n, 0], offsets[n, 1]
         if (low_x - ox - reach > box_high_x or high_x - ox + reach < box_low_x
@@ -105,18 +117,15 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, ag
             continue
         for k in range(rows):
             t = age + (k + 1) * period
-            best = min(best, _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
-                                              path[k, 0] - t * vx - ox,
-                                              path[k, 1] - t * vy - oy))
-        if speed == 0.0 or dwell <= 0.0:
-            continue
-        for j in range(1, DWELL_SAMPLES + 1):
-            t = last + j * step
-            best = min(best, _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
-                                              path[rows - 1, 0] - t * vx - ox,
-                                              path[rows - 1, 1] - t * vy - oy)
-                       - 0.5 * speed * step)
-    return best
+            distance, dx, dy = _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
+                                                path[k, 0] - t * vx - ox,
+                                                path[k, 1] - t * vy - oy)
+            if not moving:
+                best = min(best, distance)
+            elif distance <= 0.0 or path[k, 2] * dx + path[k, 3] * dy < 0.0:
+                best_moving = min(best_moving,
+                                  distance - t * (velocity_error + 0.5 * accel * t))
+    return best, best_moving
 
 
 @kernel(signature('b1', F2, F2, I1, F2, F2, 'f8', 'f8', 'f8', 'f8'))

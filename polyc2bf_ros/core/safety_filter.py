@@ -143,7 +143,7 @@ class FilterConfig:
     braking_check: bool = True
     braking_check_barrier: bool = True
     braking_margin: float = 0.002
-    braking_dwell: float = 1.0
+    braking_obstacle_accel: float = 0.0
     ground_z: float = -math.inf
     obstacle_accel: float = 0.0
     obstacle_velocity_error: float = 0.0
@@ -162,7 +162,7 @@ class FilterConfig:
         positive = ('gamma', 'control_period', 'velocity_epsilon', 'slack_weight',
                     'escape_gain')
         non_negative = ('robot_radius', 'margin_gain', 'escape_speed', 'braking_margin',
-                        'braking_dwell', 'obstacle_accel', 'obstacle_velocity_error')
+                        'braking_obstacle_accel', 'obstacle_accel', 'obstacle_velocity_error')
         for name in positive + non_negative:
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0 or (name in positive and value == 0):
@@ -384,7 +384,7 @@ class _BrakingNow:
 
     @functools.cached_property
     def clearance(self):
-        """Return c(B(x)), capped at the margin."""
+        """Return c(B(x)), capped at the margin: (static parts, moving parts)."""
         return self._filter._path_clearance(self.path, self._prepared, self._age)
 
     @functools.cached_property
@@ -430,7 +430,7 @@ class SafetyFilter:
         # The braking check measures paths against the footprints themselves: the robot's
         # disc keeps braking_margin, i.e. the guarded point guard_radius + braking_margin.
         self._clearance = self.guard_radius + float(self.config.braking_margin)
-        self._dwell = float(self.config.braking_dwell)
+        self._braking_accel = float(self.config.braking_obstacle_accel)
         # The step's reference kinematics, refilled each step (it never leaves the step).
         self._reference = ReferenceKinematics.empty(model.position_dim, model.input_dim)
         # What prepared views depend on: the cone model's settings, dimension and radius.
@@ -544,7 +544,8 @@ class SafetyFilter:
         """Return True when holding ``u`` leaves a less clear way to stop than braking now.
 
         ``polyc2bf_ros.core.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x));
-        braked only while c(B(x)) > 0 (distances to the footprints less the guard radius).
+        braked only while c(B(x)) > 0 (distances to the footprints less the guard radius);
+        moving parts, where the path closes on them, apart and without that exception.
         With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept
         when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+ by the midpoint rule
         over the period with u held (exact for the point mass; an Euler step misplaced it
@@ -555,9 +556,11 @@ class SafetyFilter:
         middle = state + 0.5 * period * self.model.state_derivative(state, u)
         after_state = state + period * self.model.state_derivative(middle, u)
         after_path = self.model.braking_path(after_state, period)
-        after = self._path_clearance(after_path, prepared, age + period)
-        if (after < self._clearance and after < now.clearance
-                and now.clearance > self.guard_radius):
+        after, after_moving = self._path_clearance(after_path, prepared, age + period)
+        before, before_moving = now.clearance
+        if after < self._clearance and after < before and before > self.guard_radius:
+            return True
+        if after_moving < self._clearance and after_moving < before_moving:
             return True
         if not self._barrier_check:
             return False
@@ -588,8 +591,8 @@ class SafetyFilter:
         footprints = prepared.footprints
         return clear_around.unchecked(
             footprints.x, footprints.y, footprints.counts, prepared.velocities,
-            prepared.offsets, max(abs(age), abs(age + duration + self._dwell)),
-            float(state[0]), float(state[1]), reach + self._clearance)
+            prepared.offsets, max(abs(age), abs(age + duration)), float(state[0]),
+            float(state[1]), reach + self._clearance)
 
     def _backup_input(self, state, u, prepared, age, now):
         """Return (input, message) once the braking check refused ``u``.
@@ -609,7 +612,9 @@ class SafetyFilter:
         return brake, 'braking check: the input leaves no clear way to stop; braking'
 
     def _path_clearance(self, path, prepared, age):
-        """Return c(B), capped at the margin, of a braking ``path`` (``path_clearance``).
+        """Return c(B), capped at the margin, of a braking ``path``: (static, moving parts).
+
+        ``path_clearance``.
 
         Unchecked kernel: the footprints, velocities and offsets are the filter's own and
         the path a fresh C-contiguous float64 array (``RobotModel.braking_path``).
@@ -619,7 +624,7 @@ class SafetyFilter:
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
             float(age), path, self.config.control_period, self._clearance,
-            self._dwell)
+            self._braking_accel, self._velocity_error)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""
