@@ -37,7 +37,7 @@ setup(
     # The filter alone; ROS 2 (rclpy and the message packages) comes from the ROS install.
     # The simulator, bag tools and plots need the `sim` extra (pip install .[sim]);
     # requirements.lock pins everything for the project's own venv.
-    install_requires=['setuptools', 'numpy', 'numba', 'daqp', 'proxsuite', 'PyYAML'],
+    install_requires=['setuptools', 'numpy', 'numba', 'daqp', 'proxsuite', 'PyYAML', 'scipy'],
     extras_require={'sim': ['pybullet', 'matplotlib', 'mcap', 'rosbags']},
     zip_safe=True,
     maintainer='polyc2bf_ros maintainers',

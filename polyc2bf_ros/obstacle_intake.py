@@ -30,9 +30,13 @@ scan per topic is queued serialized with the node's recent odometry (its last
 ``ODOMETRY_HISTORY`` samples), and the worker reads and checks it, places it at the pose of
 the sample stamped nearest the scan's ``header.stamp`` (``core.scan_obstacles.pose_at``: no
 interpolation; a scan older than the samples takes the oldest) and converts it
-(``core.scan_obstacles.scan_to_obstacles``, in ``scan_obstacles``).  A topic's obstacles
-(keys ``<topic>:scan/<i>``) replace its previous ones and join the marker obstacles in one
-``ObstacleSet``; a rejected scan keeps them and is reported in ``scan_status``.
+(``core.scan_obstacles.scan_to_obstacles``, in ``read_scan``).  With ``scan_tracking`` (the
+default) every scan's clusters go to one ``core.scan_tracker.ScanTracker`` shared by all scan
+topics, and each obstacle takes the velocity of its cluster's track (zero unless the track is
+confirmed and moving).  A topic's obstacles (keys ``<topic>:scan/<i>``) replace its previous
+ones and join the marker obstacles in one ``ObstacleSet``, every obstacle moved along its
+velocity to the newest stamp among them (``t_ref``); a rejected scan keeps them and is
+reported in ``scan_status``.
 ``/tf_static`` messages (``submit_transforms``) go to the worker too, which keeps the static
 transform tree (``static_transforms``): a scan in another frame than the odometry child
 frame is placed by the static transforms from that frame to the scan's, and at
@@ -63,6 +67,7 @@ from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import SafetyFilter
 from polyc2bf_ros.core.scan_obstacles import pose_at, scan_to_obstacles, ScanSettings
+from polyc2bf_ros.core.scan_tracker import ScanTracker
 from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 
 MAX_OBSTACLES = 1000
@@ -83,6 +88,20 @@ class IntakeSettings(NamedTuple):
     scan_cluster_tolerance: float = 0.15
     scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
     scan_obstacle_depth: float = 0.10
+    scan_tracking: bool = True
+
+
+class ScanObstacles(NamedTuple):
+    """One scan's obstacles: the scan's stamp [s], ``Obstacle`` list, cluster per obstacle.
+
+    ``owner[i]`` indexes ``clusters``, the endpoints (n, 2) of each cluster in the odometry
+    frame (``scan_to_obstacles(..., with_clusters=True)``).
+    """
+
+    stamp: float
+    obstacles: list
+    owner: np.ndarray
+    clusters: list
 
 
 class ScanStatus(NamedTuple):
@@ -121,7 +140,8 @@ class ObstaclePipeline:
         self._unreadable = ''
         self._received = None
         self._filter_spec = self._filter = None
-        self._scans = {}  # topic: its obstacles
+        self._scans = {}  # topic: (stamp [s], its obstacles)
+        self._scan_tracker = ScanTracker()
         self._static = StaticTransforms()
         self.scan_status = {}  # topic: ScanStatus
 
@@ -164,9 +184,17 @@ class ObstaclePipeline:
             simplified=tracker.simplified, hulled=obstacles.capped)
 
     def _combined(self, frame, dim, settings):
-        """Return (markers and scans as one ``ObstacleSet``, t_ref, wrong_frame)."""
-        markers, t_ref, wrong_frame = self._tracker.snapshot(frame, dim)
-        obstacles = markers + [o for scan in self._scans.values() for o in scan]
+        """Return (markers and scans as one ``ObstacleSet``, t_ref, wrong_frame).
+
+        ``t_ref`` is the newest stamp among the markers and the scans; every obstacle is
+        moved along its velocity from its own stamp to it.
+        """
+        markers, marker_ref, wrong_frame = self._tracker.snapshot(frame, dim)
+        stamps = [stamp for stamp, _ in self._scans.values()]
+        t_ref = max(stamps + ([marker_ref] if markers else []))
+        obstacles = [_moved(o, t_ref - marker_ref) for o in markers]
+        obstacles += [_moved(o, t_ref - stamp)
+                      for stamp, scan in self._scans.values() for o in scan]
         result = ObstacleSet.from_obstacles(obstacles, settings.max_parts)
         if len(result) > settings.max_obstacles:
             raise ValueError(f'{len(result)} obstacle parts exceed max_obstacles '
@@ -177,14 +205,20 @@ class ObstaclePipeline:
         """Convert one serialized LaserScan of ``topic``; a bad one is counted, not used."""
         status = self.scan_status.get(topic, ScanStatus())
         try:
-            obstacles = scan_obstacles(data, odometry, base_frame, settings, radius,
-                                       self._static)
+            scan = read_scan(data, odometry, base_frame, settings, radius, self._static)
         except ValueError as exc:
             self.scan_status[topic] = status._replace(
                 received=received, rejected=status.rejected + 1, reason=str(exc))
             return
-        self._scans[topic] = [dataclasses.replace(o, key=f'{topic}:{o.key}')
-                              for o in obstacles]
+        velocities = [STILL_3D] * len(scan.clusters)
+        if settings.scan_tracking:
+            # Unstamped scans and odometry: the tracker times them by their receipt.
+            clock = scan.stamp if scan.stamp > 0.0 else received
+            velocities = [np.array([*track.velocity, 0.0])
+                          for track in self._scan_tracker.update(clock, scan.clusters)]
+        self._scans[topic] = (scan.stamp, [
+            dataclasses.replace(o, key=f'{topic}:{o.key}', velocity=velocities[cluster])
+            for o, cluster in zip(scan.obstacles, scan.owner.tolist())])
         self.scan_status[topic] = status._replace(accepted=received, received=received)
 
     def _filter_for(self, spec):
@@ -195,8 +229,25 @@ class ObstaclePipeline:
         return self._filter
 
 
+def _moved(obstacle, dt):
+    """Return ``obstacle`` moved along its velocity for ``dt`` [s] (itself when it stands)."""
+    velocity = np.asarray(obstacle.velocity, dtype=float)
+    if dt == 0.0 or not velocity[:2].any():
+        return obstacle
+    return dataclasses.replace(obstacle, polygon=obstacle.polygon + velocity[:2] * dt)
+
+
+STILL_3D = np.zeros(3)
+STILL_3D.flags.writeable = False
+
+
 def scan_obstacles(data, odometry, base_frame, settings, robot_radius, transforms=None):
-    """Return the obstacles of a serialized LaserScan; ValueError says why it is unusable.
+    """Return the obstacles of a serialized LaserScan (``read_scan``), without tracking."""
+    return read_scan(data, odometry, base_frame, settings, robot_radius, transforms).obstacles
+
+
+def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=None):
+    """Return the ``ScanObstacles`` of a serialized LaserScan; ValueError says why it is unusable.
 
     ``odometry``: samples ``(stamp [s], x, y, yaw)`` of the base in the odometry frame,
     oldest first (empty: no odometry yet); the scan is taken at the one stamped nearest its
@@ -214,8 +265,8 @@ def scan_obstacles(data, odometry, base_frame, settings, robot_radius, transform
         scan = deserialize_message(data, LaserScan)
     except Exception as exc:  # noqa: BLE001 - any decoding failure is a malformed message
         raise ValueError(f'malformed LaserScan: {exc}') from None
-    stamp = scan.header.stamp
-    robot_pose = pose_at(odometry, stamp.sec + 1e-9 * stamp.nanosec)
+    stamp = scan.header.stamp.sec + 1e-9 * scan.header.stamp.nanosec
+    robot_pose = pose_at(odometry, stamp)
     ranges = scan.ranges
     if len(ranges) == 0:
         raise ValueError('LaserScan without ranges')
@@ -231,8 +282,12 @@ def scan_obstacles(data, odometry, base_frame, settings, robot_radius, transform
     scan_settings = ScanSettings(cluster_tolerance=float(settings.scan_cluster_tolerance),
                                  footprint_radius=float(robot_radius if radius < 0 else radius),
                                  depth=float(settings.scan_obstacle_depth))
-    return scan_to_obstacles(ranges, scan.angle_min, scan.angle_increment, scan.range_min,
-                             scan.range_max, sensor_pose, robot_pose, scan_settings)
+    obstacles, owner, clusters = scan_to_obstacles(
+        ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max,
+        sensor_pose, robot_pose, scan_settings, with_clusters=True)
+    # An unstamped scan is taken at the latest odometry sample (``pose_at``): its stamp too.
+    return ScanObstacles(stamp if stamp > 0.0 else float(odometry[-1][0]), obstacles, owner,
+                         clusters)
 
 
 def _sensor_pose(frame, base_frame, settings, transforms):

@@ -42,8 +42,9 @@ the exact information:
   moving obstacle's velocity only a few periods after it appears;
 - the state is the plant's, not the odometry message's (equal up to the
   quaternion round trip of the Crazyflie's attitude);
-- obstacles are never stale and their age is 0 (lockstep markers are stamped
-  with the period's time);
+- obstacles are never stale; markers are stamped with the period's time (age 0), and a
+  scan's obstacles are moved along their tracked velocities from the scan's stamp to the
+  period's, as the node does (``max_extrapolation``);
 - in scan mode a scan always serves the period it is delivered to; over DDS the
   node may answer that period's command before the scan has arrived, one period
   late (1.4 mm apart over 6 s of ``long_wall``).
@@ -194,8 +195,9 @@ class _Robot:
             self.intake = settings.intake
             self.filter_spec = (robot.model, self.filter.safety_filter.config)
             self.decision = ControlDecision(self.filter, dict.fromkeys(settings.timeouts, 0.0),
-                                            settings.block_if_invalid, 0.0, settings.deadlock,
-                                            settings.resolution, settings.route)
+                                            settings.block_if_invalid, settings.max_extrapolation,
+                                            settings.deadlock, settings.resolution,
+                                            settings.route)
         self.robot_radius = self.reference.safety_filter.config.robot_radius
         state = world.robot_state(spec.name)
         dim = 2 if robot.unicycle else 4

@@ -12,7 +12,7 @@ PYTHON_KEYS = {'numpy': 'python3-numpy', 'numba': 'python3-numba', 'yaml': 'pyth
                'matplotlib': 'python3-matplotlib', 'pybullet': 'python3-pybullet',
                'pybullet_data': 'python3-pybullet', 'mcap': 'python3-mcap',
                'rosbags': 'python3-rosbags-pip', 'daqp': 'python3-daqp-pip',
-               'proxsuite': 'proxsuite'}
+               'proxsuite': 'proxsuite', 'scipy': 'python3-scipy'}
 
 
 def _imported_modules():

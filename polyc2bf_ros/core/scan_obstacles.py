@@ -89,7 +89,8 @@ Limits.
 - Anything closer than ``footprint_radius`` to the base is taken for the robot itself and
   ignored, even a real obstacle.
 - The scan is taken as instantaneous at ``robot_pose`` (no de-skewing of motion during the
-  sweep); obstacles get zero velocity and an unbounded z range.  ``pose_at`` picks that
+  sweep); obstacles get zero velocity and an unbounded z range (``scan_tracker`` estimates
+  velocities from the clusters that ``with_clusters=True`` returns).  ``pose_at`` picks that
   pose among odometry samples: the one stamped nearest the scan, not interpolated.
 - ``obstacle_tracker.outline_polygon`` thickens an outline symmetrically, one obstacle at a
   time; here the thickening goes away from the base, so that it can never cover it, and is
@@ -100,7 +101,9 @@ over the K points of the pieces still being split (levels: about log2 of a clust
 for smooth outlines, at most its number of pieces); then one ``Obstacle`` per polygon.  A
 level is about 55 numpy calls whatever K, so at N = 1081 call overhead dominates: a median of
 0.4-0.6 ms per scan on the benchmark VM (``bench/bench_scan.py``; 2 to 3 levels in a room or
-clutter), up to about 1 ms while another process loads both cores.
+clutter), up to about 1 ms while another process loads both cores.  ``with_clusters`` adds
+one (K, 2) array and a view per cluster: a few hundredths of a millisecond
+(``bench/bench_tracking.py``).
 """
 import functools
 import math
@@ -453,13 +456,21 @@ def _nearest(polygons, base, count):
     return np.sort(np.argpartition(reach_sq, count - 1)[:count])
 
 
-def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=False):
+def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=False,
+                   with_clusters=False):
     """Return the obstacles (``Obstacle``, keys ``scan/<i>``) outlined by beam endpoints.
 
     ``endpoints`` (N, 2): one row per beam in beam order, non-finite rows for beams without a
     return (``beam_endpoints``); ``robot_position``: the base origin (x, y) in the same frame;
     ``wraps``: the last beam neighbours the first (``scan_wraps``).  Obstacles share one
     read-only zero velocity.  Module docstring: method, guarantees and limits.
+
+    ``with_clusters``: return ``(obstacles, owner, clusters)`` instead, where ``clusters`` is
+    the list of the clusters of step 3 that ``min_cluster_points`` keeps, each the (n_i, 2)
+    read-only array of its endpoints in chain order (a ring's first point repeated at its
+    end), views into one array; ``owner`` (len(obstacles),) int64: the index in ``clusters``
+    of the cluster each obstacle outlines.  A cluster whose polygons ``max_obstacles`` all
+    dropped owns none.
     """
     endpoints = np.asarray(endpoints, dtype=np.float64)
     if endpoints.ndim != 2 or endpoints.shape[1] != 2:
@@ -469,7 +480,7 @@ def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=F
     reach_sq = (x - base[0]) ** 2 + (y - base[1]) ** 2  # NaN or inf for beams without return
     beams = ((reach_sq > settings.footprint_radius ** 2) & (reach_sq < np.inf)).nonzero()[0]
     if beams.size == 0:
-        return []
+        return ([], np.zeros(0, dtype=np.int64), []) if with_clusters else []
     px, py = x[beams], y[beams]
     wraps = bool(wraps) and beams[0] == 0 and beams[-1] == len(endpoints) - 1
     px, py, links, ring = _chain(px, py, _links(px, py, beams, reach_sq[beams], base, settings,
@@ -485,32 +496,57 @@ def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=F
     first = np.concatenate((ends[:-1][within], lone))
     last = np.concatenate((ends[1:][within], lone))
     sizes = cluster_last - cluster_first + 1 - ring
-    keep = sizes[cluster_first.searchsorted(first, side='right') - 1] >= \
-        settings.min_cluster_points
+    cluster = cluster_first.searchsorted(first, side='right') - 1
+    keep = sizes[cluster] >= settings.min_cluster_points
     first, last = first[keep], last[keep]
     order = first.argsort()
     first, last = first[order], last[order]
     polygons = _rectangles(px[first], py[first], px[last], py[last], base,
                            settings.segment_thickness, settings.depth)
+    nearest = None
     if len(polygons) > settings.max_obstacles:
         nearest = _nearest(polygons, base, settings.max_obstacles)
         polygons, first, last = polygons[nearest], first[nearest], last[nearest]
     polygons = _front(polygons, px, py, first, last, base, settings.footprint_radius)
-    return [Obstacle(polygon=polygon, velocity=STILL, key=f'scan/{index}')
-            for index, polygon in enumerate(polygons)]
+    obstacles = [Obstacle(polygon=polygon, velocity=STILL, key=f'scan/{index}')
+                 for index, polygon in enumerate(polygons)]
+    if not with_clusters:
+        return obstacles
+    return (obstacles, *_clusters(px, py, cluster_first, cluster_last,
+                                  sizes >= settings.min_cluster_points,
+                                  cluster[keep][order], nearest))
+
+
+def _clusters(px, py, cluster_first, cluster_last, kept, owner, nearest):
+    """Return (owner, clusters) of ``scan_obstacles(..., with_clusters=True)``.
+
+    ``kept``: per cluster, whether ``min_cluster_points`` keeps it; ``owner``: per polygon
+    before the ``max_obstacles`` cut (``nearest``: the polygons it keeps, or None), the index
+    of its cluster among all clusters, renumbered here among the kept ones.
+    """
+    points = np.empty((len(px), 2))
+    points[:, 0], points[:, 1] = px, py
+    points.flags.writeable = False
+    renumber = np.cumsum(kept) - 1
+    owner = renumber[owner] if nearest is None else renumber[owner[nearest]]
+    if not kept.all():
+        cluster_first, cluster_last = cluster_first[kept], cluster_last[kept]
+    clusters = [points[start:stop] for start, stop in zip(cluster_first.tolist(),
+                                                          (cluster_last + 1).tolist())]
+    return owner.astype(np.int64, copy=False), clusters
 
 
 def scan_to_obstacles(ranges, angle_min, angle_increment, range_min, range_max, sensor_pose,
-                      robot_pose, settings=DEFAULT_SETTINGS):
+                      robot_pose, settings=DEFAULT_SETTINGS, with_clusters=False):
     """Return the obstacles of one scan: ``beam_endpoints`` then ``scan_obstacles``.
 
     Arguments as ``beam_endpoints``; a scan that goes round (``scan_wraps``) is joined across
-    its seam.
+    its seam.  ``with_clusters``: return ``(obstacles, owner, clusters)`` (``scan_obstacles``).
     """
     endpoints = beam_endpoints(ranges, angle_min, angle_increment, range_min, range_max,
                                sensor_pose, robot_pose)
     return scan_obstacles(endpoints, _finite_vector(robot_pose, 3, 'robot_pose')[:2], settings,
-                          scan_wraps(len(endpoints), angle_increment))
+                          scan_wraps(len(endpoints), angle_increment), with_clusters)
 
 
 def pose_at(odometry, stamp):
