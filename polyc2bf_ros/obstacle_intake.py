@@ -141,7 +141,7 @@ class ObstaclePipeline:
         self._received = None
         self._filter_spec = self._filter = None
         self._scans = {}  # topic: (stamp [s], its obstacles)
-        self._scan_tracker = ScanTracker()
+        self._scan_tracker = self._tracker_link = None  # made on the first tracked scan
         self._static = StaticTransforms()
         self.scan_status = {}  # topic: ScanStatus
 
@@ -214,6 +214,9 @@ class ObstaclePipeline:
         if settings.scan_tracking:
             # Unstamped scans and odometry: the tracker times them by their receipt.
             clock = scan.stamp if scan.stamp > 0.0 else received
+            link = float(settings.scan_cluster_tolerance)
+            if link != self._tracker_link:  # clusters link at the scan's own tolerance
+                self._scan_tracker, self._tracker_link = ScanTracker(link=link), link
             velocities = [np.array([*track.velocity, 0.0])
                           for track in self._scan_tracker.update(clock, scan.clusters)]
         self._scans[topic] = (scan.stamp, [

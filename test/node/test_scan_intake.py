@@ -114,3 +114,30 @@ def test_pipeline_combines_markers_and_scans_and_keeps_a_topic_on_a_bad_scan():
     assert again.obstacles.keys == keys
     status = pipeline.scan_status['scan']
     assert (status.accepted, status.received, status.rejected) == (1.0, 2.0, 1)
+
+
+@pytest.mark.parametrize('tracking', [True, False])
+def test_a_box_coming_at_the_robot_gets_its_velocity_only_when_tracked(tracking):
+    """A 0.5 m box coming at a standing robot at 1 m/s from 3 m, scanned at 10 Hz.
+
+    Tracked, its obstacles carry about (-1, 0) m/s once the track is moving (the fourth scan
+    on); untracked (``scan_tracking: false``) they stand still.  The set is stamped with
+    the scan's stamp, so the filter extrapolates it to the odometry's.
+    """
+    from test_nav2_chain import scan as box_scan
+    pipeline, settings = ObstaclePipeline(), IntakeSettings(scan_tracking=tracking)
+    for k in range(10):
+        t = 10.0 + 0.1 * k
+        x = 3.0 - 1.0 * (t - 10.0)
+        msg = box_scan(box=(x, -0.25, x + 0.5, 0.25))
+        msg.header.stamp = Time(sec=int(t), nanosec=round((t % 1.0) * 1e9))
+        odometry = ((t, 0.0, 0.0, 0.0),)
+        snapshot = pipeline.run(ObstacleJob([], 'odom', settings, SPEC, t, (
+            ('scan', serialize_message(msg), t, odometry, 'base_link'),)))
+    velocities = snapshot.obstacles.velocities
+    assert len(velocities) and snapshot.t_ref == pytest.approx(10.9)
+    if tracking:
+        np.testing.assert_allclose(velocities[:, :2], [[-1.0, 0.0]] * len(velocities),
+                                   atol=0.15)
+    else:
+        assert not velocities.any()
