@@ -247,9 +247,13 @@ def test_trajectory_and_velocity_exclude_each_other():
 
 
 def test_default_filter_in_markers_mode_is_never_at_fault(worlds):
-    """Two worlds in closed loop, markers through the node's pipeline: no at-fault contact."""
+    """Three worlds in closed loop, markers through the node's pipeline: no at-fault contact.
+
+    In worlds 31 and 47 the braking check once let the robot race a turning cylinder, or
+    accelerate towards one it could not brake clear of, and touch it while closing.
+    """
     barrier = default_barrier('diff_drive')
-    for world in (worlds[0], worlds[21]):
+    for world in (worlds[21], worlds[31], worlds[47]):
         ((record, trajectory),) = run_world(world, [(barrier, 'goal')])
         assert tuple(record)[:len(DYNAMIC_KEYS)] == DYNAMIC_KEYS
         assert record['marker_pipeline'] and record['obstacle_source'] == 'markers'
