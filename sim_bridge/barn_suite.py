@@ -35,9 +35,7 @@ import math
 import os
 import sys
 import time
-from concurrent.futures import as_completed, ProcessPoolExecutor
 from datetime import datetime
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -59,10 +57,10 @@ from sim_bridge.evaluate import (
     lidar_record,
     obstacle_sources,
     override_parameters,
-    Progress,
     resolve_filters,
     table_cell,
 )
+from sim_bridge.parallel_runs import run_worlds
 from sim_bridge.world import CLEARANCE_RANGE
 
 BARN_KEYS = ('suite', 'world', 'filter', 'nominal', 'obstacle_source', 'success', 'collision',
@@ -150,38 +148,8 @@ def run_barn(worlds, combos, jobs=None, progress=True, parameters=None,
     Return (records, trajectories) in world, then combo order; trajectories are keyed
     by (world id, filter, nominal).  With one job everything runs in this process.
     """
-    jobs = jobs or os.cpu_count() or 1
-    bar = Progress(len(worlds) * len(combos)) if progress else None
-    done, results = 0, {}
-
-    def finished(world, result):
-        nonlocal done
-        results[world.world] = result
-        done += len(combos)
-        if bar is not None:
-            bar.update(done, f'world {world.world}', force=True)
-
-    if jobs == 1:
-        for world in worlds:
-            finished(world, run_world(world, combos, parameters, obstacle_source, lidar))
-    else:
-        # spawn: a fresh interpreter per worker, whatever this process holds (PyBullet, DDS).
-        pool = ProcessPoolExecutor(min(jobs, len(worlds)), mp_context=get_context('spawn'))
-        try:
-            futures = {pool.submit(run_world, world, combos, parameters, obstacle_source,
-                                   lidar): world for world in worlds}
-            for future in as_completed(futures):
-                finished(futures[future], future.result())
-        finally:
-            pool.shutdown(cancel_futures=True)
-    if bar is not None:
-        bar.close()
-    records, trajectories = [], {}
-    for world in worlds:
-        for record, trajectory in results[world.world]:
-            records.append(record)
-            trajectories[(record['world'], record['filter'], record['nominal'])] = trajectory
-    return records, trajectories
+    return run_worlds(worlds, combos, run_world, (parameters, obstacle_source, lidar), jobs,
+                      progress)
 
 
 # -- tables and plots -----------------------------------------------------------------------
