@@ -45,7 +45,12 @@ last matched).  Per scan, with ``dt`` the time since the newest stamp:
    (``lambda = 1e-3``, a thousandth of one point's information, keeps unmeasured directions
    at ``d0``), up to ``iterations`` times with new pairs, until a step under 0.1 mm.  It
    fails with fewer than 3 pairs or fewer than ``min_overlap`` of the smaller side's usable
-   windows.
+   windows.  Rest is tested last: a displacement longer than ``trim`` gives way to the
+   registration from d = 0 (first trim distance ``trim``) when that keeps at least as many
+   pairs at most ``REST_VARIANCE`` times the residual variance.  (A row of small posts, as
+   BARN's, matches itself shifted by one post: a standing row so registered got 2.4 m/s in
+   one scan, its track then failed every later registration and kept that velocity, and
+   the robot drove into the row.)
 
    Its information.  A smoothed residual's variance is ``sigma^2 (1 / m_i + 1 / m_j)`` for
    window sizes m and range noise sigma, so ``sigma^2 = max(point_std^2, sum r^2 / sum(1 /
@@ -71,7 +76,7 @@ last matched).  Per scan, with ``dt`` the time since the newest stamp:
    ``sigma_v = sqrt(v^T P_vv v) / |v|`` is its standard deviation along itself.  A
    registration passes when ``|v| > max(moving_speed, n_sigma sigma_v)``; after
    ``moving_scans`` successive registrations that pass, the track is moving, after as many
-   that do not, it is still again.  The published velocity is v for a confirmed moving track
+   that do not (a failed registration does not pass), it is still again.  The published velocity is v for a confirmed moving track
    and exactly 0 otherwise; ``with_velocities`` gives it to the obstacles of the cluster.
    (Along v, not along the worst axis: a box seen face-on is measured only across its face,
    and its approach speed is known though its sideways speed is not.)
@@ -134,6 +139,9 @@ LEAK = 2.0
 """kappa: how many times its expected size the information leaked by noisy normals is removed."""
 CORNER = math.cos(math.radians(45.0))
 """A point where the chain turns by more than this angle is a corner and is not paired."""
+REST_VARIANCE = 2.0
+"""A registration is replaced by one from rest (d = 0, trim ``trim``) that keeps as many pairs
+with at most this many times its residual variance (module docstring, step 3)."""
 MIN_INFORMATION = 2.0
 """An eigenvalue of H below this many points' worth of information is taken as none."""
 STRIDE = 3.0
@@ -618,12 +626,15 @@ def _known_velocity(state, P, limit):
 
 
 @kernel
-def _classify(state, P, track, params):
-    """Step 4 for a track just registered: count passes and flip ``track[MOVING]``."""
+def _classify(state, P, track, params, registered):
+    """Step 4 for a matched track: count passes and flip ``track[MOVING]``.
+
+    A failed registration (``registered`` false) does not pass.
+    """
     vx, vy = _known_velocity(state, P, params[KNOWN])
     speed_sq = vx * vx + vy * vy
     along_sq = vx * vx * P[2, 2] + 2.0 * vx * vy * P[2, 3] + vy * vy * P[3, 3]
-    passes = (speed_sq > params[MOVING_SPEED] ** 2
+    passes = (registered and speed_sq > params[MOVING_SPEED] ** 2
               and speed_sq * speed_sq > params[SIGMAS] ** 2 * along_sq)
     if passes != (track[MOVING] == 1):
         track[STREAK] += 1
@@ -658,6 +669,11 @@ def _measure(smoothed, starts, c, box, storage, state, P, floats, ints, params, 
         _register_pair(smoothed, starts[c], size, storage, ints[FIRST], ints[SIZE], bx, by,
                        reach, params, other)
         if other[5] > result[5] or (other[5] == result[5] and other[6] < result[6]):
+            result[:] = other
+    if result[5] > 0.0 and result[0] * result[0] + result[1] * result[1] > params[TRIM] ** 2:
+        _register_pair(smoothed, starts[c], size, storage, ints[FIRST], ints[SIZE], 0.0, 0.0,
+                       params[TRIM], params, other)
+        if other[5] >= result[5] and other[6] <= REST_VARIANCE * result[6]:
             result[:] = other
     kept = result[5]
     good = kept >= 3 and kept >= params[OVERLAP] * result[7]
@@ -704,10 +720,11 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
         if c < 0:
             continue
         if not structure[c]:
-            if _measure(smoothed, starts, c, stats[c], storage, states[t], covariances[t],
-                        floats[t], ints[t], params, relative, result, other, scratch):
-                ints[t, HITS] += 1
-                _classify(states[t], covariances[t], ints[t], params)
+            registered = _measure(smoothed, starts, c, stats[c], storage, states[t],
+                                  covariances[t], floats[t], ints[t], params, relative,
+                                  result, other, scratch)
+            ints[t, HITS] += registered
+            _classify(states[t], covariances[t], ints[t], params, registered)
         else:
             reclone_one(states[t], covariances[t])
             ints[t, MOVING] = ints[t, STREAK] = 0
