@@ -139,6 +139,9 @@ FILTER_PARAMETERS = {
     'obstacle_velocity_error': ((0.0, 10.0), 'planar models: bound [m/s] on the error of a '
                                 "moving obstacle's estimated velocity; its rows hold for any "
                                 'such error (0: velocities are exact)'),
+    'evasion_horizon': ((0.0, 10.0), 'planar models with the braking check: look ahead [s] '
+                        'over which a moving obstacle must not reach the robot; when one '
+                        'would, hold the input that keeps clearest instead (0: never evade)'),
     'ground_z': (None, '3-D models: height of the ground [m], an obstacle like any other '
                  '(core/ground.py); -.inf: no ground'),
 }

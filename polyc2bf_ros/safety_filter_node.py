@@ -125,7 +125,7 @@ _DIAGNOSTICS_PERIOD = 1.0
 _MARKERS_PERIOD = 0.1
 _STATE_PERIOD = 0.1
 _STALL_CHECKS_PER_TIMEOUT = 4
-_FALLBACKS = ('slack', 'brake', 'escape', 'backup')
+_FALLBACKS = ('slack', 'brake', 'escape', 'backup', 'evade')
 _INFEASIBLE = ('slack', 'brake')
 _REFUSED = FilterStatus.INVALID_INPUT
 # As tf2's static listener: every static transform ever sent, from every broadcaster.

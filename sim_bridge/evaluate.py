@@ -105,7 +105,7 @@ from sim_bridge.world import CLEARANCE_RANGE
 
 STALL_TIME = 3.0      # s
 STALL_SPEED = 0.05    # m/s
-FALLBACKS = ('slack', 'brake', 'escape', 'backup')
+FALLBACKS = ('slack', 'brake', 'escape', 'backup', 'evade')
 GRAZE = 0.01          # m: clearances below this are reported as near-contacts
 DEFAULT_RANDOM_SEEDS = 3
 FILTER_NAMES = FILTER_CHOICES + ('default',)

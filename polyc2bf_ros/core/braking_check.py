@@ -79,19 +79,20 @@ def _signed_distance(x, y, edge_x, edge_y, inv_sq, count, n, px, py):
 
 
 @kernel(signature('UniTuple(f8, 2)', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8',
-                  'f8', 'f8', 'f8'))
+                  'f8', 'f8', 'f8', 'b1'))
 def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, age, path,
-                   period, cutoff, accel, velocity_error):
+                   period, cutoff, accel, velocity_error, closing_only):
     """Return min(cutoff, the smallest signed distance of a ``path`` row's x, y to a polygon).
 
     Two values: over the static polygons, and over the moving ones.  Negative inside.
     Polygon n (CCW, rows of ``x``, ``y`` as ``cones.PlanarPolygons``) has moved by
     ``offsets[n]`` and moves at ``velocities[n]``; path row k ([x, y, vx, vy]) is at
-    age + (k + 1) period.  A moving polygon counts only at the rows where the path's
+    age + (k + 1) period.  A moving polygon counts less ``velocity_error`` t + ``accel``
+    t^2 / 2, t = age + (k + 1) period: as far as it may stray from its stated velocity by
+    then; with ``closing_only`` (the braking check) only at the rows where the path's
     velocity closes on it (points towards its nearest point) or that lie inside it (module
-    docstring), and there less ``velocity_error`` t + ``accel`` t^2 / 2, t = age + (k + 1)
-    period: as far as it may stray from its stated velocity by then.  A polygon whose
-    bounding box stays farther than ``cutoff`` from the path's is not measured.
+    docstring), else at every row (an evasion's look ahead, ``SafetyFilter``).  A polygon
+    whose bounding box stays farther than ``cutoff`` from the path's is not measured.
     """
     rows = path.shape[0]
     if rows == 0:
@@ -122,15 +123,18 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, ag
                                                 path[k, 1] - t * vy - oy)
             if not moving:
                 best = min(best, distance)
-            elif distance <= 0.0 or path[k, 2] * dx + path[k, 3] * dy < 0.0:
+            elif (not closing_only or distance <= 0.0
+                  or path[k, 2] * dx + path[k, 3] * dy < 0.0):
                 best_moving = min(best_moving,
                                   distance - t * (velocity_error + 0.5 * accel * t))
     return best, best_moving
 
 
-@kernel(signature('b1', F2, F2, I1, F2, F2, 'f8', 'f8', 'f8', 'f8'))
-def clear_around(x, y, counts, velocities, offsets, elapsed, cx, cy, reach):
+@kernel(signature('b1', F2, F2, I1, F2, F2, 'f8', 'f8', 'f8', 'f8', 'b1'))
+def clear_around(x, y, counts, velocities, offsets, elapsed, cx, cy, reach, moving_only):
     """Return True when no polygon's bounding box comes within ``reach`` of (cx, cy).
+
+    With ``moving_only``, no moving polygon's (an evasion's trigger, ``SafetyFilter``).
 
     Polygon n (rows of ``x``, ``y``) has moved by ``offsets[n]`` and moves at
     ``velocities[n]`` for up to ``elapsed`` s more.  The square of half-side ``reach`` around
@@ -140,6 +144,8 @@ def clear_around(x, y, counts, velocities, offsets, elapsed, cx, cy, reach):
     """
     for n in range(counts.shape[0]):
         vx, vy = velocities[n, 0], velocities[n, 1]
+        if moving_only and vx == 0.0 and vy == 0.0:
+            continue
         grown = reach + elapsed * math.sqrt(vx * vx + vy * vy)
         low_x, high_x, low_y, high_y = polygon_box(x, y, counts[n], n)
         px, py = cx - offsets[n, 0], cy - offsets[n, 1]

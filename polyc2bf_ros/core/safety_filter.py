@@ -80,6 +80,7 @@ Fallbacks, always flagged in ``FilterInfo.status``:
 """
 import enum
 import functools
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -100,6 +101,12 @@ from polyc2bf_ros.core.qp_backends import make_solver, SOLVERS
 from polyc2bf_ros.core.views import choose_planes, prepare_views
 
 ACTIVE_TOLERANCE = 1e-7
+EVASION_STEP = 0.05
+"""s between the points of an evasion's look ahead (rounded to whole control periods)."""
+EVASION_REACH = 0.5
+"""m beyond the braking check's clearance up to which an evasion's look ahead measures."""
+EVASION_GAIN = 0.01
+"""m of clearance an evasion must gain over holding the filter's input."""
 _MIN_ROW_NORM = 1e-12
 
 
@@ -112,6 +119,7 @@ class FilterStatus(str, enum.Enum):
     BRAKE = 'brake'
     ESCAPE = 'escape'
     BACKUP = 'backup'
+    EVADE = 'evade'
     INVALID_INPUT = 'invalid_input'
 
 
@@ -147,6 +155,7 @@ class FilterConfig:
     ground_z: float = -math.inf
     obstacle_accel: float = 0.0
     obstacle_velocity_error: float = 0.0
+    evasion_horizon: float = 1.0
 
     @property
     def margin(self):
@@ -162,7 +171,8 @@ class FilterConfig:
         positive = ('gamma', 'control_period', 'velocity_epsilon', 'slack_weight',
                     'escape_gain')
         non_negative = ('robot_radius', 'margin_gain', 'escape_speed', 'braking_margin',
-                        'braking_obstacle_accel', 'obstacle_accel', 'obstacle_velocity_error')
+                        'braking_obstacle_accel', 'obstacle_accel', 'obstacle_velocity_error',
+                        'evasion_horizon')
         for name in positive + non_negative:
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0 or (name in positive and value == 0):
@@ -431,6 +441,16 @@ class SafetyFilter:
         # disc keeps braking_margin, i.e. the guarded point guard_radius + braking_margin.
         self._clearance = self.guard_radius + float(self.config.braking_margin)
         self._braking_accel = float(self.config.braking_obstacle_accel)
+        # Evasion: inputs held over the look ahead, the input box's corners, edge midpoints
+        # and centre (design.md 3.10, evasion).
+        period = float(self.config.control_period)
+        self._evasion_step = period * max(1, round(EVASION_STEP / period))
+        self._evasion_rows = max(1, round(self.config.evasion_horizon / self._evasion_step))
+        self._evasion = (self._braking and self.config.evasion_horizon > 0.0
+                         and model.held_path(np.zeros(model.state_dim),
+                                             np.zeros(model.input_dim), period, 1) is not None)
+        self._evasion_inputs = np.array(list(itertools.product(*zip(
+            self._lower, np.clip(0.0, self._lower, self._upper), self._upper))))
         # The step's reference kinematics, refilled each step (it never leaves the step).
         self._reference = ReferenceKinematics.empty(model.position_dim, model.input_dim)
         # What prepared views depend on: the cone model's settings, dimension and radius.
@@ -500,11 +520,16 @@ class SafetyFilter:
             message = f'outside the safe set: min h = {min_h:.3g}; driving h back up'
         if self._braking and status in (FilterStatus.OK, FilterStatus.RECOVERING,
                                         FilterStatus.SLACK, FilterStatus.ESCAPE):
-            if not self._far_from_all(state, prepared, obstacle_age):
-                now = _BrakingNow(self, state, prepared, obstacle_age)
-                if self._must_brake(state, u, prepared, obstacle_age, now):
-                    u, message = self._backup_input(state, u, prepared, obstacle_age, now)
-                    status = FilterStatus.BACKUP
+            now = _BrakingNow(self, state, prepared, obstacle_age)
+            if (not self._far_from_all(state, prepared, obstacle_age)
+                    and self._must_brake(state, u, prepared, obstacle_age, now)):
+                u, message = self._backup_input(state, u, prepared, obstacle_age, now)
+                status = FilterStatus.BACKUP
+            if self._evasion and self._moving_near(state, prepared, obstacle_age):
+                evasion = self._evade(state, u, prepared, obstacle_age, now)
+                if evasion is not None:
+                    u, message = evasion
+                    status = FilterStatus.EVADE
         return u, FilterInfo(
             status=status, h=h, min_h=min_h, active=active,
             solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
@@ -592,7 +617,7 @@ class SafetyFilter:
         return clear_around.unchecked(
             footprints.x, footprints.y, footprints.counts, prepared.velocities,
             prepared.offsets, max(abs(age), abs(age + duration)), float(state[0]),
-            float(state[1]), reach + self._clearance)
+            float(state[1]), reach + self._clearance, False)
 
     def _backup_input(self, state, u, prepared, age, now):
         """Return (input, message) once the braking check refused ``u``.
@@ -611,6 +636,95 @@ class SafetyFilter:
                     return steered, f'braking check: braking the speed, {how} the steering'
         return brake, 'braking check: the input leaves no clear way to stop; braking'
 
+    def _moving_near(self, state, prepared, age):
+        """Return True when a moving part may come within an evasion's look ahead.
+
+        ``clear_around`` over the moving parts, with reach the distance any held input moves
+        the reference point over the horizon H, |r_dot| H + a H^2 / 2 (a the largest input
+        bound, the model's input matrix at most 1 per unit), plus the look ahead's cutoff.
+        """
+        velocities = prepared.velocities
+        if not velocities[:, :2].any():
+            return False
+        horizon = self._evasion_rows * self._evasion_step
+        ref = self.model.reference(state)
+        reach = (float(np.linalg.norm(ref.velocity)) * horizon
+                 + 0.5 * float(np.max(self._upper)) * horizon ** 2
+                 + self._clearance + EVASION_REACH)
+        footprints = prepared.footprints
+        return not clear_around.unchecked(
+            footprints.x, footprints.y, footprints.counts, velocities, prepared.offsets,
+            abs(age) + horizon, float(ref.position[0]), float(ref.position[1]), reach, True)
+
+    def _evade(self, state, u, prepared, age, now):
+        """Return (input, message) of an evasion when ``u`` runs into a moving part, or None.
+
+        design.md 3.10 (evasion).  The look ahead of ``u``: held for one period, then the
+        brake, then at rest, over ``evasion_horizon`` H.  When a moving part, at its stated
+        velocity (less ``obstacle_velocity_error`` t), comes within the braking check's
+        clearance of it, each of ``_evasion_inputs`` is held instead, for H / 2 then braking
+        and for all of H; the input whose look ahead stays clearest of every part, by
+        ``EVASION_GAIN`` more than ``u``'s, among those the braking check keeps, is returned.
+        """
+        period = self.config.control_period
+        middle = state + 0.5 * period * self.model.state_derivative(state, u)
+        after = state + period * self.model.state_derivative(middle, u)
+        static, moving = self._look_ahead(self._then_brake(np.zeros((0, 4)), after, 1),
+                                          prepared, age)
+        if moving >= self._clearance:
+            return None
+        held = min(static, moving)
+        best = {}
+        rows = self._evasion_rows
+        for index, candidate in enumerate(self._evasion_inputs):
+            path, _ = self.model.held_path(state, candidate, self._evasion_step, rows)
+            half, middle_state = self.model.held_path(state, candidate, self._evasion_step,
+                                                      max(rows // 2, 1))
+            best[index] = max(min(self._look_ahead(path, prepared, age)),
+                              min(self._look_ahead(self._then_brake(half, middle_state, 0),
+                                                   prepared, age)))
+        for index in sorted(best, key=lambda i: -best[i]):
+            candidate, score = self._evasion_inputs[index], best[index]
+            if score <= held + EVASION_GAIN:
+                break
+            if not self._must_brake(state, candidate, prepared, age, now):
+                return candidate.copy(), (
+                    f'evading a moving obstacle: {np.round(candidate, 2).tolist()} keeps '
+                    f'{score - self.guard_radius:.2f} m clear over '
+                    f'{self.config.evasion_horizon:g} s, the filter input '
+                    f'{held - self.guard_radius:.2f} m')
+        return None
+
+    def _then_brake(self, rows, after, periods):
+        """Return a look ahead's rows, ``step`` s apart up to the horizon.
+
+        ``rows``, then the brake from state ``after``, ``periods`` control periods past the
+        last of ``rows`` (or past the start), then at rest where the brake ends.
+        """
+        ratio = round(self._evasion_step / self.config.control_period)
+        brake = self.model.braking_path(after, self.config.control_period)
+        first = ratio - 1 - periods
+        if first < 0:  # a step of one period: ``after`` itself is the next row
+            ref = self.model.reference(after)
+            rows, first = np.vstack([rows, np.concatenate((ref.position, ref.velocity))]), 0
+        ahead = np.vstack([rows, brake[first::ratio]])[:self._evasion_rows]
+        rest = np.tile(np.concatenate((brake[-1, :2], np.zeros(2))),
+                       (self._evasion_rows - len(ahead), 1))
+        return np.vstack([ahead, rest])
+
+    def _look_ahead(self, path, prepared, age):
+        """Return (static, moving) clearances of a look-ahead ``path`` (rows ``step`` s apart).
+
+        ``path_clearance`` at every row, moving parts at their stated velocity less
+        ``obstacle_velocity_error`` t, up to the clearance plus ``EVASION_REACH``.
+        """
+        footprints = prepared.footprints
+        return path_clearance.unchecked(
+            footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
+            footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
+            float(age), np.ascontiguousarray(path, dtype=np.float64), self._evasion_step,
+            self._clearance + EVASION_REACH, 0.0, self._velocity_error, False)
+
     def _path_clearance(self, path, prepared, age):
         """Return c(B), capped at the margin, of a braking ``path``: (static, moving parts).
 
@@ -624,7 +738,7 @@ class SafetyFilter:
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
             float(age), path, self.config.control_period, self._clearance,
-            self._braking_accel, self._velocity_error)
+            self._braking_accel, self._velocity_error, True)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""

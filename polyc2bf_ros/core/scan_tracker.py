@@ -76,8 +76,9 @@ last matched).  Per scan, with ``dt`` the time since the newest stamp:
    ``sigma_v = sqrt(v^T P_vv v) / |v|`` is its standard deviation along itself.  A
    registration passes when ``|v| > max(moving_speed, n_sigma sigma_v)``; after
    ``moving_scans`` successive registrations that pass, the track is moving, after as many
-   that do not (a failed registration does not pass), it is still again.  The published velocity is v for a confirmed moving track
-   and exactly 0 otherwise; ``with_velocities`` gives it to the obstacles of the cluster.
+   that do not (a failed registration does not pass), it is still again.  The published
+   velocity is v for a confirmed moving track and exactly 0 otherwise; ``with_velocities``
+   gives it to the obstacles of the cluster.
    (Along v, not along the worst axis: a box seen face-on is measured only across its face,
    and its approach speed is known though its sideways speed is not.)
 

@@ -91,7 +91,8 @@ def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
     answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                             prepared.inv_sq, prepared.counts, velocities,
-                            np.zeros_like(velocities), age, path, PERIOD, cutoff, 0.0, 0.0)
+                            np.zeros_like(velocities), age, path, PERIOD, cutoff, 0.0, 0.0,
+                            True)
     expected = _clearance_by_brute_force(polygons, velocities, path, age, cutoff)
     assert answer == pytest.approx(expected, abs=1e-9)
     assert not velocities.any() or answer[0] == cutoff
@@ -105,12 +106,15 @@ def test_a_part_coming_at_a_robot_that_backs_away_does_not_count():
     closing = backing * [-1.0, 1.0, -1.0, 1.0]
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
             prepared.counts, np.array([[-1.4, 0.0]]), np.zeros((1, 2)), 0.0)
-    assert path_clearance(*args, backing, PERIOD, 0.5, 2.0, 0.5) == (0.5, 0.5)
-    assert path_clearance(*args, closing, PERIOD, 0.5, 0.0, 0.0)[1] < 0.0
+    assert path_clearance(*args, backing, PERIOD, 0.5, 2.0, 0.5, True) == (0.5, 0.5)
+    assert path_clearance(*args, closing, PERIOD, 0.5, 0.0, 0.0, True)[1] < 0.0
+    # An evasion's look ahead counts every row: the box gains on the slower robot.
+    assert path_clearance(*args, backing, PERIOD, 0.5, 0.0, 0.0, False)[1] < 0.5
     near = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box - [0.3, 0.0]]))
     static = (near.x, near.y, near.edge_x, near.edge_y, near.inv_sq, near.counts,
               np.zeros((1, 2)), np.zeros((1, 2)), 0.0)
-    assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, 0.5) == pytest.approx((0.31, 0.5))
+    assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, 0.5, True) == pytest.approx(
+        (0.31, 0.5))
 
 
 def test_a_moving_part_may_stray_from_its_velocity_by_the_bounds():
@@ -120,8 +124,8 @@ def test_a_moving_part_may_stray_from_its_velocity_by_the_bounds():
     path = np.array([[0.1, 0.0, 1.0, 0.2]])
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
             prepared.counts, np.array([[1.0, 0.0]]), np.zeros((1, 2)), 0.0, path, 0.5, 5.0)
-    _, plain = path_clearance(*args, 0.0, 0.0)
-    _, robust = path_clearance(*args, 2.0, 0.2)
+    _, plain = path_clearance(*args, 0.0, 0.0, True)
+    _, robust = path_clearance(*args, 2.0, 0.2, True)
     assert robust == pytest.approx(plain - 0.5 * (0.2 + 0.5 * 2.0 * 0.5))
 
 
@@ -179,18 +183,18 @@ def test_clear_around_promises_what_path_clearance_returns(polygons, seed, cutof
     offsets = rng.uniform(-0.3, 0.3, (len(polygons), 3)) * rng.integers(0, 2)
     age = float(rng.uniform(0.0, 0.2))
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
-    clear = clear_around(prepared.x, prepared.y, prepared.counts, velocities, offsets,
-                         age + len(path) * PERIOD, float(centre[0]), float(centre[1]),
-                         rho + cutoff)
-    answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
-                            prepared.inv_sq, prepared.counts, velocities, offsets, age, path,
-                            PERIOD, cutoff, 0.0, 0.0)
-    if clear:
-        assert answer == (cutoff, cutoff)
+    around = (prepared.x, prepared.y, prepared.counts, velocities, offsets,
+              age + len(path) * PERIOD, float(centre[0]), float(centre[1]), rho + cutoff)
+    clearance = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
+                 prepared.counts, velocities, offsets, age, path, PERIOD, cutoff, 0.0, 0.0)
+    if clear_around(*around, False):
+        assert path_clearance(*clearance, True) == (cutoff, cutoff)
+    if clear_around(*around, True):  # moving parts only: an evasion's look ahead
+        assert path_clearance(*clearance, False)[1] == cutoff
     far = PlanarPolygons.from_batch(PolygonBatch.from_polygons([p + 100.0 for p in polygons]))
     assert clear_around(far.x, far.y, far.counts, np.zeros_like(velocities),
                         np.zeros_like(offsets), age, float(centre[0]), float(centre[1]),
-                        rho + cutoff)
+                        rho + cutoff, False)
 
 
 @pytest.mark.parametrize('wall_x, checked', [(1.0, True), (30.0, False)])

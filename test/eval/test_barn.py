@@ -9,7 +9,7 @@ import pytest
 from PIL import Image
 
 from sim_bridge import barn
-from sim_bridge.barn_suite import BARN_KEYS
+from sim_bridge.barn_suite import BARN_KEYS, run_world
 from sim_bridge.evaluate import main
 
 START, GOAL = [-2.25, 3.0, 1.57], [-2.25, 13.0]
@@ -226,3 +226,17 @@ def test_scan_mode_goal_nominal_keeps_clear_of_the_row_it_sees_by_lidar(tmp_path
     assert record['mean_intervention'] > 0.0
     text = (out / 'results.md').read_text()
     assert '| goal | scan | 1 |' in text and 'Obstacles: scan (lidar beams 360' in text
+
+
+def test_a_standing_row_of_posts_gets_no_velocity_from_the_scan_tracker():
+    """A shipped world whose rows of posts match themselves shifted by a post.
+
+    Before the tracker tested rest (``core/scan_tracker.py``, step 3) a standing row here
+    got 2.4 m/s, and go-to-goal from the scan drove into it.  Evasion is off, for it steers
+    clear of a phantom that moves.
+    """
+    world, = [w for w in barn.load_worlds(barn.WORLDS_FILE) if w.world == 275]
+    (record, _), = run_world(world, [('polyc2bf_horizon', 'goal')], obstacle_source='scan',
+                             parameters={'filter.evasion_horizon': 0.0})
+    assert record['success'] and not record['collision'], record
+    assert record['min_clearance_m'] > 0.0

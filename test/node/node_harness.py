@@ -202,7 +202,7 @@ def markers(*items):
 
 
 # ~/state statuses of a step the filter computed (a watchdog's stop has the stale input's).
-FILTERED_STATUSES = ('ok', 'recovering', 'brake', 'backup')
+FILTERED_STATUSES = ('ok', 'recovering', 'brake', 'backup', 'evade')
 
 
 def status_values(status):

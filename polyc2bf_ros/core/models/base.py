@@ -113,6 +113,16 @@ class RobotModel(abc.ABC):
         """
         return None
 
+    def held_path(self, x, u, step, rows):
+        """Return (path, state): the point's path with ``u`` held from x, and its last state.
+
+        The path is (rows, 2 position_dim); row k is the point's position, then its
+        velocity, (k + 1) ``step`` s after x with the input ``u`` held all along (the
+        filter's evasion looks ahead along these).  None: the model has none, and the
+        filter does not evade with it.
+        """
+        return None
+
     def braking_reach(self, x, period):
         """Return (rho, t): a bound on the braking check's path from one period after x.
 

@@ -88,6 +88,17 @@ class PointMass(RobotModel):
                                        float(period), out)
         return out[:rows]
 
+    def held_path(self, x, u, step, rows):
+        """Return the point's path with ``u`` held (``RobotModel.held_path``).
+
+        Exact: p + v t + u t^2 / 2 and v + u t at t = (k + 1) step.
+        """
+        d = self.position_dim
+        x, u = self.as_state(x), np.asarray(u, dtype=float)
+        t = (np.arange(int(rows)) + 1.0)[:, None] * float(step)
+        path = np.hstack([x[:d] + x[d:] * t + 0.5 * u * t * t, x[d:] + u * t])
+        return path, path[-1].copy()
+
     def braking_reach(self, x, period):
         """Return (rho, t) of ``RobotModel.braking_reach``; (inf, inf) when T > tau.
 

@@ -57,20 +57,46 @@ def _braking_path(x, offset, limits, time_constant, period, out):
     for k in range(out.shape[0]):
         a = min(max(-v / time_constant, -limits[0]), limits[0])
         alpha = min(max(-omega / time_constant, -limits[1]), limits[1])
-        # Midpoint rule over the period, the brake held: second order in T.
-        heading = theta + 0.5 * period * (omega + 0.25 * period * alpha)
-        travel = period * (v + 0.5 * period * a)
-        px, py = px + travel * math.cos(heading), py + travel * math.sin(heading)
-        theta += period * (omega + 0.5 * period * alpha)
-        v += period * a
-        omega += period * alpha
-        c, s = math.cos(theta), math.sin(theta)
-        out[k, 0], out[k, 1] = px + offset * c, py + offset * s
-        out[k, 2], out[k, 3] = v * c - offset * omega * s, v * s + offset * omega * c
+        px, py, theta, v, omega = _held_step(px, py, theta, v, omega, a, alpha, period)
+        _point_row(px, py, theta, v, omega, offset, out[k])
         rows = k + 1
         if abs(v) < 1e-4 and abs(omega) < 1e-4:
             break  # the rest of the damped stop moves the point by < 1e-4 time_constant
     return rows
+
+
+@kernel
+def _held_step(px, py, theta, v, omega, a, alpha, period):
+    """Return the state one ``period`` on with (a, alpha) held.
+
+    The midpoint rule, second order in T (exact for a straight stop).
+    """
+    heading = theta + 0.5 * period * (omega + 0.25 * period * alpha)
+    travel = period * (v + 0.5 * period * a)
+    return (px + travel * math.cos(heading), py + travel * math.sin(heading),
+            theta + period * (omega + 0.5 * period * alpha), v + period * a,
+            omega + period * alpha)
+
+
+@kernel
+def _point_row(px, py, theta, v, omega, offset, row):
+    """Write the reference point's [x, y, vx, vy] at state (px, py, theta, v, omega) to ``row``."""
+    c, s = math.cos(theta), math.sin(theta)
+    row[0], row[1] = px + offset * c, py + offset * s
+    row[2], row[3] = v * c - offset * omega * s, v * s + offset * omega * c
+
+
+@kernel(signature('void', F1, 'f8', F1, 'f8', F2, F1))
+def _held_path(x, offset, u, step, out, end):
+    """Write the reference point's [x, y, vx, vy] with ``u`` held, one row per ``step``.
+
+    And the state after the last row to ``end``.
+    """
+    px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
+    for k in range(out.shape[0]):
+        px, py, theta, v, omega = _held_step(px, py, theta, v, omega, u[0], u[1], step)
+        _point_row(px, py, theta, v, omega, offset, out[k])
+    end[0], end[1], end[2], end[3], end[4] = px, py, theta, v, omega
 
 
 @register_model
@@ -146,6 +172,14 @@ class Unicycle(RobotModel):
         rows = _braking_path.unchecked(x, self.offset_l, self.input_upper,
                                        self.brake_time_constant, float(period), out)
         return out[:rows]
+
+    def held_path(self, x, u, step, rows):
+        """Return the reference point's path with ``u`` held (``RobotModel.held_path``)."""
+        out, end = np.empty((int(rows), 4)), np.empty(5)
+        # Unchecked: as_state, the input, out and end are C-contiguous float64.
+        _held_path.unchecked(self.as_state(x), self.offset_l,
+                             np.ascontiguousarray(u, dtype=np.float64), float(step), out, end)
+        return out, end
 
     def braking_reach(self, x, period):
         """Return (rho, t) of ``RobotModel.braking_reach``; (inf, inf) when T > tau.
