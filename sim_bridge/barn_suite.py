@@ -51,6 +51,8 @@ from sim_bridge.barn import (
 )
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluate import (
+    actuation_from_args,
+    actuation_line,
     filter_statistics,
     group_records,
     lidar_from_args,
@@ -111,6 +113,7 @@ def barn_record(world, run):
         'penetration_m': _round(max(0.0, -metrics['min_clearance_m']))
         if metrics['min_clearance_m'] is not None else None,
         'wall_time_s': round(run.wall_time_s, 2), 'lidar': lidar_record(run),
+        'actuation': run.actuation.record(),
     }
 
 
@@ -122,34 +125,35 @@ def _trajectory(run):
     return {'positions': kept, 'collision': positions[-1] if run.ended == 'collision' else None}
 
 
-def run_world(world, combos, parameters=None, obstacle_source='markers', lidar=None):
+def run_world(world, combos, parameters=None, obstacle_source='markers', lidar=None,
+              actuation=None):
     """Run ``world`` (BarnWorld) with every (filter, nominal) of ``combos``.
 
     Return [(record, trajectory)] in ``combos`` order; the Scenario is built once.
     ``parameters``: node parameters that override the parameter file's;
-    ``obstacle_source``, ``lidar``: as for ``run_in_process``.
+    ``obstacle_source``, ``lidar``, ``actuation``: as for ``run_in_process``.
     """
     scenario = world.scenario()
     results = []
     for barrier, nominal in combos:
         run = run_in_process(scenario, barrier, nominal=nominal, until=BarnReferee(),
                              parameters=parameters, obstacle_source=obstacle_source,
-                             lidar=lidar)
+                             lidar=lidar, actuation=actuation)
         results.append((barn_record(world, run), _trajectory(run)))
     return results
 
 
 def run_barn(worlds, combos, jobs=None, progress=True, parameters=None,
-             obstacle_source='markers', lidar=None):
+             obstacle_source='markers', lidar=None, actuation=None):
     """Run every world x combo over ``jobs`` processes (default: the CPU count).
 
-    ``parameters``, ``obstacle_source``, ``lidar``: as for ``run_world``.
+    ``parameters``, ``obstacle_source``, ``lidar``, ``actuation``: as for ``run_world``.
 
     Return (records, trajectories) in world, then combo order; trajectories are keyed
     by (world id, filter, nominal).  With one job everything runs in this process.
     """
-    return run_worlds(worlds, combos, run_world, (parameters, obstacle_source, lidar), jobs,
-                      progress)
+    return run_worlds(worlds, combos, run_world,
+                      (parameters, obstacle_source, lidar, actuation), jobs, progress)
 
 
 # -- tables and plots -----------------------------------------------------------------------
@@ -244,6 +248,7 @@ def write_barn_outputs(out, records, trajectories, worlds, command, wall_time_s,
             f'{wall_time_s:.0f} s over {jobs} process(es); load average after the run: '
             f'{load}.  ',
             f'Obstacles: {obstacle_sources(records)}.  ',
+            f'Actuation: {actuation_line(records)}.  ',
             f'{len(records)} runs over {len(worlds)} worlds (from `{worlds_label}`); '
             'per run JSON in `results.json`.  Definitions: `sim_bridge/barn.py` and '
             '`sim_bridge/barn_suite.py` docstrings.  Rates are shares of the worlds; the '
@@ -284,10 +289,12 @@ def main_barn(parser, args, command):
     except ValueError as exc:
         parser.error(str(exc))
     lidar = lidar_from_args(parser, args)
+    actuation = actuation_from_args(parser, args)
     start = time.monotonic()
     try:
         records, trajectories = run_barn(worlds, combos, jobs, parameters=parameters,
-                                         obstacle_source=args.obstacle_source, lidar=lidar)
+                                         obstacle_source=args.obstacle_source, lidar=lidar,
+                                         actuation=actuation)
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130

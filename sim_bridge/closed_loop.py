@@ -76,6 +76,7 @@ from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters, NODE_PARAMETERS
 from polyc2bf_ros.obstacle_intake import ObstacleJob, ObstaclePipeline
+from sim_bridge.actuation import Actuation, CommandPipe, Odometry
 from sim_bridge.launcher import (
     body_parameters,
     control_rate,
@@ -165,6 +166,7 @@ class ClosedLoopRun:
     obstacle_source: str = 'markers'
     lidar: LidarSettings = None
     marker_pipeline: bool = False
+    actuation: Actuation = Actuation()
 
 
 class _Robot:
@@ -515,7 +517,8 @@ def obstacle_free(scenario):
 
 def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=None,
                    progress=None, nominal='goal', until=None, parameters=None,
-                   obstacle_source='markers', lidar=None, marker_pipeline=False):
+                   obstacle_source='markers', lidar=None, marker_pipeline=False,
+                   actuation=None):
     """Run ``scenario`` (Scenario or name) in lockstep in this process; return ClosedLoopRun.
 
     ``progress(sim_time, duration)`` is called about once per simulated second;
@@ -523,7 +526,9 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
     ``parameters``: node parameters that override the parameter file's;
     ``obstacle_source``: 'markers' or 'scan' (by ``lidar``, default ``LidarSettings()``);
     ``marker_pipeline`` (markers only): the markers go through the node's obstacle
-    pipeline (``_MarkerView``: estimated velocities), not straight to the filter.
+    pipeline (``_MarkerView``: estimated velocities), not straight to the filter;
+    ``actuation`` (``sim_bridge.actuation.Actuation``, default exact): command latency,
+    the plants' first-order response and odometry noise.
     """
     if barrier not in FILTER_CHOICES:
         raise ValueError(f'filter must be one of {", ".join(FILTER_CHOICES)}, got {barrier!r}')
@@ -536,6 +541,7 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
     if scanning and marker_pipeline:
         raise ValueError('marker_pipeline needs obstacle_source markers, not scan')
     lidar = (lidar or LidarSettings()).validate() if scanning else None
+    actuation = (actuation or Actuation()).validate()
     if scanning:
         parameters = {**scan_parameters(lidar), **(parameters or {})}
     scenario = load_scenario(scenario) if isinstance(scenario, (str, Path)) else scenario
@@ -551,6 +557,13 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
         metrics = RunMetrics(world)
         robots = {spec.name: _Robot(spec, barrier, nominal, period, steps, world, parameters)
                   for spec in scenario.robots}
+        pipes = {name: CommandPipe(actuation.latency, None) for name in robots}
+        odometry = {name: Odometry(actuation.odom_noise, (actuation.seed, index),
+                                   yaw_index=robot.yaw_index)
+                    for index, (name, robot) in enumerate(robots.items())}
+        for name in robots:
+            world.set_actuator_tau(name, actuation.actuator_tau)
+        applied = {}  # the command each plant holds
         if scanning:
             view = _ScanView(world, robots, lidar)
         else:
@@ -560,14 +573,21 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
         for k in range(steps):
             commands = {}
             for name, robot in robots.items():
-                # The state recorded after the last period's physics (nothing moved since).
-                state = robot.states[k]
+                # The state recorded after the last period's physics (nothing moved since),
+                # as the robot's odometry reports it.
+                state = odometry[name].read(robot.states[k])
                 snapshot = (view.snapshot(name, state, state[robot.yaw_index], robot.times[k])
                             if robot.filter is not None else None)
                 commands[name] = robot.command(k, state, snapshot)
             for name, command in commands.items():
-                world.set_command(name, command, robots[name].kind)
-            for _ in range(substeps):
+                pipes[name].send(k * period, command)
+            for substep in range(substeps):
+                now = k * period + substep * world.dt
+                for name, pipe in pipes.items():
+                    command = pipe.at(now)
+                    if command is not None and command is not applied.get(name):
+                        world.set_command(name, command, robots[name].kind)
+                        applied[name] = command
                 world.step()
                 if scanning:
                     view.sense()
@@ -588,6 +608,6 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
                              metrics=metrics.to_json(), wall_time_s=wall, robot_radius=radius,
                              nominal=nominal, ended=ended or None,
                              obstacle_source=obstacle_source, lidar=lidar,
-                             marker_pipeline=bool(marker_pipeline))
+                             marker_pipeline=bool(marker_pipeline), actuation=actuation)
     finally:
         world.close()

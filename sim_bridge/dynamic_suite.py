@@ -62,6 +62,8 @@ from sim_bridge.dynamic_worlds import (
     WORLDS_PER_DIFFICULTY,
 )
 from sim_bridge.evaluate import (
+    actuation_from_args,
+    actuation_line,
     filter_statistics,
     group_records,
     lidar_from_args,
@@ -116,6 +118,7 @@ def dynamic_record(world, run, referee):
         'deadlocked_at_end': stats['deadlocked_at_end'],
         'negative_h_rate': stats['negative_h_rate'], 'deepest_h': stats['deepest_h'],
         'wall_time_s': round(run.wall_time_s, 2), 'lidar': lidar_record(run),
+        'actuation': run.actuation.record(),
     }
 
 
@@ -128,13 +131,14 @@ def _trajectory(run, referee):
             'contact': referee.contact}
 
 
-def run_world(world, combos, parameters=None, obstacle_source='markers', lidar=None):
+def run_world(world, combos, parameters=None, obstacle_source='markers', lidar=None,
+              actuation=None):
     """Run ``world`` (DynamicWorld) with every (filter, nominal) of ``combos``.
 
     Return [(record, trajectory)] in ``combos`` order; the Scenario is built once.
     ``parameters``: node parameters that override the parameter file's;
-    ``obstacle_source``, ``lidar``: as for ``run_in_process`` (markers go through the
-    node's obstacle pipeline).
+    ``obstacle_source``, ``lidar``, ``actuation``: as for ``run_in_process`` (markers go
+    through the node's obstacle pipeline).
     """
     scenario = world.scenario()
     results = []
@@ -142,21 +146,22 @@ def run_world(world, combos, parameters=None, obstacle_source='markers', lidar=N
         referee = ContactReferee(scenario)
         run = run_in_process(scenario, barrier, nominal=nominal, until=referee,
                              parameters=parameters, obstacle_source=obstacle_source,
-                             lidar=lidar, marker_pipeline=obstacle_source == 'markers')
+                             lidar=lidar, marker_pipeline=obstacle_source == 'markers',
+                             actuation=actuation)
         results.append((dynamic_record(world, run, referee), _trajectory(run, referee)))
     return results
 
 
 def run_dynamic(worlds, combos, jobs=None, progress=True, parameters=None,
-                obstacle_source='markers', lidar=None):
+                obstacle_source='markers', lidar=None, actuation=None):
     """Run every world x combo over ``jobs`` processes (default: the CPU count).
 
-    ``parameters``, ``obstacle_source``, ``lidar``: as for ``run_world``.  Return (records,
-    trajectories) in world, then combo order; trajectories are keyed by (world id,
-    filter, nominal).  With one job everything runs in this process.
+    ``parameters``, ``obstacle_source``, ``lidar``, ``actuation``: as for ``run_world``.
+    Return (records, trajectories) in world, then combo order; trajectories are keyed by
+    (world id, filter, nominal).  With one job everything runs in this process.
     """
-    return run_worlds(worlds, combos, run_world, (parameters, obstacle_source, lidar), jobs,
-                      progress,
+    return run_worlds(worlds, combos, run_world,
+                      (parameters, obstacle_source, lidar, actuation), jobs, progress,
                       lambda world: f'world {world.world} ({world.difficulty})')
 
 
@@ -253,6 +258,7 @@ def write_dynamic_outputs(out, records, trajectories, worlds, command, wall_time
             f'run: {load}.  ',
             f"Obstacles: {obstacle_sources(records)} (markers: through the node's obstacle "
             'pipeline, with estimated velocities).  ',
+            f'Actuation: {actuation_line(records)}.  ',
             f'{len(records)} runs over {len(worlds)} worlds (generator seed {seeds}); per run '
             'JSON in `results.json`.  Definitions: `sim_bridge/dynamic_worlds.py` and '
             '`sim_bridge/dynamic_suite.py` docstrings.  A run ends at the first contact '
@@ -315,10 +321,12 @@ def main_dynamic(parser, args, command):
     except ValueError as exc:
         parser.error(str(exc))
     lidar = lidar_from_args(parser, args)
+    actuation = actuation_from_args(parser, args)
     start = time.monotonic()
     try:
         records, trajectories = run_dynamic(worlds, combos, jobs, parameters=parameters,
-                                            obstacle_source=args.obstacle_source, lidar=lidar)
+                                            obstacle_source=args.obstacle_source, lidar=lidar,
+                                            actuation=actuation)
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130

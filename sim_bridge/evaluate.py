@@ -10,6 +10,7 @@ Usage::
     evaluate --suite dynamic [--worlds 0-19 45 ...] [--difficulty easy medium hard]
              [--nominal goal|path ...] [--filters ...] [--jobs N] [--out runs/dynamic]
              [--no-plots] [--obstacle-source ...]
+    every suite also: [--latency S] [--actuator-tau S] [--odom-noise M] [-p NAME:=VALUE ...]
 
 ``--filters`` takes ``polyc2bf_paper``, ``polyc2bf_inflated``, ``c3bf``, ``none``
 and ``default`` (the barrier the robot type's shipped parameter file runs).  The
@@ -30,8 +31,13 @@ origin; ``--lidar FIELD=VALUE`` changes one) and its filter gets only what the
 node makes of the scans (``closed_loop``).  The dynamic suite's markers go through
 the node's obstacle pipeline, so its filter uses estimated velocities, not the true
 ones.  Every record carries ``obstacle_source`` (and ``lidar``, the settings, in scan
-mode); the tables have an ``obstacles`` column.  What follows describes the scenario
-suite.
+mode); the tables have an ``obstacles`` column.
+
+``--latency``, ``--actuator-tau``, ``--odom-noise`` (every suite, default 0: the exact
+lockstep arena): the plants act on each command that long after it is sent, follow it
+to first order, and the filters get odometry with that much position noise
+(``sim_bridge.actuation``).  Every record carries ``actuation`` and every table header
+says it.  What follows describes the scenario suite.
 
 Each run is the in-process lockstep loop of ``sim_bridge.closed_loop`` (the
 PyBullet world, the ``nominal_controller`` law and the node's ``CommandFilter``),
@@ -94,6 +100,7 @@ import yaml
 
 from polyc2bf_ros.core.decision import RESOLUTIONS
 from sim_bridge import plots
+from sim_bridge.actuation import Actuation, describe as describe_actuation
 from sim_bridge.closed_loop import default_barrier, NOMINALS, obstacle_free, run_in_process
 from sim_bridge.dynamic_worlds import DIFFICULTIES
 from sim_bridge.launcher import FILTER_CHOICES, OBSTACLE_SOURCES
@@ -220,6 +227,7 @@ def summarise(run, reference_times):
         'penetration_m': _round(max(0.0, -min(clearances))) if clearances else None,
         'steps': stats['steps'], 'duration_s': run.scenario.duration,
         'wall_time_s': round(run.wall_time_s, 2), 'robots': robots, 'lidar': lidar_record(run),
+        'actuation': run.actuation.record(),
     }
     return record
 
@@ -302,12 +310,13 @@ def plan_runs(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
 
 def run_suite(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
               duration=None, progress=True, parameters=None, obstacle_source='markers',
-              lidar=None):
+              lidar=None, actuation=None):
     """Run the obstacle-free references and every planned run; return (records, runs).
 
     ``parameters``: node parameters that override the parameter files'; ``obstacle_source``
     and ``lidar``: where the filters' obstacles come from (``run_in_process``).  The
-    references have no obstacles and no filter, so no lidar.
+    references have no obstacles and no filter, so no lidar; every run, the references'
+    too, has the plants' ``actuation`` (``run_in_process``).
     """
     planned = plan_runs(scenarios, filters, seeds, random_seeds, duration)
     # References run for the scenario file's own duration, whatever ``duration`` says.
@@ -331,7 +340,7 @@ def run_suite(scenarios, filters, seeds=None, random_seeds=DEFAULT_RANDOM_SEEDS,
 
         source = 'markers' if is_reference else obstacle_source
         run = run_in_process(scenario, barrier, progress=report, parameters=parameters,
-                             obstacle_source=source, lidar=lidar)
+                             obstacle_source=source, lidar=lidar, actuation=actuation)
         done += scenario.duration * weight
         if is_reference:
             reference_times[scenario.name] = {name: m['time_to_goal_s']
@@ -524,6 +533,12 @@ def obstacle_sources(records):
     return '; '.join(texts)
 
 
+def actuation_line(records):
+    """Return how the records' plants took commands and reported odometry (``actuation``)."""
+    return '; '.join(dict.fromkeys(describe_actuation(record.get('actuation'))
+                                   for record in records))
+
+
 def write_outputs(out, records, runs, command, plots_too=True):
     """Write results.json, results.md and (unless ``plots_too`` is False) the PNGs."""
     out = Path(out)
@@ -537,6 +552,7 @@ def write_outputs(out, records, runs, command, plots_too=True):
             f'Date: {datetime.now().isoformat(timespec="seconds")}, load average after the run: '
             f'{load}.  ',
             f'Obstacles: {obstacle_sources(records)}.  ',
+            f'Actuation: {actuation_line(records)}.  ',
             f'{len(records)} runs; per run JSON in `results.json`.  Definitions: '
             '`sim_bridge/evaluate.py` docstring.  Counts are runs (seeds) with that property; '
             '"no cone at t=0": the filter fell back (escape: the robot starts inside the '
@@ -599,6 +615,15 @@ def _parser():
     parser.add_argument('--lidar', action='append', default=[], metavar='FIELD=VALUE',
                         help='with --obstacle-source scan: a lidar setting (value read as '
                         f'YAML), FIELD one of {", ".join(LIDAR_FIELDS)}; repeatable')
+    parser.add_argument('--latency', type=float, default=0.0, metavar='S',
+                        help='the plants act on each command this long after it is sent '
+                        '(default 0: at once; sim_bridge/actuation.py)')
+    parser.add_argument('--actuator-tau', type=float, default=0.0, metavar='S',
+                        help="time constant of the plants' first-order velocity (rotor) "
+                        'response (default 0: at once)')
+    parser.add_argument('--odom-noise', type=float, default=0.0, metavar='M',
+                        help="standard deviation of the noise on the filters' odometry "
+                        'position, per axis (default 0: exact)')
     parser.add_argument('-p', '--param', action='append', default=[], metavar='NAME:=VALUE',
                         help='set a node parameter of every filtered robot, as ros2 run -p '
                         '(value read as YAML), e.g. -p filter.horizon:=2.0; repeatable')
@@ -642,6 +667,14 @@ def override_parameters(args):
     if args.deadlock_resolution is not None:
         parameters['deadlock_resolution'] = args.deadlock_resolution
     return parameters
+
+
+def actuation_from_args(parser, args):
+    """Return the Actuation of ``--latency``, ``--actuator-tau``, ``--odom-noise``; 2 if bad."""
+    try:
+        return Actuation(args.latency, args.actuator_tau, args.odom_noise).validate()
+    except ValueError as exc:
+        parser.error('--' + str(exc).replace('_', '-', 1))  # names the option
 
 
 def lidar_from_args(parser, args):
@@ -710,10 +743,12 @@ def main(argv=None):
     except ValueError as exc:
         parser.error(str(exc))
     lidar = lidar_from_args(parser, args)
+    actuation = actuation_from_args(parser, args)
     try:
         records, runs = run_suite(scenarios, args.filters or list(FILTER_CHOICES), args.seeds,
                                   random_seeds, args.duration, parameters=parameters,
-                                  obstacle_source=args.obstacle_source, lidar=lidar)
+                                  obstacle_source=args.obstacle_source, lidar=lidar,
+                                  actuation=actuation)
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130

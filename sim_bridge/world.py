@@ -305,6 +305,7 @@ class _Unicycle(_Robot):
         self.state = np.array([x, y, yaw, 0.0, 0.0])
         self.command = (0.0, 0.0)
         self.velocity_mode = True
+        self.actuator_tau = 0.0  # s: the velocity loop's first-order lag (0: at once)
 
     def set_command(self, cmd, kind):
         """Hold [v, omega] (kind 'velocity') or [a, alpha] (kind 'acceleration')."""
@@ -316,7 +317,8 @@ class _Unicycle(_Robot):
         x, y, theta, v, omega = self.state.tolist()
         a, alpha = self.command
         if self.velocity_mode:
-            a, alpha = (a - v) / dt, (alpha - omega) / dt
+            lag = max(self.actuator_tau, dt)
+            a, alpha = (a - v) / lag, (alpha - omega) / lag
         a = min(max(a, -QUADRUPED_MAX_ACCEL), QUADRUPED_MAX_ACCEL)
         alpha = min(max(alpha, -QUADRUPED_MAX_ANGULAR_ACCEL), QUADRUPED_MAX_ANGULAR_ACCEL)
         v_new = min(max(v + a * dt, -QUADRUPED_MAX_SPEED), QUADRUPED_MAX_SPEED)
@@ -406,18 +408,30 @@ class _Crazyflie(_Robot):
         super().__init__(spec, body, client)
         self.rotors = [tuple(r) for r in cf.ROTOR_POSITIONS]
         self.thrusts = np.full(4, cf.HOVER_ROTOR_THRUST)
+        self.target = self.thrusts.copy()
         self.yaw_torque = 0.0
+        self.actuator_tau = 0.0  # s: the rotors' first-order lag (0: at once)
 
     def set_command(self, cmd, kind):
         """Hold rotor thrusts f (kind 'thrusts') or f = M^-1 [T, tau] (kind 'wrench'), clipped."""
         values = _finite(cmd, 4, f'{self.spec.name} {kind} command')
         if kind == 'wrench':
             values = cf.thrusts_from_wrench(values)
-        self.thrusts = np.clip(values, 0.0, cf.MAX_ROTOR_THRUST)
-        self.yaw_torque = float(cf.MIXER[3] @ self.thrusts)
+        self.target = np.clip(values, 0.0, cf.MAX_ROTOR_THRUST)
+        if not self.actuator_tau:
+            self.thrusts = self.target
+            self.yaw_torque = float(cf.MIXER[3] @ self.thrusts)
 
     def before_physics(self):
-        """Apply each rotor's thrust at its position and the yaw reaction torque, body frame."""
+        """Apply each rotor's thrust at its position and the yaw reaction torque, body frame.
+
+        With ``actuator_tau`` the thrusts first move towards the commanded ones to first
+        order over the step (``dt``, set with the lag).
+        """
+        if self.actuator_tau:
+            self.thrusts = self.thrusts + (self.target - self.thrusts) * min(
+                self.dt / self.actuator_tau, 1.0)
+            self.yaw_torque = float(cf.MIXER[3] @ self.thrusts)
         for thrust, rotor in zip(self.thrusts, self.rotors):
             pb.applyExternalForce(self.body, -1, (0.0, 0.0, thrust), rotor, pb.LINK_FRAME,
                                   physicsClientId=self.client)
@@ -589,6 +603,17 @@ class SimWorld:
             raise ValueError(f'{robot} ({plant.spec.type}) takes commands of kind '
                              f'{" or ".join(kinds)}, not {kind!r}')
         plant.set_command(cmd, kind)
+
+    def set_actuator_tau(self, robot, tau):
+        """Give ``robot``'s plant a first-order response of time constant ``tau`` [s] >= 0.
+
+        Quadruped, diff drive: the velocity loop; Crazyflie: the rotors
+        (``sim_bridge.actuation``).
+        """
+        if not (math.isfinite(tau) and tau >= 0.0):
+            raise ValueError(f'actuator_tau must be a finite number >= 0, got {tau!r}')
+        plant = self._robots[robot]
+        plant.actuator_tau, plant.dt = float(tau), self.dt
 
     def step(self):
         """Advance one physics step: forces, Bullet step, plants, pop-ups, moving obstacles.

@@ -1,0 +1,83 @@
+"""The arena's realism mode (``sim_bridge.actuation``): latency, first-order response, noise."""
+import contextlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+from sim_bridge.actuation import Actuation, CommandPipe, describe, Odometry
+from sim_bridge.closed_loop import run_in_process
+from sim_bridge.evaluate import main
+
+DURATION = 1.5
+
+
+def _speeds(actuation):
+    """Return (times, speeds) of the quadruped of ``clear_path`` unfiltered, from rest."""
+    run = run_in_process('clear_path', 'none', duration=DURATION, actuation=actuation)
+    trace = run.robots['a1']
+    return trace.times, trace.states[:-1, 3], run
+
+
+def test_a_command_acts_after_the_latency():
+    """The pipe holds each command back by the latency; before the first, its initial one."""
+    pipe = CommandPipe(0.03, 'rest')
+    pipe.send(0.0, 'a')
+    pipe.send(0.01, 'b')
+    assert pipe.at(0.0) == 'rest' and pipe.at(0.029) == 'rest'
+    assert pipe.at(0.03) == 'a' and pipe.at(0.035) == 'a' and pipe.at(0.04) == 'b'
+    assert CommandPipe(0.0, None).at(0.0) is None
+
+
+def test_latency_delays_and_the_actuator_lags_the_plant():
+    """From rest, the plant starts to move the latency later, and follows to first order.
+
+    Exact: the speed steps up within the plant's acceleration limit from the first period.
+    With tau = 0.2 s it reaches at most 1 - exp(-t / tau) of the commanded speed, and
+    with 0.1 s of latency it stands still for the first 0.1 s.
+    """
+    times, exact, run = _speeds(None)
+    assert run.actuation.exact and exact[1] > 0.0
+    times, delayed, run = _speeds(Actuation(latency=0.1))
+    assert run.actuation.record() == {'latency_s': 0.1, 'actuator_tau_s': 0.0,
+                                      'odom_noise_m': 0.0}
+    late = times <= 0.1 + 1e-9
+    assert np.all(delayed[late] == 0.0) and delayed[~late].max() > 0.0
+    shift = round(0.1 / (times[1] - times[0]))  # the same speeds, that many periods later
+    np.testing.assert_allclose(delayed[shift:shift + 10], exact[:10], atol=1e-9)
+    times, lagging, _ = _speeds(Actuation(actuator_tau=0.2))
+    commanded = exact.max()
+    assert np.all(lagging <= commanded * (1.0 - np.exp(-times / 0.2)) + 1e-6)
+    assert lagging[-1] > 0.9 * commanded * (1.0 - np.exp(-times[-1] / 0.2))
+
+
+def test_odometry_noise_is_seeded_and_leaves_the_truth_alone():
+    """Noise of the given size on x, y (and heading per metre); the same seed, the same."""
+    state = np.array([1.0, 2.0, 0.5, 0.3, 0.0])
+    readings = [Odometry(0.01, 7, yaw_index=2).read(state) for _ in range(2)]
+    np.testing.assert_array_equal(readings[0], readings[1])
+    many = np.array([Odometry(0.01, seed, yaw_index=2).read(state) for seed in range(400)])
+    assert np.std(many[:, 0] - 1.0) == pytest.approx(0.01, rel=0.2)
+    np.testing.assert_array_equal(many[:, 3:], np.tile(state[3:], (400, 1)))
+    assert Odometry(0.0, 1).read(state) is state
+    assert state.tolist() == [1.0, 2.0, 0.5, 0.3, 0.0]
+
+
+def test_evaluate_states_the_actuation_and_refuses_bad_values(tmp_path, capsys):
+    """The CLI passes the settings to every run, its records and its table header."""
+    out = tmp_path / 'out'
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+        assert main(['--scenarios', 'clear_path', '--filters', 'polyc2bf_inflated',
+                     '--duration', '2', '--no-plots', '--out', str(out),
+                     '--latency', '0.02', '--actuator-tau', '0.05',
+                     '--odom-noise', '0.005']) == 0
+    record, = json.loads((out / 'results.json').read_text())
+    assert record['actuation'] == {'latency_s': 0.02, 'actuator_tau_s': 0.05,
+                                   'odom_noise_m': 0.005}
+    assert f"Actuation: {describe(record['actuation'])}." in (out / 'results.md').read_text()
+    assert 'command latency 0.02 s' in describe(record['actuation'])
+    with pytest.raises(SystemExit) as exit_info:
+        main(['--scenarios', 'clear_path', '--actuator-tau', '-1'])
+    assert exit_info.value.code == 2
+    assert '--actuator-tau must be a finite number >= 0' in capsys.readouterr().err
