@@ -40,6 +40,14 @@ NODE_PARAMETERS = {
                      'clocks', True),
     'rate': (100.0, (1.0, 2000.0), 'control rate [Hz]: timer rate, and T = 1/rate in '
              'v_safe = v + u_safe T', False),
+    'command_latency': (0.0, (0.0, 1.0), 'velocity models: the base acts on a command this '
+                        'long [s] after it is published; the filter decides at the state '
+                        'predicted that far ahead with the commands in flight '
+                        '(core/input_delay.py)', False),
+    'actuator_tau': (0.0, (0.0, 2.0), "velocity models: time constant [s] of the base's "
+                     'first-order velocity loop; commands are scaled so the base realises '
+                     "the filter's acceleration, and braking paths stop as slowly "
+                     '(core/input_delay.py)', False),
     'velocity_tau': (0.0, (0.0, 10.0), 'tau [s] in u_nom = (v_cmd - v) / tau; 0 = one '
                      'control period (transparent when nothing constrains)', False),
     'odom_timeout': (0.25, (0.002, 10.0), 'odometry older than this [s] -> stop', False),
@@ -257,16 +265,21 @@ def build_settings(values, model=None):
                              f"got {values['trigger']!r}")
     try:
         if model is None:
-            model = make_model(model_name, **{
-                name: values.get(f'model_params.{name}', default)
-                for name, default in model_parameters(model_name).items()})
+            arguments = {name: values.get(f'model_params.{name}', default)
+                         for name, default in model_parameters(model_name).items()}
+            if 'brake_time_constant' in arguments:  # a lagging base brakes as slowly
+                arguments['brake_time_constant'] = max(arguments['brake_time_constant'],
+                                                       float(values['actuator_tau']))
+            model = make_model(model_name, **arguments)
         rate = float(values['rate'])
         if not rate > 0.0:
             raise ValueError(f'rate must be positive, got {rate}')
         period = 1.0 / rate
         config = FilterConfig(control_period=period, **{
             name: values[f'filter.{name}'] for name in FILTER_FIELDS}).validate()
-        command_filter = CommandFilter(model, config, float(values['velocity_tau']))
+        command_filter = CommandFilter(model, config, float(values['velocity_tau']),
+                                       float(values['command_latency']),
+                                       float(values['actuator_tau']))
     except (TypeError, ValueError) as exc:
         raise ParameterError(f'invalid filter parameters: {exc}') from None
     use_markers = bool(values['use_markers'])

@@ -29,31 +29,49 @@ import numpy as np
 
 from polyc2bf_ros.core import crazyflie
 from polyc2bf_ros.core.command_interface import VELOCITY_MODELS, VelocityCommandInterface
+from polyc2bf_ros.core.input_delay import InputDelay
 from polyc2bf_ros.core.safety_filter import FilterInfo, FilterStatus, SafetyFilter
 
 
 class CommandFilter:
     """``SafetyFilter`` behind the robot's command interface (see the module docstring)."""
 
-    def __init__(self, model, config, velocity_tau=0.0):
-        """Filter ``model``'s commands with ``config``; ``velocity_tau`` 0 means one period."""
+    def __init__(self, model, config, velocity_tau=0.0, command_latency=0.0, actuator_tau=0.0):
+        """Filter ``model``'s commands with ``config``; ``velocity_tau`` 0 means one period.
+
+        ``command_latency`` L, ``actuator_tau`` tau [s]: the base's (``core.input_delay``):
+        the filter decides at the state predicted L ahead with the commands published
+        since (``published``), and publishes the command a base lagging by tau turns into
+        the filter's acceleration.  Velocity models only.
+        """
         self.model = model
         self.safety_filter = SafetyFilter(model, config)
         self.velocity = model.name in VELOCITY_MODELS
-        self.interface = None
+        self.interface = self.delay = None
         if self.velocity:
             period = config.control_period
             self.interface = VelocityCommandInterface(model.name, velocity_tau or period, period)
             self.command_dim = self.interface.velocity_dim
+            self.delay = InputDelay(model, command_latency, actuator_tau, period)
         else:
+            if command_latency or actuator_tau:
+                raise ValueError(f'command_latency and actuator_tau apply to velocity models '
+                                 f'({", ".join(VELOCITY_MODELS)}), not {model.name}')
             self.command_dim = 4
 
-    def filter(self, state, yaw, command, obstacles, obstacle_age=0.0):
-        """Return ``(safe command, FilterInfo)`` for a nominal ``command`` at ``state``."""
+    def filter(self, state, yaw, command, obstacles, obstacle_age=0.0, now=None):
+        """Return ``(safe command, FilterInfo)`` for a nominal ``command`` at ``state``.
+
+        With a ``command_latency`` and the step's time ``now`` [s], at the state predicted
+        for when the command acts, and the obstacles extrapolated as far.
+        """
         if not (all(map(math.isfinite, command)) and math.isfinite(yaw)):
             info = FilterInfo(status=FilterStatus.INVALID_INPUT,
                               message='non-finite nominal command or yaw')
             return self.stop(state), info
+        if self.delay is not None and self.delay.active and now is not None:
+            state = self.delay.predict(state, yaw, now)
+            obstacle_age += self.delay.latency
         if self.velocity:
             u_nom = self.interface.nominal_input(state, command, yaw)
         else:
@@ -62,8 +80,13 @@ class CommandFilter:
         if info.status == FilterStatus.INVALID_INPUT:
             return self.stop(state), info
         if self.velocity:
-            return self.interface.safe_command(state, u_safe, yaw), info
+            return self.interface.safe_command(state, u_safe * self.delay.gain, yaw), info
         return crazyflie.wrench_from_thrusts(u_safe), info
+
+    def published(self, now, command):
+        """Note the command the node published at ``now`` (for the latency's predictor)."""
+        if self.delay is not None:
+            self.delay.published(now, command)
 
     def stop(self, state):
         """Return the stop command: zero velocity, or the quadrotor's braking wrench."""

@@ -207,15 +207,16 @@ class ControlDecision:
         if not self.enabled:
             self.deadlock.clear()
             if self.watchdog.is_stale('cmd', now) or not self.command_valid:
-                return self._stop('stale_stop' if self.command_valid else 'invalid_input')
+                return self._stop('stale_stop' if self.command_valid else 'invalid_input', now)
+            self.filter.published(now, self.command_vector)
             return Decision('pass')
         if self.watchdog.any_stale(now):
-            return self._stop('stale_stop')
+            return self._stop('stale_stop', now)
         snapshot = self.snapshot
         if not (self.odom_valid and self.command_valid and snapshot.usable):
-            return self._stop('invalid_input')
+            return self._stop('invalid_input', now)
         if self._block_at_once and not snapshot.clean:
-            return self._stop('blocked_stop')
+            return self._stop('blocked_stop', now)
         age = extrapolation_age(self.odom_stamp, snapshot.t_ref, self.max_extrapolation)
         command, circulation, position = self.command_vector, self.circulation, None
         if circulation is not None and circulation.active:
@@ -224,7 +225,9 @@ class ControlDecision:
                 now, position,
                 lambda: self._passes(circulation.probe(command), snapshot, age))
             command = circulation.command(self.yaw, command, position)
-        safe, info = self.filter.filter(self.state, self.yaw, command, snapshot.obstacles, age)
+        safe, info = self.filter.filter(self.state, self.yaw, command, snapshot.obstacles, age,
+                                        now)
+        self.filter.published(now, safe)
         self.counts[info.status.value] += 1
         # The reference point costs a model call: only needed while the filter holds (or
         # circulates, which computed it already; the state has not changed since).
@@ -253,7 +256,9 @@ class ControlDecision:
     def _position(self):
         return self.filter.model.reference(self.state).position
 
-    def _stop(self, reason):
+    def _stop(self, reason, now):
         self.counts[reason] += 1
         self.deadlock.clear()
-        return Decision('stop', self.stop(), reason=reason)
+        stop = self.stop()
+        self.filter.published(now, stop)
+        return Decision('stop', stop, reason=reason)
