@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polyc2bf_ros.filter_parameters import ParameterError
 from sim_bridge import plots
 from sim_bridge.barn import (
     barn_metric,
@@ -298,6 +299,8 @@ def main_barn(parser, args, command):
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130
+    except ParameterError as exc:  # a -p value that some robot's filter refuses
+        parser.error(str(exc))
     rows = write_barn_outputs(out, records, trajectories, worlds, command,
                               time.monotonic() - start, jobs, not args.no_plots, label)
     print(barn_table(rows))

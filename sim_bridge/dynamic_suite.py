@@ -47,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polyc2bf_ros.filter_parameters import ParameterError
 from sim_bridge import plots
 from sim_bridge.barn import ROBOT_NAME
 from sim_bridge.closed_loop import run_in_process
@@ -330,6 +331,8 @@ def main_dynamic(parser, args, command):
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130
+    except ParameterError as exc:  # a -p value that some robot's filter refuses
+        parser.error(str(exc))
     write_dynamic_outputs(out, records, trajectories, worlds, command,
                           time.monotonic() - start, jobs, not args.no_plots)
     print(dynamic_table(aggregate_dynamic(records)))

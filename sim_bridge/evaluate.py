@@ -99,6 +99,7 @@ import numpy as np
 import yaml
 
 from polyc2bf_ros.core.decision import RESOLUTIONS
+from polyc2bf_ros.filter_parameters import ParameterError
 from sim_bridge import plots
 from sim_bridge.actuation import Actuation, describe as describe_actuation
 from sim_bridge.closed_loop import default_barrier, NOMINALS, obstacle_free, run_in_process
@@ -752,6 +753,8 @@ def main(argv=None):
     except KeyboardInterrupt:
         print('\nevaluate: interrupted; nothing written', file=sys.stderr)
         return 130
+    except ParameterError as exc:  # a -p value that some robot's filter refuses
+        parser.error(str(exc))
     rows = write_outputs(out, records, runs, command, not args.no_plots)
     print(markdown_table(rows))
     print()

@@ -81,3 +81,13 @@ def test_evaluate_states_the_actuation_and_refuses_bad_values(tmp_path, capsys):
         main(['--scenarios', 'clear_path', '--actuator-tau', '-1'])
     assert exit_info.value.code == 2
     assert '--actuator-tau must be a finite number >= 0' in capsys.readouterr().err
+
+
+def test_a_parameter_a_robots_filter_refuses_exits_2_naming_it(capsys):
+    """``-p command_latency`` reaches the Crazyflie's filter, which refuses it: exit 2, no trace."""
+    with pytest.raises(SystemExit) as exit_info, \
+            contextlib.redirect_stdout(io.StringIO()):
+        main(['--scenarios', 'quadrotor_pillars', '--filters', 'default', '--duration', '0.1',
+              '--no-plots', '--out', '/dev/null/none', '-p', 'command_latency:=0.03'])
+    assert exit_info.value.code == 2
+    assert 'apply to velocity models' in capsys.readouterr().err
