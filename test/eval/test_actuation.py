@@ -84,7 +84,7 @@ def test_evaluate_states_the_actuation_and_refuses_bad_values(tmp_path, capsys):
 
 
 def test_a_parameter_a_robots_filter_refuses_exits_2_naming_it(capsys):
-    """``-p command_latency`` reaches the Crazyflie's filter, which refuses it: exit 2, no trace."""
+    """``-p command_latency`` reaches the Crazyflie's filter, which refuses it: exit 2."""
     with pytest.raises(SystemExit) as exit_info, \
             contextlib.redirect_stdout(io.StringIO()):
         main(['--scenarios', 'quadrotor_pillars', '--filters', 'default', '--duration', '0.1',
