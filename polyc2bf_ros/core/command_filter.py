@@ -80,7 +80,9 @@ class CommandFilter:
         if info.status == FilterStatus.INVALID_INPUT:
             return self.stop(state), info
         if self.velocity:
-            return self.interface.safe_command(state, u_safe * self.delay.gain, yaw), info
+            if self.delay.gain != 1.0:  # a lagging base (core.input_delay)
+                u_safe = u_safe * self.delay.gain
+            return self.interface.safe_command(state, u_safe, yaw), info
         return crazyflie.wrench_from_thrusts(u_safe), info
 
     def published(self, now, command):

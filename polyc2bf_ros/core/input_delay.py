@@ -64,6 +64,8 @@ class InputDelay:
 
     def published(self, now, command):
         """Note ``command`` (command coordinates) as published at ``now`` [s]."""
+        if not self._steps:
+            return  # nothing is in flight without a latency
         self._sent.append((float(now), np.array(command, dtype=float)))
         # Keep the newest command that acts by now - L: it acts from the prediction's start.
         while len(self._sent) > 1 and self._sent[1][0] <= now - self.latency:

@@ -520,12 +520,14 @@ class SafetyFilter:
             message = f'outside the safe set: min h = {min_h:.3g}; driving h back up'
         if self._braking and status in (FilterStatus.OK, FilterStatus.RECOVERING,
                                         FilterStatus.SLACK, FilterStatus.ESCAPE):
-            now = _BrakingNow(self, state, prepared, obstacle_age)
-            if (not self._far_from_all(state, prepared, obstacle_age)
-                    and self._must_brake(state, u, prepared, obstacle_age, now)):
-                u, message = self._backup_input(state, u, prepared, obstacle_age, now)
-                status = FilterStatus.BACKUP
+            now = None
+            if not self._far_from_all(state, prepared, obstacle_age):
+                now = _BrakingNow(self, state, prepared, obstacle_age)
+                if self._must_brake(state, u, prepared, obstacle_age, now):
+                    u, message = self._backup_input(state, u, prepared, obstacle_age, now)
+                    status = FilterStatus.BACKUP
             if self._evasion and self._moving_near(state, prepared, obstacle_age):
+                now = now or _BrakingNow(self, state, prepared, obstacle_age)
                 evasion = self._evade(state, u, prepared, obstacle_age, now)
                 if evasion is not None:
                     u, message = evasion
@@ -572,14 +574,12 @@ class SafetyFilter:
         braked only while c(B(x)) > 0 (distances to the footprints less the guard radius);
         moving parts, where the path closes on them, apart and without that exception.
         With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept
-        when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+ by the midpoint rule
-        over the period with u held (exact for the point mass; an Euler step misplaced it
-        by T^2 a / 2).  ``now`` (``_BrakingNow``) holds what braking at x gives, computed
+        when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+: ``_one_period``.
+        ``now`` (``_BrakingNow``) holds what braking at x gives, computed
         once per step however many inputs are tested.
         """
         period = self.config.control_period
-        middle = state + 0.5 * period * self.model.state_derivative(state, u)
-        after_state = state + period * self.model.state_derivative(middle, u)
+        after_state = self._one_period(state, u)
         after_path = self.model.braking_path(after_state, period)
         after, after_moving = self._path_clearance(after_path, prepared, age + period)
         before, before_moving = now.clearance
@@ -666,20 +666,20 @@ class SafetyFilter:
         and for all of H; the input whose look ahead stays clearest of every part, by
         ``EVASION_GAIN`` more than ``u``'s, among those the braking check keeps, is returned.
         """
-        period = self.config.control_period
-        middle = state + 0.5 * period * self.model.state_derivative(state, u)
-        after = state + period * self.model.state_derivative(middle, u)
-        static, moving = self._look_ahead(self._then_brake(np.zeros((0, 4)), after, 1),
-                                          prepared, age)
+        static, moving = self._look_ahead(
+            self._then_brake(np.zeros((0, 4)), self._one_period(state, u), 1), prepared, age)
         if moving >= self._clearance:
             return None
         held = min(static, moving)
         best = {}
-        rows = self._evasion_rows
+        rows, step = self._evasion_rows, self._evasion_step
+        halfway = max(rows // 2, 1)
         for index, candidate in enumerate(self._evasion_inputs):
-            path, _ = self.model.held_path(state, candidate, self._evasion_step, rows)
-            half, middle_state = self.model.held_path(state, candidate, self._evasion_step,
-                                                      max(rows // 2, 1))
+            half, middle_state = self.model.held_path(state, candidate, step, halfway)
+            path = half
+            if rows > halfway:  # the rest of the hold goes on from where half of it ends
+                path = np.vstack([half, self.model.held_path(middle_state, candidate, step,
+                                                             rows - halfway)[0]])
             best[index] = max(min(self._look_ahead(path, prepared, age)),
                               min(self._look_ahead(self._then_brake(half, middle_state, 0),
                                                    prepared, age)))
@@ -694,6 +694,15 @@ class SafetyFilter:
                     f'{self.config.evasion_horizon:g} s, the filter input '
                     f'{held - self.guard_radius:.2f} m')
         return None
+
+    def _one_period(self, state, u):
+        """Return x+, the state one control period after ``state`` with ``u`` held.
+
+        The midpoint rule (exact for the point mass; an Euler step misplaced it by T^2 a / 2).
+        """
+        period = self.config.control_period
+        middle = state + 0.5 * period * self.model.state_derivative(state, u)
+        return state + period * self.model.state_derivative(middle, u)
 
     def _then_brake(self, rows, after, periods):
         """Return a look ahead's rows, ``step`` s apart up to the horizon.

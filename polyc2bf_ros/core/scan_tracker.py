@@ -362,6 +362,22 @@ def _nearest(outline, count, j, x, y, reach_sq):
 
 
 @kernel
+def _eigen(a, b, d):
+    """Return (m, h, ux, uy) of the symmetric [[a, b], [b, d]].
+
+    Its eigenvalues are m +- h, and (ux, uy) is the unit eigenvector of m + h.
+    """
+    middle, half = 0.5 * (a + d), math.hypot(0.5 * (a - d), b)
+    if b != 0.0:
+        ux, uy = middle + half - d, b
+        norm = math.sqrt(ux * ux + uy * uy)
+        return middle, half, ux / norm, uy / norm
+    if a >= d:
+        return middle, half, 1.0, 0.0
+    return middle, half, 0.0, 1.0
+
+
+@kernel
 def _register_pair(current, start, size, outline, first, count, gx0, gy0, reach, params,
                    result):
     """Register one smoothed chain onto another (rows of ``_smooth``; step 3).
@@ -441,15 +457,7 @@ def _register_pair(current, start, size, outline, first, count, gx0, gy0, reach,
     variance = max(params[POINT] ** 2, rss / spread * pairs / max(pairs - 2, 1))
     scale = LEAK * 2.0 * variance
     hxx, hxy, hyy = axx - scale * lxx, axy - scale * lxy, ayy - scale * lyy
-    middle, half = 0.5 * (hxx + hyy), math.hypot(0.5 * (hxx - hyy), hxy)
-    if hxy != 0.0:
-        ux, uy = middle + half - hyy, hxy
-        norm = math.sqrt(ux * ux + uy * uy)
-        ux, uy = ux / norm, uy / norm
-    elif hxx >= hyy:
-        ux, uy = 1.0, 0.0
-    else:
-        ux, uy = 0.0, 1.0
+    middle, half, ux, uy = _eigen(hxx, hxy, hyy)
     result[0], result[1] = dx, dy
     if middle + half < MIN_INFORMATION:
         return  # measures nothing
@@ -605,16 +613,7 @@ def _known_velocity(state, P, limit):
     - d) / 2)^2 + b^2)``; the velocity's component along each eigenvector whose eigenvalue
     exceeds ``limit^2`` is removed.
     """
-    a, b, d = P[2, 2], P[2, 3], P[3, 3]
-    middle, half = 0.5 * (a + d), math.hypot(0.5 * (a - d), b)
-    if b != 0.0:
-        ux, uy = middle + half - d, b
-        norm = math.sqrt(ux * ux + uy * uy)
-        ux, uy = ux / norm, uy / norm
-    elif a >= d:
-        ux, uy = 1.0, 0.0
-    else:
-        ux, uy = 0.0, 1.0
+    middle, half, ux, uy = _eigen(P[2, 2], P[2, 3], P[3, 3])
     vx, vy = state[2], state[3]
     limit_sq = limit * limit
     if middle + half > limit_sq:
