@@ -567,7 +567,7 @@ class SafetyFilter:
                                        ACTIVE_TOLERANCE + slack, active)]
         return u, slack, status, message, active
 
-    def _must_brake(self, state, u, prepared, age, now):
+    def _must_brake(self, state, u, prepared, age, now, moving=True):
         """Return True when holding ``u`` leaves a less clear way to stop than braking now.
 
         ``polyc2bf_ros.core.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x));
@@ -576,7 +576,8 @@ class SafetyFilter:
         With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept
         when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+: ``_one_period``.
         ``now`` (``_BrakingNow``) holds what braking at x gives, computed
-        once per step however many inputs are tested.
+        once per step however many inputs are tested.  ``moving`` False: the static test
+        alone (a committed evasion, ``_evade``).
         """
         period = self.config.control_period
         after_state = self._one_period(state, u)
@@ -585,6 +586,8 @@ class SafetyFilter:
         before, before_moving = now.clearance
         if after < self._clearance and after < before and before > self.guard_radius:
             return True
+        if not moving:
+            return False
         if after_moving < self._clearance and after_moving < before_moving:
             return True
         if not self._barrier_check:
@@ -664,36 +667,43 @@ class SafetyFilter:
         velocity (less ``obstacle_velocity_error`` t), comes within the braking check's
         clearance of it, each of ``_evasion_inputs`` is held instead, for H / 2 then braking
         and for all of H; the input whose look ahead stays clearest of every part, by
-        ``EVASION_GAIN`` more than ``u``'s, among those the braking check keeps, is returned.
+        ``EVASION_GAIN`` more than ``u``'s, is returned if the braking check keeps it, or if
+        that look ahead keeps the check's clearance of every part all along and the check's
+        static test keeps it (committed: the way out may lie across a moving part's braking
+        path, never across a standing one's).
         """
         static, moving = self._look_ahead(
             self._then_brake(np.zeros((0, 4)), self._one_period(state, u), 1), prepared, age)
         if moving >= self._clearance:
             return None
         held = min(static, moving)
-        best = {}
-        rows, step = self._evasion_rows, self._evasion_step
-        halfway = max(rows // 2, 1)
-        for index, candidate in enumerate(self._evasion_inputs):
-            half, middle_state = self.model.held_path(state, candidate, step, halfway)
-            path = half
-            if rows > halfway:  # the rest of the hold goes on from where half of it ends
-                path = np.vstack([half, self.model.held_path(middle_state, candidate, step,
-                                                             rows - halfway)[0]])
-            best[index] = max(min(self._look_ahead(path, prepared, age)),
-                              min(self._look_ahead(self._then_brake(half, middle_state, 0),
-                                                   prepared, age)))
-        for index in sorted(best, key=lambda i: -best[i]):
-            candidate, score = self._evasion_inputs[index], best[index]
+        scores = [max(min(self._look_ahead(path, prepared, age))
+                      for path in self._evasion_paths(state, candidate))
+                  for candidate in self._evasion_inputs]
+        for index in sorted(range(len(scores)), key=lambda i: -scores[i]):
+            candidate, score = self._evasion_inputs[index], scores[index]
             if score <= held + EVASION_GAIN:
                 break
-            if not self._must_brake(state, candidate, prepared, age, now):
+            # Committed (clear all along): the check's static test alone.
+            committed = score >= self._clearance
+            if not self._must_brake(state, candidate, prepared, age, now, moving=not committed):
                 return candidate.copy(), (
                     f'evading a moving obstacle: {np.round(candidate, 2).tolist()} keeps '
                     f'{score - self.guard_radius:.2f} m clear over '
                     f'{self.config.evasion_horizon:g} s, the filter input '
                     f'{held - self.guard_radius:.2f} m')
         return None
+
+    def _evasion_paths(self, state, candidate):
+        """Return the look aheads of ``candidate``: held for H / 2 then the brake, and for H."""
+        rows, step = self._evasion_rows, self._evasion_step
+        half = max(rows // 2, 1)
+        first, middle = self.model.held_path(state, candidate, step, half)
+        paths = [self._then_brake(first, middle, 0)]
+        if rows > half:  # the rest of the hold goes on from where half of it ends
+            paths.append(np.vstack([first, self.model.held_path(middle, candidate, step,
+                                                                rows - half)[0]]))
+        return paths
 
     def _one_period(self, state, u):
         """Return x+, the state one control period after ``state`` with ``u`` held.

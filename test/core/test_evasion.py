@@ -33,21 +33,24 @@ def _gap(position, centre):
     return float(np.linalg.norm(np.maximum(offset, 0.0)) + min(offset.max(), 0.0)) - RADIUS
 
 
-def _crossing(horizon, speed, seconds=4.0):
-    """Run a unicycle at rest told to stay, a square crossing its place from the side.
+def _crossing(horizon, speed, seconds=4.0, start=((0.0, 2.0), 0.0, 'stay')):
+    """Run a unicycle past a square crossing from the side at ``speed``.
 
-    Return (smallest gap, statuses, the robot's speed toward the square at the closest
-    approach).
+    ``start``: the square's centre, the robot's speed along +x from the origin, and its
+    nominal: 'stay' (the brake) or 'keep' (no acceleration).  Return (smallest gap,
+    statuses, the robot's speed toward the square at the closest approach).
     """
     model = make_model('unicycle', offset_l=0.01, max_accel=2.0)
     filt = _filter(horizon, model)
-    state = np.zeros(5)
-    centre, velocity = np.array([0.0, 2.0]), np.array([0.0, -speed])
+    centre, robot_speed, nominal = start
+    state = np.array([0.0, 0.0, 0.0, robot_speed, 0.0])
+    centre, velocity = np.array(centre), np.array([0.0, -speed])
     gaps, statuses, toward = [], [], []
     for _ in range(round(seconds / PERIOD)):
-        stay = model.clip_input(model.braking_input(state))
+        u_nom = (model.clip_input(model.braking_input(state)) if nominal == 'stay'
+                 else np.zeros(2))
         u, info = filt.step(state, ObstacleSet.from_obstacles([_square(centre, velocity)]),
-                            stay)
+                            u_nom)
         statuses.append(info.status)
         middle = state + 0.5 * PERIOD * model.state_derivative(state, u)
         state = state + PERIOD * model.state_derivative(middle, u)
@@ -73,6 +76,23 @@ def test_a_robot_steps_out_of_the_way_of_a_square_crossing_its_place(speed):
     assert gap > 0.0, gap
     assert FilterStatus.EVADE in statuses
     assert toward <= 0.05
+
+
+def test_a_robot_drives_on_past_a_square_that_would_catch_it_braking():
+    """A committed evasion: the way out is ahead, across the braking check's moving test.
+
+    The robot drives at 1 m/s along +x; a square crossing at 1.5 m/s sweeps x in [0, 1],
+    where braking stops the robot (at x = 0.25) and where backing up cannot leave in time.
+    Speeding up clears the sweep first, yet its braking path closes on the square, which
+    the braking check alone refuses: the robot then brakes in the square's way.  The
+    evasion takes it when its whole look ahead keeps clear, so the square passes behind.
+    """
+    start = ((0.5, 2.0), 1.0, 'keep')
+    gap, statuses, _ = _crossing(0.0, 1.5, 2.5, start)
+    assert gap < 0.0
+    gap, statuses, _ = _crossing(1.0, 1.5, 2.5, start)
+    assert gap > 0.0, gap
+    assert FilterStatus.EVADE in statuses
 
 
 @settings(max_examples=examples(60), deadline=None)
