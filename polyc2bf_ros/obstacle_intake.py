@@ -67,7 +67,7 @@ from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import SafetyFilter
 from polyc2bf_ros.core.scan_obstacles import pose_at, scan_to_obstacles, ScanSettings
-from polyc2bf_ros.core.scan_tracker import ScanTracker
+from polyc2bf_ros.core.scan_tracker import ScanTracker, unseen_obstacles
 from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 
 MAX_OBSTACLES = 1000
@@ -219,9 +219,11 @@ class ObstaclePipeline:
                 self._scan_tracker, self._tracker_link = ScanTracker(link=link), link
             velocities = [np.array([*track.velocity, 0.0])
                           for track in self._scan_tracker.update(clock, scan.clusters)]
-        self._scans[topic] = (scan.stamp, [
-            dataclasses.replace(o, key=f'{topic}:{o.key}', velocity=velocities[cluster])
-            for o, cluster in zip(scan.obstacles, scan.owner.tolist())])
+        obstacles = [dataclasses.replace(o, key=f'{topic}:{o.key}', velocity=velocities[cluster])
+                     for o, cluster in zip(scan.obstacles, scan.owner.tolist())]
+        if settings.scan_tracking:
+            obstacles += unseen_obstacles(self._scan_tracker, f'{topic}:')
+        self._scans[topic] = (scan.stamp, obstacles)
         self.scan_status[topic] = status._replace(accepted=received, received=received)
 
     def _filter_for(self, spec):

@@ -85,14 +85,15 @@ last matched).  Per scan, with ``dt`` the time since the newest stamp:
 Birth, confirmation, deletion.  A cluster no track takes starts a track at its centroid
 (position variance ``point_std^2``, velocity ``speed_std`` per axis) with one hit; each
 successful registration is a hit, and a track is confirmed from ``confirm_hits`` hits on.  A
-track not matched for more than ``max_coast`` seconds is dropped.  A cluster whose bounding
-box's diagonal exceeds ``static_extent`` is structure: its track is matched, but neither
-registered nor classified (it keeps no outline), and publishes 0.  Why: such clusters are
-walls and room corners (or objects linked to them); a phantom velocity on the wall beside
-the robot would let the filter drive into it, while moving objects that large are outside
-what this tracker is for; they hold most of a scan's points, so skipping them keeps the cost
-down; and keeping them away from small tracks keeps the room's box, which overlaps every
-object in it, out of every assignment.
+track not matched for more than ``max_coast`` seconds is dropped; until then a confirmed
+moving one stays an obstacle where its prediction puts it (``unseen_obstacles``).  A
+cluster whose bounding box's diagonal exceeds ``static_extent`` is structure: its track is
+matched, but neither registered nor classified (it keeps no outline), and publishes 0.
+Why: such clusters are walls and room corners (or objects linked to them); a phantom
+velocity on the wall beside the robot would let the filter drive into it, while moving
+objects that large are outside what this tracker is for; they hold most of a scan's
+points, so skipping them keeps the cost down; and keeping them away from small tracks keeps
+the room's box, which overlaps every object in it, out of every assignment.
 
 Accuracy (1081-beam scans at 10-20 Hz, ``test_scan_tracker``): a box or cylinder 2-4 m
 away moving at 0.3-2 m/s, seen from a robot standing or driving, gets its velocity within
@@ -132,6 +133,7 @@ import numpy as np
 
 from polyc2bf_ros.core.constant_velocity import predict_one, reclone_one, update_one
 from polyc2bf_ros.core.jit import B1, F1, F2, F3, I1, kernel, signature
+from polyc2bf_ros.core.obstacle_tracker import outline_polygon
 from polyc2bf_ros.core.obstacles import Obstacle
 
 RIDGE = 1.0e-3
@@ -151,6 +153,10 @@ WALK = 2
 """How many outline points either side of the last pair the nearest-point search looks at."""
 FAR = 1.0e6
 """The cost of a pair outside the gate [m] (real costs are a few metres at most)."""
+UNSEEN_VERTICES = 8
+"""Vertices of an unseen moving track's polygon at most (``unseen_obstacles``)."""
+UNSEEN_THICKNESS = 0.05
+"""m: the thickness given to an unseen track's outline when it is straight."""
 ZERO = np.zeros(2)  # the velocity of every track that is not published: shared, read-only
 ZERO.flags.writeable = False
 
@@ -899,6 +905,29 @@ class ScanTracker:
                         zip(ids.tolist(), shown, out[:, 2].tolist(), flags[:, 0].tolist(),
                             flags[:, 1].tolist())))
 
+    def unseen_moving(self):
+        """Return (outline (k, 2), velocity (2,)) of each moving track the last scan missed.
+
+        A confirmed moving track that no cluster of the newest scan took (hidden behind or
+        inside another object, out of view, or merged into another track's cluster) is
+        kept for up to ``max_coast`` s; here its outline (the smoothed centroids it last
+        matched) is moved to its predicted position, ``+ p - c``, with its known velocity.
+        (Moving cylinders that pass through each other merge into one cluster that keeps
+        one track's velocity; the other, unpublished, came out of it at the robot.)
+        """
+        count, known = self._count, self._params[KNOWN]
+        ints, floats = self._ints[:count], self._floats[:count]
+        unseen = ((floats[:, SEEN] < self._stamp if count else np.zeros(0, dtype=bool))
+                  & (ints[:, MOVING] == 1) & (ints[:, HITS] >= self._params[CONFIRM])
+                  & (ints[:, SIZE] > 0))
+        result = []
+        for t in unseen.nonzero()[0].tolist():
+            state, first = self._states[t], ints[t, FIRST]
+            outline = self._storage[first:first + ints[t, SIZE], :2] + (state[:2] - state[4:6])
+            result.append((outline, np.array(_known_velocity(state, self._covariances[t],
+                                                             known))))
+        return result
+
     def tracks(self):
         """Return (ids (T,), states (T, 4), covariances (T, 4, 4)) of the tracks held (copies).
 
@@ -930,4 +959,22 @@ def with_velocities(obstacles, owner, estimates):
             obstacle = Obstacle(polygon=obstacle.polygon, velocity=velocity,
                                 z_min=obstacle.z_min, z_max=obstacle.z_max, key=obstacle.key)
         result.append(obstacle)
+    return result
+
+
+def unseen_obstacles(tracker, prefix=''):
+    """Return obstacles for the moving tracks the last scan missed (``unseen_moving``).
+
+    Each is its outline's enclosing polygon (at most ``UNSEEN_VERTICES`` vertices; a
+    straight outline ``UNSEEN_THICKNESS`` thick) with the track's velocity, keyed
+    ``<prefix>unseen/<i>``; an outline that makes no polygon is left out.
+    """
+    result = []
+    for index, (outline, velocity) in enumerate(tracker.unseen_moving()):
+        try:
+            polygon = outline_polygon(outline, UNSEEN_THICKNESS, UNSEEN_VERTICES)
+        except ValueError:
+            continue
+        result.append(Obstacle(polygon=polygon, velocity=np.array([*velocity, 0.0]),
+                               key=f'{prefix}unseen/{index}'))
     return result

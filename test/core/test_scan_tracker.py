@@ -22,6 +22,7 @@ from polyc2bf_ros.core.scan_tracker import (
     ScanTracker,
     TrackerSettings,
     TrackEstimate,
+    unseen_obstacles,
     with_velocities,
 )
 from scan_simulator import box, sensor_pose_in_world, simulate_ranges
@@ -180,6 +181,42 @@ def test_with_velocities_gives_moving_obstacles_their_track_velocity():
             assert np.linalg.norm(after.velocity - [*velocity, 0.0]) <= 0.1
         else:
             assert after is before
+
+
+def test_a_moving_track_the_scan_misses_is_kept_where_it_goes():
+    """A cylinder hidden for a few scans stays an obstacle, moved along its velocity.
+
+    While seen, no track is unseen.  Once the scans miss it, its outline comes back from
+    ``unseen_obstacles`` at the predicted place (on the true cylinder, to 5 cm: the lit
+    side's arc) with the track's velocity, until ``max_coast`` has passed.
+    """
+    rng = np.random.default_rng(7)
+    tracker = ScanTracker(link=SCAN.cluster_tolerance)
+    velocity, radius, rate = np.array([-0.5, 1.0]), 0.3, 20.0
+    start = np.array([2.5, -1.0])
+    for k in range(12):
+        centre = start + velocity * k / rate
+        _, _, clusters = _clusters((0.0, 0.0, 0.0), (), [(centre, radius)], noise=0.005,
+                                   rng=rng)
+        tracker.update(k / rate, clusters)
+        assert unseen_obstacles(tracker) == []
+    coast = tracker.settings.max_coast
+    hidden = 0
+    for k in range(12, 12 + round(2 * coast * rate)):
+        centre = start + velocity * k / rate
+        tracker.update(k / rate, [])
+        unseen = unseen_obstacles(tracker, 'front:')
+        if k / rate - 11 / rate > coast + 1e-9:
+            assert unseen == []
+            continue
+        hidden += 1
+        (obstacle,) = unseen
+        assert obstacle.key == 'front:unseen/0'
+        assert np.linalg.norm(obstacle.velocity - [*velocity, 0.0]) <= 0.1
+        distances = np.linalg.norm(obstacle.polygon - centre, axis=1)
+        assert distances.max() <= radius + 0.05 and distances.max() >= radius - 0.05
+        assert np.linalg.norm(obstacle.polygon.mean(axis=0) - centre) <= radius
+    assert hidden == round(coast * rate)
 
 
 def test_memory_stays_bounded():
