@@ -150,6 +150,9 @@ FILTER_PARAMETERS = {
     'evasion_horizon': ((0.0, 10.0), 'planar models with the braking check: look ahead [s] '
                         'over which a moving obstacle must not reach the robot; when one '
                         'would, hold the input that keeps clearest instead (0: never evade)'),
+    'evasion_commit': (None, 'evasion: also take an input whose look ahead keeps clear of '
+                       'every obstacle all along, checked against standing obstacles only '
+                       '(faster past crossing obstacles; trusts their estimated velocities)'),
     'ground_z': (None, '3-D models: height of the ground [m], an obstacle like any other '
                  '(core/ground.py); -.inf: no ground'),
 }

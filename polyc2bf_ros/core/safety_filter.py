@@ -156,6 +156,7 @@ class FilterConfig:
     obstacle_accel: float = 0.0
     obstacle_velocity_error: float = 0.0
     evasion_horizon: float = 1.0
+    evasion_commit: bool = False
 
     @property
     def margin(self):
@@ -667,10 +668,10 @@ class SafetyFilter:
         velocity (less ``obstacle_velocity_error`` t), comes within the braking check's
         clearance of it, each of ``_evasion_inputs`` is held instead, for H / 2 then braking
         and for all of H; the input whose look ahead stays clearest of every part, by
-        ``EVASION_GAIN`` more than ``u``'s, is returned if the braking check keeps it, or if
-        that look ahead keeps the check's clearance of every part all along and the check's
-        static test keeps it (committed: the way out may lie across a moving part's braking
-        path, never across a standing one's).
+        ``EVASION_GAIN`` more than ``u``'s, is returned if the braking check keeps it, or,
+        with ``evasion_commit``, if that look ahead keeps the check's clearance of every part
+        all along and the check's static test keeps it (committed: the way out may lie
+        across a moving part's braking path, never across a standing one's).
         """
         static, moving = self._look_ahead(
             self._then_brake(np.zeros((0, 4)), self._one_period(state, u), 1), prepared, age)
@@ -685,7 +686,7 @@ class SafetyFilter:
             if score <= held + EVASION_GAIN:
                 break
             # Committed (clear all along): the check's static test alone.
-            committed = score >= self._clearance
+            committed = self.config.evasion_commit and score >= self._clearance
             if not self._must_brake(state, candidate, prepared, age, now, moving=not committed):
                 return candidate.copy(), (
                     f'evading a moving obstacle: {np.round(candidate, 2).tolist()} keeps '

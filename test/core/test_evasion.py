@@ -13,11 +13,11 @@ RADIUS = 0.2
 SIDE = 0.5  # m: half the side of the square coming at the robot
 
 
-def _filter(horizon, model=None):
+def _filter(horizon, model=None, commit=False):
     return SafetyFilter(model or make_model('unicycle', offset_l=0.01, max_accel=2.0),
                         FilterConfig(barrier='polyc2bf_horizon', robot_radius=RADIUS,
                                      gamma=5.0, control_period=PERIOD,
-                                     evasion_horizon=horizon))
+                                     evasion_horizon=horizon, evasion_commit=commit))
 
 
 def _square(centre, velocity):
@@ -33,7 +33,7 @@ def _gap(position, centre):
     return float(np.linalg.norm(np.maximum(offset, 0.0)) + min(offset.max(), 0.0)) - RADIUS
 
 
-def _crossing(horizon, speed, seconds=4.0, start=((0.0, 2.0), 0.0, 'stay')):
+def _crossing(horizon, speed, seconds=4.0, start=((0.0, 2.0), 0.0, 'stay'), commit=False):
     """Run a unicycle past a square crossing from the side at ``speed``.
 
     ``start``: the square's centre, the robot's speed along +x from the origin, and its
@@ -41,7 +41,7 @@ def _crossing(horizon, speed, seconds=4.0, start=((0.0, 2.0), 0.0, 'stay')):
     statuses, the robot's speed toward the square at the closest approach).
     """
     model = make_model('unicycle', offset_l=0.01, max_accel=2.0)
-    filt = _filter(horizon, model)
+    filt = _filter(horizon, model, commit)
     centre, robot_speed, nominal = start
     state = np.array([0.0, 0.0, 0.0, robot_speed, 0.0])
     centre, velocity = np.array(centre), np.array([0.0, -speed])
@@ -78,19 +78,20 @@ def test_a_robot_steps_out_of_the_way_of_a_square_crossing_its_place(speed):
     assert toward <= 0.05
 
 
-def test_a_robot_drives_on_past_a_square_that_would_catch_it_braking():
-    """A committed evasion: the way out is ahead, across the braking check's moving test.
+def test_a_committed_evasion_drives_on_past_a_square_that_would_catch_it_braking():
+    """``evasion_commit``: the way out is ahead, across the braking check's moving test.
 
     The robot drives at 1 m/s along +x; a square crossing at 1.5 m/s sweeps x in [0, 1],
     where braking stops the robot (at x = 0.25) and where backing up cannot leave in time.
     Speeding up clears the sweep first, yet its braking path closes on the square, which
-    the braking check alone refuses: the robot then brakes in the square's way.  The
-    evasion takes it when its whole look ahead keeps clear, so the square passes behind.
+    the braking check refuses: without commitment the robot brakes in the square's way.
+    Committed, the evasion takes it because its whole look ahead keeps clear.
     """
     start = ((0.5, 2.0), 1.0, 'keep')
-    gap, statuses, _ = _crossing(0.0, 1.5, 2.5, start)
-    assert gap < 0.0
-    gap, statuses, _ = _crossing(1.0, 1.5, 2.5, start)
+    for horizon in (0.0, 1.0):
+        gap, statuses, _ = _crossing(horizon, 1.5, 2.5, start)
+        assert gap < 0.0
+    gap, statuses, _ = _crossing(1.0, 1.5, 2.5, start, commit=True)
     assert gap > 0.0, gap
     assert FilterStatus.EVADE in statuses
 
