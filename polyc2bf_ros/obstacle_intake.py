@@ -210,7 +210,7 @@ class ObstaclePipeline:
             self.scan_status[topic] = status._replace(
                 received=received, rejected=status.rejected + 1, reason=str(exc))
             return
-        velocities = [STILL_3D] * len(scan.clusters)
+        velocities, unseen = [STILL_3D] * len(scan.clusters), []
         if settings.scan_tracking:
             # Unstamped scans and odometry: the tracker times them by their receipt.
             clock = scan.stamp if scan.stamp > 0.0 else received
@@ -219,11 +219,10 @@ class ObstaclePipeline:
                 self._scan_tracker, self._tracker_link = ScanTracker(link=link), link
             velocities = [np.array([*track.velocity, 0.0])
                           for track in self._scan_tracker.update(clock, scan.clusters)]
-        obstacles = [dataclasses.replace(o, key=f'{topic}:{o.key}', velocity=velocities[cluster])
-                     for o, cluster in zip(scan.obstacles, scan.owner.tolist())]
-        if settings.scan_tracking:
-            obstacles += unseen_obstacles(self._scan_tracker, f'{topic}:')
-        self._scans[topic] = (scan.stamp, obstacles)
+            unseen = unseen_obstacles(self._scan_tracker, f'{topic}:')
+        self._scans[topic] = (scan.stamp, [
+            dataclasses.replace(o, key=f'{topic}:{o.key}', velocity=velocities[cluster])
+            for o, cluster in zip(scan.obstacles, scan.owner.tolist())] + unseen)
         self.scan_status[topic] = status._replace(accepted=received, received=received)
 
     def _filter_for(self, spec):

@@ -450,6 +450,7 @@ class SafetyFilter:
         self._evasion = (self._braking and self.config.evasion_horizon > 0.0
                          and model.held_path(np.zeros(model.state_dim),
                                              np.zeros(model.input_dim), period, 1) is not None)
+        self._evasion_commit = bool(self.config.evasion_commit)
         self._evasion_inputs = np.array(list(itertools.product(*zip(
             self._lower, np.clip(0.0, self._lower, self._upper), self._upper))))
         # The step's reference kinematics, refilled each step (it never leaves the step).
@@ -686,7 +687,7 @@ class SafetyFilter:
             if score <= held + EVASION_GAIN:
                 break
             # Committed (clear all along): the check's static test alone.
-            committed = self.config.evasion_commit and score >= self._clearance
+            committed = self._evasion_commit and score >= self._clearance
             if not self._must_brake(state, candidate, prepared, age, now, moving=not committed):
                 return candidate.copy(), (
                     f'evading a moving obstacle: {np.round(candidate, 2).tolist()} keeps '

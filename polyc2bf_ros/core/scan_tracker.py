@@ -916,10 +916,11 @@ class ScanTracker:
         one track's velocity; the other, unpublished, came out of it at the robot.)
         """
         count, known = self._count, self._params[KNOWN]
+        if not count:
+            return []
         ints, floats = self._ints[:count], self._floats[:count]
-        unseen = ((floats[:, SEEN] < self._stamp if count else np.zeros(0, dtype=bool))
-                  & (ints[:, MOVING] == 1) & (ints[:, HITS] >= self._params[CONFIRM])
-                  & (ints[:, SIZE] > 0))
+        unseen = ((floats[:, SEEN] < self._stamp) & (ints[:, MOVING] == 1)
+                  & (ints[:, HITS] >= self._params[CONFIRM]) & (ints[:, SIZE] > 0))
         result = []
         for t in unseen.nonzero()[0].tolist():
             state, first = self._states[t], ints[t, FIRST]
