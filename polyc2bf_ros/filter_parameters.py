@@ -11,6 +11,8 @@ token) holding ``ros__parameters``; nested mappings flatten to dotted names) wit
 """
 import dataclasses
 import inspect
+import math
+import numbers
 import re
 from pathlib import Path
 
@@ -266,6 +268,12 @@ def build_settings(values, model=None):
     if values['trigger'] not in ('timer', 'command'):
         raise ParameterError("parameter 'trigger' must be 'timer' or 'command', "
                              f"got {values['trigger']!r}")
+    for name in ('command_latency', 'actuator_tau'):
+        value = values[name]
+        if (isinstance(value, bool) or not isinstance(value, numbers.Real)
+                or not math.isfinite(value) or value < 0.0):
+            raise ParameterError(f'invalid filter parameters: {name} must be a finite '
+                                 f'number >= 0, got {value!r}')
     try:
         if model is None:
             arguments = {name: values.get(f'model_params.{name}', default)
@@ -292,6 +300,11 @@ def build_settings(values, model=None):
         if 0.0 < timeout <= period:
             raise ParameterError(f'{name}_timeout ({timeout:g} s) must exceed the control '
                                  f'period 1/rate ({period:g} s)')
+    latency, command_timeout = float(values['command_latency']), float(values['cmd_timeout'])
+    if latency >= command_timeout:
+        raise ParameterError(f'command_latency ({latency:g} s) must be below cmd_timeout '
+                             f'({command_timeout:g} s): the stop for a stale command would '
+                             'reach the base only after the command it stops had timed out')
     settings = NodeSettings(
         command_filter=command_filter, model_name=model_name, period=period,
         per_command=values['trigger'] == 'command', timeouts=timeouts, use_markers=use_markers,

@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from sim_bridge.actuation import Actuation, CommandPipe, describe, Odometry
+from sim_bridge.barn import load_worlds, WORLDS_FILE
+from sim_bridge.barn_suite import run_world
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluate import main
 
@@ -91,3 +93,26 @@ def test_a_parameter_a_robots_filter_refuses_exits_2_naming_it(capsys):
               '--no-plots', '--out', '/dev/null/none', '-p', 'command_latency:=0.03'])
     assert exit_info.value.code == 2
     assert 'apply to velocity models' in capsys.readouterr().err
+
+
+@pytest.mark.parametrize('told, margin', [((0.03, 0.1), None), ((0.02, 0.07), 0.02)],
+                         ids=['true values', 'told 20 ms and 0.07 s'])
+def test_a_late_lagging_base_touches_unless_the_filter_is_told(told, margin):
+    """BARN world 16, go-to-goal: a base 30 ms late with tau 0.1 s and 1 cm odometry noise.
+
+    Uncompensated the robot touches a cylinder; told the true latency and lag, or told
+    less (20 ms and 0.07 s, with a 2 cm braking margin), it reaches the goal
+    without contact.
+    """
+    world, = [w for w in load_worlds(WORLDS_FILE) if w.world == 16]
+    plant = Actuation(latency=0.03, actuator_tau=0.1, odom_noise=0.01)
+    (blind, _), = run_world(world, [('polyc2bf_horizon', 'goal')], actuation=plant)
+    assert blind['collision'] and blind['min_clearance_m'] < 0.0
+    parameters = {'command_latency': told[0], 'actuator_tau': told[1]}
+    if margin is not None:
+        parameters['filter.braking_margin'] = margin
+    (record, _), = run_world(world, [('polyc2bf_horizon', 'goal')], parameters=parameters,
+                             actuation=plant)
+    assert record['success'] and not record['collision']
+    assert record['min_clearance_m'] > 0.0
+    assert record['actuation']['latency_s'] == 0.03

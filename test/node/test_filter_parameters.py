@@ -46,3 +46,18 @@ def test_route_parameters_reach_the_resolution_and_must_fit_the_window():
     assert decision.circulation.route_options == {'ahead': 4.0, 'window': 12.0}
     with pytest.raises(ParameterError, match='route_window .* must exceed 2 route_ahead'):
         build_filter({'route_ahead': 6.0})
+
+
+@pytest.mark.parametrize('values, message', [
+    ({'command_latency': -0.01}, 'command_latency must be a finite number >= 0'),
+    ({'command_latency': float('nan')}, 'command_latency must be a finite number >= 0'),
+    ({'actuator_tau': float('inf')}, 'actuator_tau must be a finite number >= 0'),
+    ({'command_latency': 0.5, 'cmd_timeout': 0.5}, r'command_latency \(0.5 s\) must be '
+     r'below cmd_timeout \(0.5 s\)'),
+])
+def test_bad_latency_and_lag_are_refused_in_one_line(values, message):
+    """Negative or non-finite actuation, or a latency as long as the command timeout: refused."""
+    with pytest.raises(ParameterError, match=message) as error:
+        build_filter(values)
+    assert '\n' not in str(error.value)
+    assert build_filter({'command_latency': 0.03, 'actuator_tau': 0.1}).command_filter
