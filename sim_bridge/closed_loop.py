@@ -73,7 +73,6 @@ from polyc2bf_ros.core import crazyflie
 from polyc2bf_ros.core.decision import ControlDecision, ObstacleSnapshot
 from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters, NODE_PARAMETERS
 from polyc2bf_ros.obstacle_intake import ObstacleJob, ObstaclePipeline
 from sim_bridge.actuation import Actuation, CommandPipe, Odometry
@@ -94,12 +93,6 @@ from sim_bridge.world import SimWorld
 NOMINALS = ('goal', 'path')
 MARKER_FRAME = 'world'       # the bridge's default frame_id
 BRIDGE_LINE_WIDTH = 0.02     # m: scale.x of the bridge's outline markers (bridge_node.LINE_WIDTH)
-
-
-def default_barrier(robot_type):
-    """Return the ``filter.barrier`` the shipped parameter file of ``robot_type`` runs."""
-    parameters = load_parameters([params_file(robot_type)], (), '')
-    return parameters.get('filter.barrier', FilterConfig.barrier)
 
 
 def _cylinder_polygon(radius):

@@ -12,7 +12,7 @@ import yaml
 
 from polyc2bf_ros.filter_parameters import ParameterError
 from sim_bridge.actuation import Actuation
-from sim_bridge.closed_loop import default_barrier
+from sim_bridge.launcher import default_barrier
 from sim_bridge.lidar import lidar_settings
 
 
