@@ -245,11 +245,6 @@ STILL_3D = np.zeros(3)
 STILL_3D.flags.writeable = False
 
 
-def scan_obstacles(data, odometry, base_frame, settings, robot_radius, transforms=None):
-    """Return the obstacles of a serialized LaserScan (``read_scan``), without tracking."""
-    return read_scan(data, odometry, base_frame, settings, robot_radius, transforms).obstacles
-
-
 def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=None):
     """Return the ``ScanObstacles`` of a serialized LaserScan; ValueError says why it is unusable.
 
@@ -295,7 +290,7 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
 
 
 def _sensor_pose(frame, base_frame, settings, transforms):
-    """Return ``(x, y, yaw)`` of a scan's ``frame`` in the base frame (``scan_obstacles``)."""
+    """Return ``(x, y, yaw)`` of a scan's ``frame`` in the base frame (``read_scan``)."""
     if frame == base_frame:
         return IDENTITY
     pose = None if transforms is None else transforms.pose(base_frame, frame)
