@@ -174,7 +174,7 @@ class SafetyFilterMixin:
         self._state_published = None  # the action last published on ~/state
         self._obstacles_ready = self._keep(self.destroy_guard_condition,
                                            self.create_guard_condition(self._answer_if_ready))
-        self._intake = ObstacleIntake(self._filter_spec(settings),
+        self._intake = ObstacleIntake(settings.command_filter.safety_filter.geometry,
                                       lambda: self.get_clock().now().nanoseconds * 1e-9,
                                       settings.intake, self._obstacles_processed)
         self._log = LoopLogger(self.get_logger())  # for the control path (loop_log)
@@ -385,9 +385,6 @@ class SafetyFilterMixin:
         values.update({p.name: p.value for p in changes})
         return values
 
-    def _filter_spec(self, settings):
-        """Return what the obstacle worker prepares geometry for: (model name, config)."""
-        return self._model_name, settings.command_filter.safety_filter.config
 
     def _apply(self, settings):
         """Swap in validated settings (decision, obstacle worker, stall guard)."""
@@ -397,7 +394,7 @@ class SafetyFilterMixin:
         self._decision.configure(settings.command_filter, self._timeouts(settings),
                                  settings.block_if_invalid, settings.max_extrapolation,
                                  settings.deadlock, settings.resolution, settings.route)
-        self._intake.configure(settings.intake, self._filter_spec(settings))
+        self._intake.configure(settings.intake, settings.command_filter.safety_filter.geometry)
         self._stall_guard.timeout = settings.stall_timeout
         self._stall_guard.period = settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT
 

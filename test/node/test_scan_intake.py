@@ -7,6 +7,8 @@ from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
 
 from node_harness import markers, wall
+from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_intake import (
     IntakeSettings,
@@ -16,7 +18,7 @@ from polyc2bf_ros.obstacle_intake import (
 )
 from test_node_scan import _scan
 
-SPEC = ('unicycle', FilterConfig())
+SPEC = ObstacleGeometry(make_model('unicycle'), FilterConfig())
 ODOMETRY = ((0.0, 0.0, 0.0, 0.0),)  # one sample (stamp, x, y, yaw): at the origin
 
 

@@ -4,6 +4,8 @@ import math
 import pytest
 from rclpy.serialization import serialize_message
 
+from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_intake import (
     IntakeSettings,
@@ -15,7 +17,7 @@ from polyc2bf_ros.static_transforms import read_tf_message, StaticTransforms
 from sim_bridge.cdr import tf_message_cdr
 from test_node_scan import _scan
 
-SPEC = ('unicycle', FilterConfig())
+SPEC = ObstacleGeometry(make_model('unicycle'), FilterConfig())
 ODOMETRY = ((0.0, 0.0, 0.0, 0.0),)  # one sample (stamp, x, y, yaw): at the origin
 
 
