@@ -9,7 +9,7 @@ from rclpy.serialization import serialize_message
 from node_harness import markers, wall
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
-from polyc2bf_ros.core.safety_filter import FilterConfig
+from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from polyc2bf_ros.obstacle_intake import (
     IntakeSettings,
     ObstacleJob,
@@ -148,3 +148,18 @@ def test_a_box_coming_at_the_robot_gets_its_velocity_only_when_tracked(tracking)
                                    atol=0.15)
     else:
         assert not velocities.any()
+
+
+def test_the_worker_prepares_the_views_the_filter_steps_on():
+    """The pipeline prepares the views of the geometry it is handed: the filter's own.
+
+    A filter whose model is off its defaults (diff drive: offset_l 0.01) gets its views.
+    """
+    safety_filter = SafetyFilter(make_model('unicycle', offset_l=0.01), FilterConfig())
+    assert safety_filter.geometry != SPEC  # another guard radius: other views
+    marker = serialize_message(markers(wall([(5.0, -1.0), (5.0, 1.0)])))
+    snapshot = ObstaclePipeline().run(ObstacleJob([(marker, 1.0)], 'odom', IntakeSettings(),
+                                                  safety_filter.geometry, 1.0))
+    prepared = snapshot.obstacles.base or snapshot.obstacles  # a translation: its base
+    assert len(prepared) and safety_filter.geometry.key in prepared.geometry
+    assert SPEC.key not in prepared.geometry
