@@ -114,6 +114,11 @@ NODE_PARAMETERS = {
     'scan_tracking': (True, None, 'track scan clusters from scan to scan (core/scan_tracker.py): '
                       'obstacles of a confirmed, moving track get its velocity; false: every '
                       'scan obstacle stands still', False),
+    'odom_position_std': (0.0, (0.0, 1.0), 'noise [m] of the odometry position scans are '
+                          'placed at; the scan tracker allows for it in every displacement it '
+                          'measures, so a standing object is not taken for a moving one', False),
+    'odom_heading_std': (0.0, (0.0, 0.5), 'noise [rad] of the odometry heading scans are '
+                         'placed at (as odom_position_std, times the range)', False),
 }
 
 # FilterConfig field: ((min, max) or None, description); control_period comes from rate.

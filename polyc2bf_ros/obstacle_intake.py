@@ -67,7 +67,7 @@ from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.scan_obstacles import pose_at, scan_to_obstacles, ScanSettings
-from polyc2bf_ros.core.scan_tracker import ScanTracker, unseen_obstacles
+from polyc2bf_ros.core.scan_tracker import ScanTracker, TrackerSettings, unseen_obstacles
 from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 
 MAX_OBSTACLES = 1000
@@ -89,10 +89,14 @@ class IntakeSettings(NamedTuple):
     scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
     scan_obstacle_depth: float = 0.10
     scan_tracking: bool = True
+    odom_position_std: float = 0.0
+    odom_heading_std: float = 0.0
 
 
 class ScanObstacles(NamedTuple):
     """One scan's obstacles: the scan's stamp [s], ``Obstacle`` list, cluster per obstacle.
+
+    ``origin``: the sensor's position (x, y) in the odometry frame when the scan was taken.
 
     ``owner[i]`` indexes ``clusters``, the endpoints (n, 2) of each cluster in the odometry
     frame (``scan_to_obstacles(..., with_clusters=True)``).
@@ -102,6 +106,7 @@ class ScanObstacles(NamedTuple):
     obstacles: list
     owner: np.ndarray
     clusters: list
+    origin: tuple = (0.0, 0.0)
 
 
 class ScanStatus(NamedTuple):
@@ -140,7 +145,7 @@ class ObstaclePipeline:
         self._unreadable = ''
         self._received = None
         self._scans = {}  # topic: (stamp [s], its obstacles)
-        self._scan_tracker = self._tracker_link = None  # made on the first tracked scan
+        self._scan_tracker = self._tracking = None  # made on the first tracked scan
         self._static = StaticTransforms()
         self.scan_status = {}  # topic: ScanStatus
 
@@ -214,10 +219,15 @@ class ObstaclePipeline:
             # Unstamped scans and odometry: the tracker times them by their receipt.
             clock = scan.stamp if scan.stamp > 0.0 else received
             link = float(settings.scan_cluster_tolerance)
-            if link != self._tracker_link:  # clusters link at the scan's own tolerance
-                self._scan_tracker, self._tracker_link = ScanTracker(link=link), link
+            tracking = (link, float(settings.odom_position_std),
+                        float(settings.odom_heading_std))
+            if tracking != self._tracking:  # clusters link at the scan's own tolerance
+                self._scan_tracker = ScanTracker(TrackerSettings(
+                    pose_std=tracking[1], heading_std=tracking[2]), link=link)
+                self._tracking = tracking
             velocities = [np.array([*track.velocity, 0.0])
-                          for track in self._scan_tracker.update(clock, scan.clusters)]
+                          for track in self._scan_tracker.update(clock, scan.clusters,
+                                                                 scan.origin)]
             unseen = unseen_obstacles(self._scan_tracker, f'{topic}:')
         self._scans[topic] = (scan.stamp, [
             dataclasses.replace(o, key=f'{topic}:{o.key}', velocity=velocities[cluster])
@@ -278,8 +288,11 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
         ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max,
         sensor_pose, robot_pose, scan_settings, with_clusters=True)
     # An unstamped scan is taken at the latest odometry sample (``pose_at``): its stamp too.
+    x, y, yaw = robot_pose
+    origin = (x + math.cos(yaw) * sensor_pose[0] - math.sin(yaw) * sensor_pose[1],
+              y + math.sin(yaw) * sensor_pose[0] + math.cos(yaw) * sensor_pose[1])
     return ScanObstacles(stamp if stamp > 0.0 else float(odometry[-1][0]), obstacles, owner,
-                         clusters)
+                         clusters, origin)
 
 
 def _sensor_pose(frame, base_frame, settings, transforms):
