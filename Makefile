@@ -89,7 +89,7 @@ demo: $(PKG_STAMP)
 
 # Every filter x scenario x seed, in-process lockstep; writes runs/eval/.
 eval: $(PKG_STAMP)
-	$(PY) -m sim_bridge.evaluate $(EVAL_ARGS)
+	$(PY) -m sim_bridge.evaluation $(EVAL_ARGS)
 
 clean:
 	rm -rf $(VENV) build install log *.egg-info

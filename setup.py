@@ -14,7 +14,7 @@ CONSOLE_SCRIPTS = [
     'nominal_controller = sim_bridge.nominal_controller_node:main',
     'bag_replay = sim_bridge.bag_replay:main',
     'demo = sim_bridge.demo:main',
-    'evaluate = sim_bridge.evaluate:main',
+    'evaluate = sim_bridge.evaluation.cli:main',
 ]
 
 setup(

@@ -47,9 +47,9 @@ from bench_io import require_installed_checkout, write_records
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge.barn import BarnReferee, load_worlds, ROBOT_NAME, STOP_TIME, WORLDS_FILE
-from sim_bridge.barn_suite import run_barn, run_world
 from sim_bridge.closed_loop import run_in_process
-from sim_bridge.evaluate import resolve_filters
+from sim_bridge.evaluation.arguments import resolve_filters
+from sim_bridge.evaluation.barn_suite import run_barn, run_world
 from sim_bridge.launcher import body_parameters, params_file
 from sim_bridge.world import CLEARANCE_RANGE, SimWorld
 

@@ -15,7 +15,7 @@ import argparse
 from bench_io import require_installed_checkout
 
 from sim_bridge.barn import load_worlds, WORLDS_FILE
-from sim_bridge.barn_suite import run_world
+from sim_bridge.evaluation.barn_suite import run_world
 from sim_bridge.plots import barn_trajectories_figure
 
 BEFORE = ('polyc2bf_inflated', {'filter.gamma': 1.0, 'filter.cone_axis': 'midpoint',

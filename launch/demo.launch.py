@@ -1,7 +1,8 @@
 """The closed-loop demo on a full ROS 2 install: ``ros2 launch polyc2bf_ros demo.launch.py``.
 
 Arguments: ``scenario`` (a shipped name such as ``long_wall`` or a YAML path),
-``filter`` (``polyc2bf_inflated``, ``polyc2bf_paper``, ``c3bf`` or ``none``),
+``filter`` (``default``: each robot type's shipped barrier; ``polyc2bf_horizon``,
+``polyc2bf_inflated``, ``polyc2bf_paper``, ``c3bf`` or ``none``),
 ``duration`` (sim seconds, -1 = the scenario's) and ``bag_path`` (empty =
 ``runs/<timestamp>/run``), e.g.
 ``ros2 launch polyc2bf_ros demo.launch.py scenario:=quadrotor_wall filter:=c3bf``.
@@ -44,8 +45,8 @@ def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument('scenario', default_value='long_wall',
                               description='shipped scenario name or scenario YAML path'),
-        DeclareLaunchArgument('filter', default_value='polyc2bf_inflated',
-                              choices=list(FILTER_CHOICES),
+        DeclareLaunchArgument('filter', default_value='default',
+                              choices=[*FILTER_CHOICES, 'default'],
                               description='safety filter barrier, or none'),
         DeclareLaunchArgument('duration', default_value='-1.0',
                               description="sim seconds; -1 = the scenario's"),

@@ -114,6 +114,11 @@ NODE_PARAMETERS = {
     'scan_tracking': (True, None, 'track scan clusters from scan to scan (core/scan_tracker.py): '
                       'obstacles of a confirmed, moving track get its velocity; false: every '
                       'scan obstacle stands still', False),
+    'odom_position_std': (0.0, (0.0, 1.0), 'noise [m] of the odometry position scans are '
+                          'placed at; the scan tracker allows for it in every displacement it '
+                          'measures, so a standing object is not taken for a moving one', False),
+    'odom_heading_std': (0.0, (0.0, 0.5), 'noise [rad] of the odometry heading scans are '
+                         'placed at (as odom_position_std, times the range)', False),
 }
 
 # FilterConfig field: ((min, max) or None, description); control_period comes from rate.
@@ -228,7 +233,9 @@ FILTER_FIELDS = tuple(f.name for f in dataclasses.fields(FilterConfig)
 class NodeSettings:
     """Everything the node derives from its parameters, built and validated together.
 
-    ``timeouts``: the watchdogs', ``obstacles`` only with ``use_markers``; ``parameters`` is
+    ``timeouts``: the watchdogs', ``obstacles`` only with ``use_markers``; the node adds one
+    per scan topic (``scan_topics``, deduplicated, each ``scan_timeout``, named by
+    ``scan_watchdog``); ``parameters`` is
     every value used (defaults filled in); ``ignored`` the names given that the node does not
     declare (callers report them).
     """
@@ -247,12 +254,19 @@ class NodeSettings:
     resolution: str
     route: tuple
     parameters: dict
+    scan_topics: tuple = ()
+    scan_timeout: float = 0.0
     ignored: tuple = ()
 
     @property
     def tick(self):
         """Return the period of the node's timer: the step, or the stale-command check."""
         return max(self.period, COMMAND_WATCHDOG_PERIOD) if self.per_command else self.period
+
+
+def scan_watchdog(topic):
+    """Return the watchdog name of the scan topic ``topic`` (``scan_`` + its path)."""
+    return 'scan_' + topic.strip('/').replace('/', '_')
 
 
 def build_settings(values, model=None):
@@ -294,12 +308,21 @@ def build_settings(values, model=None):
     except (TypeError, ValueError) as exc:
         raise ParameterError(f'invalid filter parameters: {exc}') from None
     use_markers = bool(values['use_markers'])
+    scan_topics = tuple(dict.fromkeys(topic for topic in values.get('scan_topics') or ()
+                                      if topic))
+    if not (scan_topics or use_markers):
+        raise ParameterError('use_markers is false and scan_topics is empty: the node has no '
+                             'obstacle source (set scan_topics, or use_markers true)')
     watched = ('odom', 'cmd', 'obstacles') if use_markers else ('odom', 'cmd')
     timeouts = {name: float(values[f'{name}_timeout']) for name in watched}
     for name, timeout in timeouts.items():
         if 0.0 < timeout <= period:
             raise ParameterError(f'{name}_timeout ({timeout:g} s) must exceed the control '
                                  f'period 1/rate ({period:g} s)')
+    scan_timeout = float(values['scan_timeout'])
+    if scan_topics and 0.0 < scan_timeout <= period:
+        raise ParameterError(f'scan_timeout ({scan_timeout:g} s) must exceed the control '
+                             f'period 1/rate ({period:g} s), or be 0')
     latency, command_timeout = float(values['command_latency']), float(values['cmd_timeout'])
     if latency >= command_timeout:
         raise ParameterError(f'command_latency ({latency:g} s) must be below cmd_timeout '
@@ -317,7 +340,7 @@ def build_settings(values, model=None):
             'deadlock_repeat_count', 'deadlock_repeat_window')),
         resolution=values['deadlock_resolution'],
         route=(float(values['route_ahead']), float(values['route_window'])),
-        parameters=dict(values))
+        parameters=dict(values), scan_topics=scan_topics, scan_timeout=scan_timeout)
     if settings.resolution not in RESOLUTIONS:
         raise ParameterError(f"parameter 'deadlock_resolution' must be one of {RESOLUTIONS}, "
                              f'got {settings.resolution!r}')
@@ -335,6 +358,7 @@ def default_values(model_name):
     """Return ``{name: default}`` of every parameter the node declares for ``model_name``."""
     values = {name: spec[0] for name, spec in NODE_PARAMETERS.items()}
     values['model'] = model_name
+    values['scan_topics'] = []  # declared apart by the node: a string array with no default
     values.update({f'model_params.{name}': default
                    for name, default in model_parameters(model_name).items()})
     defaults = FilterConfig()

@@ -13,7 +13,8 @@ Per pass (``ObstaclePipeline.run``):
    outline capped at ``max_vertices`` points (``core.polygon_limits``);
 3. the set in the odometry frame is built (``ObstacleTracker.obstacle_set``, at most
    ``max_parts`` convex parts per footprint and ``max_obstacles`` in all) and its views
-   are prepared for the filter (``SafetyFilter.prepare``, stored in the set);
+   are prepared for the filter (``ObstacleGeometry.prepare``, stored in the set: the
+   filter's geometry alone, no filter is built here);
 4. the result comes back as one immutable ``ObstacleSnapshot``, published by one
    attribute store (atomic under the GIL), which the control step reads.  A set that is a
    translation of the last one sent (obstacles that only moved) travels as offsets and is
@@ -61,13 +62,12 @@ import numpy as np
 
 from polyc2bf_ros import cdr_reader, marker_obstacles
 from polyc2bf_ros.core.decision import ObstacleSnapshot
-from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles import ObstacleSet
 from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
-from polyc2bf_ros.core.safety_filter import SafetyFilter
 from polyc2bf_ros.core.scan_obstacles import pose_at, scan_to_obstacles, ScanSettings
-from polyc2bf_ros.core.scan_tracker import ScanTracker, unseen_obstacles
+from polyc2bf_ros.core.scan_tracker import ScanTracker, TrackerSettings, unseen_obstacles
 from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 
 MAX_OBSTACLES = 1000
@@ -89,10 +89,14 @@ class IntakeSettings(NamedTuple):
     scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
     scan_obstacle_depth: float = 0.10
     scan_tracking: bool = True
+    odom_position_std: float = 0.0
+    odom_heading_std: float = 0.0
 
 
 class ScanObstacles(NamedTuple):
     """One scan's obstacles: the scan's stamp [s], ``Obstacle`` list, cluster per obstacle.
+
+    ``origin``: the sensor's position (x, y) in the odometry frame when the scan was taken.
 
     ``owner[i]`` indexes ``clusters``, the endpoints (n, 2) of each cluster in the odometry
     frame (``scan_to_obstacles(..., with_clusters=True)``).
@@ -102,6 +106,7 @@ class ScanObstacles(NamedTuple):
     obstacles: list
     owner: np.ndarray
     clusters: list
+    origin: tuple = (0.0, 0.0)
 
 
 class ScanStatus(NamedTuple):
@@ -114,7 +119,7 @@ class ScanStatus(NamedTuple):
 
 
 class ObstacleJob(NamedTuple):
-    """One pass: messages [(data, received)], odometry frame, settings, filter, stamp [s].
+    """One pass: messages [(data, received)], odometry frame, settings, geometry, stamp [s].
 
     ``data`` is a serialized MarkerArray, or a MarkerArray message (offline replay).
     ``scans``: the newest scan per topic, ``(topic, data, received, odometry samples
@@ -125,7 +130,7 @@ class ObstacleJob(NamedTuple):
     messages: list
     frame: object
     settings: IntakeSettings
-    filter_spec: tuple
+    geometry: ObstacleGeometry
     now: float
     scans: tuple = ()
     transforms: tuple = ()
@@ -139,9 +144,8 @@ class ObstaclePipeline:
         self._tracker = ObstacleTracker()
         self._unreadable = ''
         self._received = None
-        self._filter_spec = self._filter = None
         self._scans = {}  # topic: (stamp [s], its obstacles)
-        self._scan_tracker = self._tracker_link = None  # made on the first tracked scan
+        self._scan_tracker = self._tracking = None  # made on the first tracked scan
         self._static = StaticTransforms()
         self.scan_status = {}  # topic: ScanStatus
 
@@ -157,11 +161,11 @@ class ObstaclePipeline:
                 continue
             self._unreadable, self._received = '', received
         settings, tracker = job.settings, self._tracker
-        dim = self._filter_for(job.filter_spec).model.position_dim
+        dim = job.geometry.dim
         for data in job.transforms:
             self._static.update(data)
         for scan in job.scans:
-            self._take_scan(*scan, settings, job.filter_spec[1].robot_radius)
+            self._take_scan(*scan, settings, job.geometry.robot_radius)
         marker_obstacles.apply_markers(
             tracker, cdr_reader.MarkerArrayView(tuple(marker_obstacles.conflate_markers(markers))),
             job.now, settings.wall_thickness, settings.cylinder_sides,
@@ -174,7 +178,7 @@ class ObstaclePipeline:
                 else:
                     obstacles, t_ref, wrong_frame = tracker.obstacle_set(
                         job.frame, dim, settings.max_parts, settings.max_obstacles)
-                self._filter.prepare(obstacles)
+                job.geometry.prepare(obstacles)
             except ValueError as exc:
                 obstacles, error = ObstacleSet.empty(), f'obstacle set could not be built: {exc}'
         return ObstacleSnapshot(
@@ -215,22 +219,21 @@ class ObstaclePipeline:
             # Unstamped scans and odometry: the tracker times them by their receipt.
             clock = scan.stamp if scan.stamp > 0.0 else received
             link = float(settings.scan_cluster_tolerance)
-            if link != self._tracker_link:  # clusters link at the scan's own tolerance
-                self._scan_tracker, self._tracker_link = ScanTracker(link=link), link
+            tracking = (link, float(settings.odom_position_std),
+                        float(settings.odom_heading_std))
+            if tracking != self._tracking:  # clusters link at the scan's own tolerance
+                self._scan_tracker = ScanTracker(TrackerSettings(
+                    pose_std=tracking[1], heading_std=tracking[2]), link=link)
+                self._tracking = tracking
             velocities = [np.array([*track.velocity, 0.0])
-                          for track in self._scan_tracker.update(clock, scan.clusters)]
+                          for track in self._scan_tracker.update(clock, scan.clusters,
+                                                                 scan.origin)]
             unseen = unseen_obstacles(self._scan_tracker, f'{topic}:')
         self._scans[topic] = (scan.stamp, [
             dataclasses.replace(o, key=f'{topic}:{o.key}', velocity=velocities[cluster])
             for o, cluster in zip(scan.obstacles, scan.owner.tolist())] + unseen)
         self.scan_status[topic] = status._replace(accepted=received, received=received)
 
-    def _filter_for(self, spec):
-        """Return the filter to prepare sets for: ``spec`` = (model name, config)."""
-        if spec != self._filter_spec:
-            self._filter = SafetyFilter(make_model(spec[0]), spec[1])
-            self._filter_spec = spec
-        return self._filter
 
 
 def _moved(obstacle, dt):
@@ -243,11 +246,6 @@ def _moved(obstacle, dt):
 
 STILL_3D = np.zeros(3)
 STILL_3D.flags.writeable = False
-
-
-def scan_obstacles(data, odometry, base_frame, settings, robot_radius, transforms=None):
-    """Return the obstacles of a serialized LaserScan (``read_scan``), without tracking."""
-    return read_scan(data, odometry, base_frame, settings, robot_radius, transforms).obstacles
 
 
 def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=None):
@@ -290,12 +288,15 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
         ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max,
         sensor_pose, robot_pose, scan_settings, with_clusters=True)
     # An unstamped scan is taken at the latest odometry sample (``pose_at``): its stamp too.
+    x, y, yaw = robot_pose
+    origin = (x + math.cos(yaw) * sensor_pose[0] - math.sin(yaw) * sensor_pose[1],
+              y + math.sin(yaw) * sensor_pose[0] + math.cos(yaw) * sensor_pose[1])
     return ScanObstacles(stamp if stamp > 0.0 else float(odometry[-1][0]), obstacles, owner,
-                         clusters)
+                         clusters, origin)
 
 
 def _sensor_pose(frame, base_frame, settings, transforms):
-    """Return ``(x, y, yaw)`` of a scan's ``frame`` in the base frame (``scan_obstacles``)."""
+    """Return ``(x, y, yaw)`` of a scan's ``frame`` in the base frame (``read_scan``)."""
     if frame == base_frame:
         return IDENTITY
     pose = None if transforms is None else transforms.pose(base_frame, frame)
@@ -342,13 +343,13 @@ def serve(inbox, outbox):
 class ObstacleIntake:
     """Queue obstacle messages and hand them to the worker process (module docstring)."""
 
-    def __init__(self, filter_spec, now, settings=IntakeSettings(), on_snapshot=None):
-        """``filter_spec`` = (model name, ``FilterConfig``); ``now()`` [s] stamps markers.
+    def __init__(self, geometry, now, settings=IntakeSettings(), on_snapshot=None):
+        """``geometry``: the filter's (``SafetyFilter.geometry``); ``now()`` [s] stamps markers.
 
         ``on_snapshot()``, if given, is called from the feeder thread after each pass.
         """
         self._on_snapshot = on_snapshot
-        self._filter_spec = filter_spec
+        self._geometry = geometry
         self._now = now
         self._settings = settings
         self._frame = None
@@ -369,10 +370,10 @@ class ObstacleIntake:
         self.scan_status = {}  # topic: ScanStatus, as of the newest pass
         self.snapshot = ObstacleSnapshot()
 
-    def configure(self, settings, filter_spec):
+    def configure(self, settings, geometry):
         """Take new settings and filter; rebuild on the next pass."""
         with self._lock:
-            self._settings, self._filter_spec, self._dirty = settings, filter_spec, True
+            self._settings, self._geometry, self._dirty = settings, geometry, True
             self._generation += 1
         self._wake.set()
 
@@ -415,7 +416,7 @@ class ObstacleIntake:
         obstacle message is not held up by the worker's start-up (about a second).
         """
         with self._lock:
-            warm_up = ObstacleJob([], None, self._settings, self._filter_spec, 0.0)
+            warm_up = ObstacleJob([], None, self._settings, self._geometry, 0.0)
         self._run_in_worker(warm_up)
         self._feeder = threading.Thread(target=self._feed, name='obstacle_intake', daemon=True)
         self._feeder.start()
@@ -465,7 +466,7 @@ class ObstacleIntake:
             dirty, self._dirty = self._dirty, False
             if not (messages or scans or transforms or dirty):
                 return None, self._generation
-            job = ObstacleJob(messages, self._frame, self._settings, self._filter_spec,
+            job = ObstacleJob(messages, self._frame, self._settings, self._geometry,
                               self._now(), scans, transforms)
             return job, self._generation
 

@@ -109,6 +109,7 @@ from polyc2bf_ros.filter_parameters import (
     FILTER_PARAMETERS,
     model_parameters,
     NODE_PARAMETERS,
+    scan_watchdog,
 )
 from polyc2bf_ros.loop_log import LoopLogger
 from polyc2bf_ros.node_main import run_node
@@ -173,7 +174,7 @@ class SafetyFilterMixin:
         self._state_published = None  # the action last published on ~/state
         self._obstacles_ready = self._keep(self.destroy_guard_condition,
                                            self.create_guard_condition(self._answer_if_ready))
-        self._intake = ObstacleIntake(self._filter_spec(settings),
+        self._intake = ObstacleIntake(settings.command_filter.safety_filter.geometry,
                                       lambda: self.get_clock().now().nanoseconds * 1e-9,
                                       settings.intake, self._obstacles_processed)
         self._log = LoopLogger(self.get_logger())  # for the control path (loop_log)
@@ -328,9 +329,10 @@ class SafetyFilterMixin:
             raise ValueError(f"parameter 'model' must be one of {MODEL_NAMES}, "
                              f'got {self._model_name!r}')
         self._declare_model_and_filter_parameters()
+        self._declare_scan_topics()
         settings = build_settings(self._parameter_values())
         self._use_markers = settings.use_markers
-        self._scan_watchdogs = self._scan_sources(settings)
+        self._scan_watchdogs = {topic: scan_watchdog(topic) for topic in settings.scan_topics}
         return settings
 
     def _declare_model_and_filter_parameters(self):
@@ -343,32 +345,19 @@ class SafetyFilterMixin:
             bounds, text = FILTER_PARAMETERS[name]
             self._declare(f'filter.{name}', getattr(defaults, name), bounds, text, False)
 
-    def _scan_sources(self, settings):
-        """Declare ``scan_topics`` (read-only); return ``{topic: its watchdog name}``."""
+    def _declare_scan_topics(self):
+        """Declare ``scan_topics`` (read-only, a string array with no default)."""
         if not self.has_parameter('scan_topics'):
             self.declare_parameter('scan_topics', Parameter.Type.STRING_ARRAY, ParameterDescriptor(
                 name='scan_topics', read_only=True, description='sensor_msgs/LaserScan topics '
                 'to take obstacles from (empty: none); each has its own scan_timeout watchdog; '
                 'scans are placed by /tf_static from the odometry child frame, else at '
                 'sensor_pose'))
-        try:
-            topics = list(self.get_parameter('scan_topics').value)
-        except ParameterUninitializedException:
-            topics = []
-        topics = list(dict.fromkeys(t for t in topics if t))
-        if not (topics or settings.use_markers):
-            raise ValueError('use_markers is false and scan_topics is empty: the node has no '
-                             'obstacle source (set scan_topics, or use_markers true)')
-        self._scan_timeout = float(self.get_parameter('scan_timeout').value)
-        if topics and 0.0 < self._scan_timeout <= settings.period:
-            raise ValueError(f'scan_timeout ({self._scan_timeout:g} s) must exceed the control '
-                             f'period ({settings.period:g} s), or be 0')
-        return {topic: 'scan_' + topic.strip('/').replace('/', '_') for topic in topics}
 
     def _timeouts(self, settings):
         """Return the watchdog timeouts: odometry, command, obstacles (markers), one per scan."""
         return {**settings.timeouts,
-                **dict.fromkeys(self._scan_watchdogs.values(), self._scan_timeout)}
+                **dict.fromkeys(self._scan_watchdogs.values(), settings.scan_timeout)}
 
     def _declare(self, name, default, bounds, description, read_only):
         """Declare one parameter with its description and range, unless it already is.
@@ -389,12 +378,13 @@ class SafetyFilterMixin:
     def _parameter_values(self, changes=()):
         """Return ``{name: value}`` of every parameter, overlaid with ``changes``."""
         values = {p.name: p.value for p in self.get_parameters(self._declared)}
+        try:
+            values['scan_topics'] = list(self.get_parameter('scan_topics').value)
+        except ParameterUninitializedException:  # declared without a value: no scans
+            values['scan_topics'] = []
         values.update({p.name: p.value for p in changes})
         return values
 
-    def _filter_spec(self, settings):
-        """Return what the obstacle worker prepares geometry for: (model name, config)."""
-        return self._model_name, settings.command_filter.safety_filter.config
 
     def _apply(self, settings):
         """Swap in validated settings (decision, obstacle worker, stall guard)."""
@@ -404,7 +394,7 @@ class SafetyFilterMixin:
         self._decision.configure(settings.command_filter, self._timeouts(settings),
                                  settings.block_if_invalid, settings.max_extrapolation,
                                  settings.deadlock, settings.resolution, settings.route)
-        self._intake.configure(settings.intake, self._filter_spec(settings))
+        self._intake.configure(settings.intake, settings.command_filter.safety_filter.geometry)
         self._stall_guard.timeout = settings.stall_timeout
         self._stall_guard.period = settings.stall_timeout / _STALL_CHECKS_PER_TIMEOUT
 

@@ -180,7 +180,7 @@ class _OfflineNode:
                                         setup.block_if_invalid, setup.max_extrapolation,
                                         setup.deadlock, setup.resolution, setup.route)
         self.pipeline = ObstaclePipeline()
-        self.spec = (setup.model_name, setup.command_filter.safety_filter.config)
+        self.geometry = setup.command_filter.safety_filter.geometry
         self.frame = None
         self.odometry = {}   # stamp ns -> (log time s, state, yaw)
         self.nominal = {}    # stamp ns -> (log time s, command vector)
@@ -188,7 +188,7 @@ class _OfflineNode:
     def _obstacles(self, messages, now):
         """Run the node's obstacle pipeline on ``messages`` and hand the result over."""
         self.decision.obstacles(self.pipeline.run(ObstacleJob(
-            messages, self.frame, self.setup.intake, self.spec, now)))
+            messages, self.frame, self.setup.intake, self.geometry, now)))
 
     def on_obstacles(self, msg, t_ns):
         """Process a MarkerArray (zero stamps read as the log time)."""

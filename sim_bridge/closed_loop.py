@@ -73,7 +73,6 @@ from polyc2bf_ros.core import crazyflie
 from polyc2bf_ros.core.decision import ControlDecision, ObstacleSnapshot
 from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters, NODE_PARAMETERS
 from polyc2bf_ros.obstacle_intake import ObstacleJob, ObstaclePipeline
 from sim_bridge.actuation import Actuation, CommandPipe, Odometry
@@ -94,12 +93,6 @@ from sim_bridge.world import SimWorld
 NOMINALS = ('goal', 'path')
 MARKER_FRAME = 'world'       # the bridge's default frame_id
 BRIDGE_LINE_WIDTH = 0.02     # m: scale.x of the bridge's outline markers (bridge_node.LINE_WIDTH)
-
-
-def default_barrier(robot_type):
-    """Return the ``filter.barrier`` the shipped parameter file of ``robot_type`` runs."""
-    parameters = load_parameters([params_file(robot_type)], (), '')
-    return parameters.get('filter.barrier', FilterConfig.barrier)
 
 
 def _cylinder_polygon(radius):
@@ -175,7 +168,7 @@ class _Robot:
     def __init__(self, spec, barrier, nominal, period, steps, world, overrides=None):
         """Build the nominal law and (unless ``barrier`` is 'none') the node's CommandFilter.
 
-        ``intake`` and ``filter_spec`` are what the node's obstacle worker gets.
+        ``intake`` and ``geometry`` are what the node's obstacle worker gets.
         """
         robot = ROBOT_TYPES[spec.type]
         self.kind, self.yaw_index = robot.command_kind, robot.yaw_index
@@ -188,14 +181,14 @@ class _Robot:
             self.controller, self.target = UnicyclePathController(), ReferencePath(spec.path)
         parameters = {**load_parameters([params_file(spec.type)], (), spec.name),
                       'rate': 1.0 / period, **body_parameters(spec), **(overrides or {})}
-        self.filter = self.decision = self.intake = self.filter_spec = None
+        self.filter = self.decision = self.intake = self.geometry = None
         # The model gives u and u_nom for the intervention metric even without a filter.
         self.reference = build_filter(parameters).command_filter
         if barrier != 'none':
             settings = build_filter({**parameters, 'filter.barrier': barrier})
             self.filter = settings.command_filter
             self.intake = settings.intake
-            self.filter_spec = (robot.model, self.filter.safety_filter.config)
+            self.geometry = self.filter.safety_filter.geometry
             self.decision = ControlDecision(self.filter, dict.fromkeys(settings.timeouts, 0.0),
                                             settings.block_if_invalid, settings.max_extrapolation,
                                             settings.deadlock, settings.resolution,
@@ -394,7 +387,7 @@ class _ScanView:
         """Run one pass of ``name``'s pipeline; return its ObstacleSnapshot."""
         robot = self._robots[name]
         return self._pipelines[name].run(ObstacleJob(messages, 'world', robot.intake,
-                                                     robot.filter_spec, self.world.time, scans))
+                                                     robot.geometry, self.world.time, scans))
 
     def sense(self):
         """Keep the scans due at the world's current physics step for the next period."""
@@ -505,7 +498,7 @@ class _MarkerView:
         if data is not None:
             spec = self._robots[robot]
             self._snapshots[robot] = self._pipelines[robot].run(ObstacleJob(
-                [(data, self.world.time)], MARKER_FRAME, spec.intake, spec.filter_spec,
+                [(data, self.world.time)], MARKER_FRAME, spec.intake, spec.geometry,
                 self.world.time))
         return self._snapshots[robot]
 

@@ -2,10 +2,12 @@
 
 Usage::
 
-    demo [--scenario long_wall] [--filter polyc2bf_inflated] [--duration S] [--seed N]
+    demo [--scenario long_wall] [--filter default] [--duration S] [--seed N]
          [--out runs] [--obstacle-source markers|scan] [--lidar FIELD=VALUE ...]
 
-Runs ``sim_bridge``, and per robot ``nominal_controller`` and ``safety_filter``,
+``--filter default`` (the default) runs the barrier the first robot type's shipped
+parameter file runs, as ``evaluate`` does.  Runs ``sim_bridge``, and per robot
+``nominal_controller`` and ``safety_filter``,
 as separate processes in lockstep (``sim_bridge.launcher``), showing sim time
 as it goes.  With ``--obstacle-source scan`` the bridge publishes no obstacle
 markers but each robot's simulated lidar (``<ns>/scan``, ``/tf_static``;
@@ -38,6 +40,7 @@ from polyc2bf_ros.filter_parameters import load_parameters
 from sim_bridge import plots
 from sim_bridge.bag_reader import BagReader
 from sim_bridge.launcher import (
+    default_barrier,
     domain_id,
     FILTER_CHOICES,
     format_progress,
@@ -158,8 +161,9 @@ def main(argv=None):
     parser = argparse.ArgumentParser(prog='demo', description=__doc__.split('\n')[0])
     parser.add_argument('--scenario', default='long_wall',
                         help=f'shipped scenario or YAML path ({", ".join(scenario_names())})')
-    parser.add_argument('--filter', default='polyc2bf_inflated', choices=FILTER_CHOICES,
-                        help='barrier of the safety filter, or none (default polyc2bf_inflated)')
+    parser.add_argument('--filter', default='default', choices=FILTER_CHOICES + ('default',),
+                        help="barrier of the safety filter, or none; default: the robot "
+                        "type's shipped one")
     parser.add_argument('--duration', type=float, default=None, help='sim seconds')
     parser.add_argument('--seed', type=int, default=None, help='random-obstacle seed')
     parser.add_argument('--out', default='runs', help='parent of the run directory (runs)')
@@ -187,6 +191,8 @@ def main(argv=None):
         scenario = dataclasses.replace(scenario, duration=args.duration)
     if args.seed is not None:
         scenario = scenario.with_seed(args.seed)
+    if args.filter == 'default':
+        args.filter = default_barrier(scenario.robots[0].type)
     run_dir = new_run_dir(args.out)
     robots = ', '.join(f'{r.name} ({r.type})' for r in scenario.robots)
     print(f'demo: {scenario.name} ({scenario.duration:g} s), filter {args.filter}, '

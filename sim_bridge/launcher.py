@@ -48,6 +48,8 @@ import threading
 import time
 from pathlib import Path
 
+from polyc2bf_ros.core.safety_filter import FilterConfig
+from polyc2bf_ros.filter_parameters import load_parameters
 from sim_bridge import robots
 from sim_bridge.scenario import load_scenario, SCENARIO_DIR
 
@@ -146,6 +148,12 @@ def params_file(robot_type):
     return CONFIG_DIR / robots.robot_type(robot_type).params_file
 
 
+def default_barrier(robot_type):
+    """Return the ``filter.barrier`` the shipped parameter file of ``robot_type`` runs."""
+    parameters = load_parameters([params_file(robot_type)], (), '')
+    return parameters.get('filter.barrier', FilterConfig.barrier)
+
+
 def body_parameters(spec):
     """Return the filter overrides ``spec``'s body implies (none but for a disc body).
 
@@ -190,20 +198,22 @@ def scenario_reference(scenario):
     return str(scenario)
 
 
-def closed_loop_plan(scenario, barrier='polyc2bf_inflated', bridge_parameters=None,
+def closed_loop_plan(scenario, barrier='default', bridge_parameters=None,
                      filter_parameters=None, obstacle_source='markers', lidar=None):
     """Return the ProcessSpecs of one closed-loop run of ``scenario``.
 
     ``scenario`` is a shipped name or a YAML path, or a loaded shipped Scenario.
 
-    ``barrier`` is a ``filter.barrier`` value or ``'none'`` (nominal command straight
-    to the robot).  ``bridge_parameters`` (e.g. ``duration``, ``seed``, ``record``,
-    ``bag_path``) and ``filter_parameters`` override or add node parameters.
+    ``barrier`` is a ``filter.barrier`` value, ``'default'`` (each robot's shipped
+    parameter file's) or ``'none'`` (nominal command straight to the robot).
+    ``bridge_parameters`` (e.g. ``duration``, ``seed``, ``record``, ``bag_path``) and
+    ``filter_parameters`` override or add node parameters.
     ``obstacle_source``: 'markers' or 'scan' (module docstring; ``lidar`` defaults to
     ``LidarSettings()``).
     """
-    if barrier not in FILTER_CHOICES:
-        raise ValueError(f'filter must be one of {", ".join(FILTER_CHOICES)}, got {barrier!r}')
+    if barrier not in FILTER_CHOICES + ('default',):
+        raise ValueError(f'filter must be one of {", ".join(FILTER_CHOICES)} or default, '
+                         f'got {barrier!r}')
     if obstacle_source not in OBSTACLE_SOURCES:
         raise ValueError(f'obstacle source must be one of {", ".join(OBSTACLE_SOURCES)}, '
                          f'got {obstacle_source!r}')
@@ -234,7 +244,8 @@ def closed_loop_plan(scenario, barrier='polyc2bf_inflated', bridge_parameters=No
         plan.append(ProcessSpec(f'{robot.name}_nominal', 'nominal_controller',
                                 'sim_bridge.nominal_controller_node', robot.name, controller))
         parameters = {**robot_type.filter_parameters, **LOCKSTEP_FILTER, 'rate': rate,
-                      'filter.barrier': barrier, **body_parameters(robot), **sensed,
+                      'filter.barrier': (default_barrier(robot.type) if barrier == 'default'
+                                         else barrier), **body_parameters(robot), **sensed,
                       **(filter_parameters or {})}
         plan.append(ProcessSpec(f'{robot.name}_filter', 'safety_filter',
                                 'polyc2bf_ros.safety_filter_node', robot.name, parameters,
@@ -322,7 +333,7 @@ def stop_processes(procs, timeout):
             proc.wait()
 
 
-def run_closed_loop(scenario, run_dir, barrier='polyc2bf_inflated', duration=None, seed=None,
+def run_closed_loop(scenario, run_dir, barrier='default', duration=None, seed=None,
                     record=True, bridge_parameters=None, filter_parameters=None,
                     timeout=None, stop_timeout=10.0, progress=None, obstacle_source='markers',
                     lidar=None):

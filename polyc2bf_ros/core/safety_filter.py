@@ -90,15 +90,16 @@ import numpy as np
 
 from polyc2bf_ros.core.barrier import BarrierTerms, tighten_for_obstacle_accel
 from polyc2bf_ros.core.braking_check import clear_around, path_clearance
-from polyc2bf_ros.core.cone_models import CONE_AXES, CONE_MODELS, make_cone_model
+from polyc2bf_ros.core.cone_models import CONE_AXES, CONE_MODELS
 from polyc2bf_ros.core.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K, PLANE_ROWS
-from polyc2bf_ros.core.ground import ground_offsets, grounded
+from polyc2bf_ros.core.ground import ground_offsets
 from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
+from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp import front_end_answers, QPStatus, row_residual, solve_with_shared_slack
 from polyc2bf_ros.core.qp_backends import make_solver, SOLVERS
-from polyc2bf_ros.core.views import choose_planes, prepare_views
+from polyc2bf_ros.core.views import choose_planes
 
 ACTIVE_TOLERANCE = 1e-7
 EVASION_STEP = 0.05
@@ -414,12 +415,10 @@ class SafetyFilter:
         """Bind a model and a (validated) configuration, and compile the hot path."""
         self.model = model
         self.config = (config or FilterConfig()).validate()
-        # The body's radius grown by the model's offset l: the guarded point r keeps R + l,
-        # so the body around its centre keeps R (``RobotModel.guard_offset``).
-        self.guard_radius = float(self.config.robot_radius + model.guard_offset)
-        self.cone_model = make_cone_model(self.config.barrier, self.guard_radius,
-                                          self.config.inflation_segments, self.config.horizon,
-                                          self.config.cone_axis)
+        # What prepared views depend on (cone model, dimension, guard radius R + l, ground):
+        # shared with the node's obstacle worker, which prepares sets without a filter.
+        self.geometry = ObstacleGeometry(model, self.config)
+        self.guard_radius, self.cone_model = self.geometry.guard_radius, self.geometry.cone_model
         self.solver = make_solver(self.config.solver)
         self._state_shape, self._input_shape = (model.state_dim,), (model.input_dim,)
         self._weights = np.ascontiguousarray(model.input_weights, dtype=np.float64)
@@ -436,8 +435,6 @@ class SafetyFilter:
         self._velocity_error = float(self.config.obstacle_velocity_error) if planar else 0.0
         self._braking = bool(self.config.braking_check) and model.position_dim == 2
         self._barrier_check = self._braking and bool(self.config.braking_check_barrier)
-        self._ground = (float(self.config.ground_z) if model.position_dim == 3
-                        and math.isfinite(self.config.ground_z) else None)
         # The braking check measures paths against the footprints themselves: the robot's
         # disc keeps braking_margin, i.e. the guarded point guard_radius + braking_margin.
         self._clearance = self.guard_radius + float(self.config.braking_margin)
@@ -455,10 +452,6 @@ class SafetyFilter:
             self._lower, np.clip(0.0, self._lower, self._upper), self._upper))))
         # The step's reference kinematics, refilled each step (it never leaves the step).
         self._reference = ReferenceKinematics.empty(model.position_dim, model.input_dim)
-        # What prepared views depend on: the cone model's settings, dimension and radius.
-        self._geometry_key = (type(self.cone_model).__name__,
-                              tuple(sorted(vars(self.cone_model).items())),
-                              model.position_dim, self.guard_radius)
         self._cache_key = self._cache = None
         self._base_key = self._base = None
         self.warm_up()
@@ -839,15 +832,11 @@ class SafetyFilter:
     def prepare(self, obstacles):
         """Precompute the views of an obstacle set now (``step`` does it on first use).
 
-        They are stored in the set (``ObstacleSet.geometry``, under this filter's geometry
-        settings), not in the filter, so another thread may call this for a set the filter
-        has not seen yet: the node prepares sets where obstacle messages are processed, off
-        the control path.  A translated set prepares its base.
+        They are stored in the set (``ObstacleSet.geometry``, under ``geometry.key``), not
+        in the filter, so another thread may prepare a set the filter has not seen yet
+        (``ObstacleGeometry.prepare``).  A translated set prepares its base.
         """
-        if obstacles.base is not None:
-            obstacles = obstacles.base
-        if obstacles.is_finite():
-            self._views(self._grounded(obstacles))
+        self.geometry.prepare(obstacles)
 
     def _prepare(self, obstacles):
         """Build (and cache per obstacle set) the planar views of the obstacles.
@@ -864,43 +853,27 @@ class SafetyFilter:
             # are replaced).
             if obstacles.base is not self._base_key:
                 self._base_key = obstacles.base
-                self._base = self._fresh(self._grounded(obstacles.base), True)
+                self._base = self._fresh(self.geometry.grounded(obstacles.base), True)
             offsets, velocities = obstacles.offsets[:, :dim], obstacles.velocities[:, :dim]
-            if self._ground is not None:
+            if self.geometry.ground is not None:
                 offsets, velocities = ground_offsets(offsets, velocities)
             prepared = self._base.translated(
                 np.ascontiguousarray(offsets, dtype=np.float64),
                 np.ascontiguousarray(velocities, dtype=np.float64))
         else:
-            prepared = self._fresh(self._grounded(obstacles if finite else ObstacleSet.empty()),
-                                   finite)
+            chosen = obstacles if finite else ObstacleSet.empty()
+            prepared = self._fresh(self.geometry.grounded(chosen), finite)
         self._cache_key, self._cache = (obstacles if finite else None), prepared
         return prepared
-
-    def _grounded(self, obstacles):
-        """Return ``obstacles`` standing on the ground (``polyc2bf_ros.core.ground``), if any."""
-        if self._ground is None:
-            return obstacles
-        return grounded(obstacles, self._ground, self.guard_radius)
 
     def _fresh(self, obstacles, finite):
         """Prepare the views of ``obstacles`` and row buffers for as many parts."""
         dim, count = self.model.position_dim, len(obstacles)
         return _Prepared(
-            count=count, views=self._views(obstacles),
+            count=count, views=self.geometry.views(obstacles),
             velocities=np.ascontiguousarray(obstacles.velocities[:, :dim], dtype=np.float64),
             offsets=np.zeros((count, dim)), finite=finite,
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
             index=np.empty(count, dtype=np.intp),
             footprints=PlanarPolygons.from_batch(obstacles.footprints) if self._braking
             else None)
-
-    def _views(self, obstacles):
-        """Return the views of ``obstacles``, prepared once per set and geometry settings."""
-        key = self._geometry_key
-        views = obstacles.geometry.get(key)
-        if views is None:
-            views = prepare_views(obstacles, self.cone_model, self.model.position_dim,
-                                  self.guard_radius)
-            obstacles.geometry[key] = views
-        return views

@@ -167,7 +167,7 @@ LOW, HIGH, CENTROID, SEEN, TRACK_FLOATS = 0, 2, 4, 6, 7
 ID, HITS, STREAK, MOVING, FIRST, SIZE, TRACK_INTS = 0, 1, 2, 3, 4, 5, 6
 # Entries of the settings vector the kernels read.
 (GATE, ACCEL, SPEED, POINT, TRIM, SPAN, ITERATIONS, OVERLAP, CONFIRM, COAST, MOVING_SPEED,
- SIGMAS, SCANS, KNOWN, EXTENT, LINK, PARAMETERS) = range(17)
+ SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING, ORIGIN_X, ORIGIN_Y, PARAMETERS) = range(21)
 I2 = 'i8[:, ::1]'
 B2 = 'b1[:, ::1]'
 
@@ -219,6 +219,11 @@ class TrackerSettings:
       structure.
     - ``max_backstep`` [s] 0.25, >= 0: a stamp this much before the newest resets the
       tracker.
+    - ``pose_std`` [m] 0, >= 0, and ``heading_std`` [rad] 0, >= 0: the noise of the
+      odometry pose each scan is placed at.  Two scans' poses err independently, so a
+      displacement measured between them gains ``2 (pose_std^2 + r^2 heading_std^2)`` of
+      variance per axis, r the cluster's range from the sensor (``update``'s ``origin``):
+      with it, a standing object shaken by the pose noise is not taken for a moving one.
     """
 
     gate: float = 0.3
@@ -237,6 +242,8 @@ class TrackerSettings:
     max_velocity_std: float = 0.3
     static_extent: float = 3.0
     max_backstep: float = 0.25
+    pose_std: float = 0.0
+    heading_std: float = 0.0
 
     def __post_init__(self):
         """Refuse settings out of range (``validate``)."""
@@ -249,7 +256,8 @@ class TrackerSettings:
                                ('max_coast', False), ('moving_speed', False),
                                ('n_sigma', False), ('max_velocity_std', True),
                                ('static_extent', True),
-                               ('max_backstep', False)):
+                               ('max_backstep', False), ('pose_std', False),
+                               ('heading_std', False)):
             value = getattr(self, name)
             if (isinstance(value, bool) or not isinstance(value, numbers.Real)
                     or not math.isfinite(value) or value < 0 or (positive and value == 0)):
@@ -266,13 +274,13 @@ class TrackerSettings:
 
     def vector(self, link):
         """Return the settings as the kernels read them (``link``: the cluster tolerance)."""
-        values = np.empty(PARAMETERS)
+        values = np.zeros(PARAMETERS)  # ORIGIN_X, ORIGIN_Y: set per scan (``update``)
         values[[GATE, ACCEL, SPEED, POINT, TRIM, SPAN, ITERATIONS, OVERLAP, CONFIRM, COAST,
-                MOVING_SPEED, SIGMAS, SCANS, KNOWN, EXTENT, LINK]] = (
+                MOVING_SPEED, SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING]] = (
             self.gate, self.accel_std, self.speed_std, self.point_std, self.trim, self.span,
             self.iterations, self.min_overlap, self.confirm_hits, self.max_coast,
             self.moving_speed, self.n_sigma, self.moving_scans, self.max_velocity_std,
-            self.static_extent, link)
+            self.static_extent, link, self.pose_std, self.heading_std)
         return values
 
 
@@ -686,8 +694,12 @@ def _measure(smoothed, starts, c, box, storage, state, P, floats, ints, params, 
     if good:
         hxx, hxy, hyy, variance = result[2] + RIDGE, result[3], result[4] + RIDGE, result[6]
         det = hxx * hyy - hxy * hxy
-        update_one(state, P, H, result[0] - gx, result[1] - gy, variance * hyy / det,
-                   -variance * hxy / det, variance * hxx / det, result[8], result[9], scratch)
+        # The two scans' pose errors (``pose_std``, ``heading_std`` at the cluster's range).
+        rx, ry = box[4] - params[ORIGIN_X], box[5] - params[ORIGIN_Y]
+        pose = 2.0 * (params[POSE] ** 2 + (rx * rx + ry * ry) * params[HEADING] ** 2)
+        update_one(state, P, H, result[0] - gx, result[1] - gy, variance * hyy / det + pose,
+                   -variance * hxy / det, variance * hxx / det + pose, result[8], result[9],
+                   scratch)
     reclone_one(state, P)
     return good
 
@@ -840,15 +852,17 @@ class ScanTracker:
         """Return the number of tracks held."""
         return self._count
 
-    def update(self, stamp, clusters):
+    def update(self, stamp, clusters, origin=(0.0, 0.0)):
         """Take one scan's clusters at ``stamp`` [s]; return one ``TrackEstimate`` per cluster.
 
         ``clusters``: (n_i, 2) arrays of points in chain order, n_i >= 1 (``scan_obstacles``
-        with ``with_clusters=True``).  Malformed input raises ValueError.
+        with ``with_clusters=True``); ``origin``: the sensor's position (ranges for
+        ``heading_std``).  Malformed input raises ValueError.
         """
         stamp = float(stamp)
         if not math.isfinite(stamp):
             raise ValueError(f'stamp must be a finite number, got {stamp!r}')
+        self._params[ORIGIN_X], self._params[ORIGIN_Y] = origin
         if self._stamp is not None and stamp < self._stamp - self.settings.max_backstep:
             self.reset()
         dt = 0.0 if self._stamp is None else max(stamp - self._stamp, 0.0)

@@ -37,12 +37,16 @@ SETTLED = 3
 SIMULATIONS = settings(max_examples=examples(16), deadline=None)
 
 
-def _clusters(pose, polygons=(), circles=(), noise=0.0, rng=None, settings=SCAN):
-    """Return (obstacles, owner, clusters) of the scan a robot at ``pose`` takes."""
+def _clusters(pose, polygons=(), circles=(), noise=0.0, rng=None, settings=SCAN, placed=None):
+    """Return (obstacles, owner, clusters) of the scan a robot at ``pose`` takes.
+
+    ``placed``: the pose the scan is placed at (default ``pose``; noisy odometry).
+    """
     ranges = simulate_ranges(sensor_pose_in_world(pose), BEAMS, ANGLE_MIN, INCREMENT, RANGE_MAX,
                              polygons, circles, noise, rng)
     return scan_to_obstacles(ranges, ANGLE_MIN, INCREMENT, RANGE_MIN, RANGE_MAX,
-                             (0.0, 0.0, 0.0), pose, settings, with_clusters=True)
+                             (0.0, 0.0, 0.0), pose if placed is None else placed, settings,
+                             with_clusters=True)
 
 
 def _cluster_of(clusters, centre, reach):
@@ -159,6 +163,37 @@ def test_standing_objects_publish_no_velocity(drive):
         for estimate in tracker.update(t, clusters):
             assert np.linalg.norm(estimate.velocity) < 0.1, (k, estimate)
             assert not estimate.moving, (k, estimate)
+
+
+def _phantom_tracks(settings, seed):
+    """Return how many scans publish a moving track of the standing scene, placed noisily.
+
+    A robot drives past ``STATIC_POLYGONS`` and ``STATIC_CIRCLES`` at 1 m/s for 2 s at
+    10 Hz; each scan is placed at its pose plus 1 cm and 0.01 rad of white noise.
+    """
+    rng = np.random.default_rng(seed)
+    tracker, phantoms = ScanTracker(settings, link=SCAN.cluster_tolerance), 0
+    for k in range(21):
+        pose = (-2.0 + 0.1 * k, 0.0, 0.0)
+        placed = (pose[0] + rng.normal(0.0, 0.01), pose[1] + rng.normal(0.0, 0.01),
+                  pose[2] + rng.normal(0.0, 0.01))
+        _, _, clusters = _clusters(pose, STATIC_POLYGONS, STATIC_CIRCLES, noise=0.01, rng=rng,
+                                   placed=placed)
+        estimates = tracker.update(k / 10, clusters, placed[:2])
+        phantoms += any(np.linalg.norm(e.velocity) > 0.0 for e in estimates)
+    return phantoms
+
+
+def test_told_the_pose_noise_standing_objects_stay_still():
+    """Scans placed at noisy odometry shake standing objects; told the noise, none moves.
+
+    Over five seeds, the tracker not told the noise publishes phantom velocities (which
+    is why the setting exists); told ``pose_std`` 1 cm and ``heading_std`` 0.01 rad, no
+    scan publishes any.
+    """
+    told = TrackerSettings(pose_std=0.01, heading_std=0.01)
+    assert sum(_phantom_tracks(TrackerSettings(), seed) for seed in range(5)) > 0
+    assert sum(_phantom_tracks(told, seed) for seed in range(5)) == 0
 
 
 def test_with_velocities_gives_moving_obstacles_their_track_velocity():
@@ -335,7 +370,7 @@ BAD_SETTINGS = [('gate', 0.0), ('gate', math.inf), ('accel_std', -1.0), ('speed_
                 ('iterations', 2.5), ('min_overlap', 1.5), ('confirm_hits', True),
                 ('max_coast', -1.0), ('moving_speed', 'fast'), ('n_sigma', -1.0),
                 ('moving_scans', 0), ('max_velocity_std', 0.0), ('static_extent', 0.0),
-                ('max_backstep', -0.1)]
+                ('max_backstep', -0.1), ('pose_std', -0.01), ('heading_std', math.nan)]
 
 
 @pytest.mark.parametrize('name, value', BAD_SETTINGS)

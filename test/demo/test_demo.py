@@ -17,6 +17,7 @@ from PIL import Image
 from rosbags.highlevel import AnyReader
 
 from sim_bridge.closed_loop import run_in_process
+from sim_bridge.launcher import default_barrier
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, 'PYTHONPATH': os.pathsep.join(
@@ -34,7 +35,7 @@ def _demo(tmp_path, *args, timeout=300):
 
 @pytest.fixture(scope='module')
 def demo_run(tmp_path_factory):
-    """Run ``demo --duration 15`` once; return (completed process, run directory)."""
+    """Run ``demo --duration 15`` (the default filter) once; return (process, run directory)."""
     out = tmp_path_factory.mktemp('demo')
     result = _demo(out, '--duration', str(DURATION))
     runs = [p for p in (out / 'runs').iterdir() if p.is_dir()]
@@ -91,7 +92,8 @@ def test_in_process_runner_reproduces_the_dds_run(demo_run):
     _, run_dir = demo_run
     poses = _odometry(run_dir / 'run')
     stamps = sorted(poses)
-    trace = run_in_process('long_wall', 'polyc2bf_inflated', duration=DURATION).robots['a1']
+    trace = run_in_process('long_wall', default_barrier('quadruped'),
+                           duration=DURATION).robots['a1']
     assert len(stamps) == len(trace.states) == round(DURATION * 120) + 1
     recorded = np.array([poses[s] for s in stamps])
     np.testing.assert_allclose(recorded, trace.states[:, [0, 1, 3]], rtol=0, atol=1e-9)

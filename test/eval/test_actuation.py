@@ -8,9 +8,9 @@ import pytest
 
 from sim_bridge.actuation import Actuation, CommandPipe, describe, Odometry
 from sim_bridge.barn import load_worlds, WORLDS_FILE
-from sim_bridge.barn_suite import run_world
 from sim_bridge.closed_loop import run_in_process
-from sim_bridge.evaluate import main
+from sim_bridge.evaluation.barn_suite import run_world
+from sim_bridge.evaluation.cli import main
 
 DURATION = 1.5
 

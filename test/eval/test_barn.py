@@ -9,8 +9,8 @@ import pytest
 from PIL import Image
 
 from sim_bridge import barn
-from sim_bridge.barn_suite import BARN_KEYS, run_world
-from sim_bridge.evaluate import main
+from sim_bridge.evaluation.barn_suite import BARN_KEYS, run_world
+from sim_bridge.evaluation.cli import main
 
 START, GOAL = [-2.25, 3.0, 1.57], [-2.25, 13.0]
 # A row of touching cylinders across the straight line from start to goal, and a path

@@ -7,8 +7,8 @@ to rest (``filter.braking_check_barrier``, doc/design.md 3.10); world 1 is the f
 import pytest
 
 from sim_bridge.barn import load_worlds, WORLDS_FILE
-from sim_bridge.barn_suite import run_world
-from sim_bridge.closed_loop import default_barrier
+from sim_bridge.evaluation.barn_suite import run_world
+from sim_bridge.launcher import default_barrier
 
 WORLDS = (1, 13, 43, 260)
 

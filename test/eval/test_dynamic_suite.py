@@ -10,8 +10,7 @@ import pytest
 from PIL import Image
 from scipy.interpolate import CubicSpline
 
-from sim_bridge.closed_loop import _MarkerView, _Robot, default_barrier, run_in_process
-from sim_bridge.dynamic_suite import DYNAMIC_KEYS, parse_world_ids, run_world
+from sim_bridge.closed_loop import _MarkerView, _Robot, run_in_process
 from sim_bridge.dynamic_worlds import (
     AT_FAULT_SPEED,
     classify_contact,
@@ -29,7 +28,9 @@ from sim_bridge.dynamic_worlds import (
     START,
     START_CLEARANCE,
 )
-from sim_bridge.evaluate import main
+from sim_bridge.evaluation.cli import main
+from sim_bridge.evaluation.dynamic_suite import DYNAMIC_KEYS, parse_world_ids, run_world
+from sim_bridge.launcher import default_barrier
 from sim_bridge.lidar import LidarSettings, RobotLidars
 from sim_bridge.scenario import cylinder_polygon, ObstacleSpec, scenario_from_dict, ScenarioError
 from sim_bridge.world import SimWorld

@@ -6,7 +6,9 @@ import json
 import pytest
 from PIL import Image
 
-from sim_bridge.evaluate import KEYS, main, plan_runs
+from sim_bridge.evaluation.cli import main
+from sim_bridge.evaluation.records import KEYS
+from sim_bridge.evaluation.scenario_suite import plan_runs
 
 
 def test_plan_runs_seeds_only_random_scenarios():

@@ -5,7 +5,7 @@ import pytest
 from polyc2bf_ros.core.scan_obstacles import ScanSettings
 from polyc2bf_ros.filter_parameters import load_parameters
 from sim_bridge.closed_loop import _ObstacleView, _Robot, _ScanView, obstacle_free, run_in_process
-from sim_bridge.evaluate import summarise
+from sim_bridge.evaluation.records import summarise
 from sim_bridge.launcher import params_file, scan_parameters
 from sim_bridge.lidar import LidarSettings
 from sim_bridge.scenario import load_scenario, scenario_from_dict

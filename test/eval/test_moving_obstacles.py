@@ -9,8 +9,9 @@ still (``scan_tracking: false``) the same run ends in a collision, so the test c
 import numpy as np
 import pytest
 
-from sim_bridge.closed_loop import default_barrier, run_in_process
+from sim_bridge.closed_loop import run_in_process
 from sim_bridge.dynamic_worlds import AT_FAULT_SPEED
+from sim_bridge.launcher import default_barrier
 from sim_bridge.scenario import load_scenario
 
 SCENARIO = load_scenario('crossing_pedestrian')

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sim_bridge.closed_loop import run_in_process
-from sim_bridge.evaluate import summarise
+from sim_bridge.evaluation.records import summarise
 from sim_bridge.scenario import load_scenario
 
 

@@ -61,3 +61,15 @@ def test_bad_latency_and_lag_are_refused_in_one_line(values, message):
         build_filter(values)
     assert '\n' not in str(error.value)
     assert build_filter({'command_latency': 0.03, 'actuator_tau': 0.1}).command_filter
+
+
+def test_scan_sources_are_checked_offline_as_in_the_node():
+    """No obstacle source, or a scan timeout within a period: refused by ``build_filter`` too."""
+    with pytest.raises(ParameterError, match='use_markers is false and scan_topics is empty'):
+        build_filter({'use_markers': False})
+    with pytest.raises(ParameterError, match=r'scan_timeout \(0.005 s\) must exceed'):
+        build_filter({'scan_topics': ['scan'], 'scan_timeout': 0.005})
+    setup = build_filter({'use_markers': False, 'scan_topics': ['scan', '/scan', 'scan', ''],
+                          'scan_timeout': 0.0})
+    assert setup.scan_topics == ('scan', '/scan') and setup.scan_timeout == 0.0
+    assert setup.ignored == ()

@@ -6,6 +6,8 @@ from visualization_msgs.msg import Marker
 
 from node_harness import markers, wall
 from polyc2bf_ros import cdr_reader, marker_obstacles
+from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_intake import IntakeSettings, ObstacleIntake
@@ -13,7 +15,7 @@ from polyc2bf_ros.obstacle_intake import IntakeSettings, ObstacleIntake
 SQUARE = [(3.0, -0.5), (4.0, -0.5), (4.0, 0.5), (3.0, 0.5), (3.0, -0.5)]
 
 
-SPEC = ('unicycle', FilterConfig())
+SPEC = ObstacleGeometry(make_model('unicycle'), FilterConfig())
 
 
 def _intake(settings=IntakeSettings()):

@@ -7,17 +7,24 @@ from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
 
 from node_harness import markers, wall
-from polyc2bf_ros.core.safety_filter import FilterConfig
+from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
+from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from polyc2bf_ros.obstacle_intake import (
     IntakeSettings,
     ObstacleJob,
     ObstaclePipeline,
-    scan_obstacles,
+    read_scan,
 )
 from test_node_scan import _scan
 
-SPEC = ('unicycle', FilterConfig())
+SPEC = ObstacleGeometry(make_model('unicycle'), FilterConfig())
 ODOMETRY = ((0.0, 0.0, 0.0, 0.0),)  # one sample (stamp, x, y, yaw): at the origin
+
+
+def _obstacles(*arguments):
+    """Return the obstacles ``read_scan(*arguments)`` makes of a serialized scan."""
+    return read_scan(*arguments).obstacles
 
 
 def _data(**kwargs):
@@ -28,26 +35,26 @@ def test_bad_scans_are_refused_with_the_reason():
     """No odometry, NaN angles, mismatched intensities, all-NaN ranges: ValueError."""
     settings = IntakeSettings()
     with pytest.raises(ValueError, match='no odometry'):
-        scan_obstacles(_data(wall_x=1.0), (), 'base_link', settings, 0.3)
+        _obstacles(_data(wall_x=1.0), (), 'base_link', settings, 0.3)
     msg = _scan(wall_x=1.0)
     msg.angle_increment = math.nan
     with pytest.raises(ValueError, match='angle_increment'):
-        scan_obstacles(serialize_message(msg), ODOMETRY, 'base_link', settings, 0.3)
+        _obstacles(serialize_message(msg), ODOMETRY, 'base_link', settings, 0.3)
     msg = _scan(wall_x=1.0)
     msg.intensities = [1.0, 2.0]
     with pytest.raises(ValueError, match='intensities'):
-        scan_obstacles(serialize_message(msg), ODOMETRY, 'base_link', settings, 0.3)
+        _obstacles(serialize_message(msg), ODOMETRY, 'base_link', settings, 0.3)
     with pytest.raises(ValueError, match='all NaN'):
-        scan_obstacles(_data(nan=True), ODOMETRY, 'base_link', settings, 0.3)
+        _obstacles(_data(nan=True), ODOMETRY, 'base_link', settings, 0.3)
     with pytest.raises(ValueError, match='malformed'):
-        scan_obstacles(b'\x00\x01\x00\x00\x01', ODOMETRY, 'base_link', settings, 0.3)
+        _obstacles(b'\x00\x01\x00\x00\x01', ODOMETRY, 'base_link', settings, 0.3)
 
 
 def test_sensor_pose_applies_to_scans_in_another_frame():
     """A scan in the base frame is at the base; in ``laser`` it is at ``sensor_pose``."""
     settings = IntakeSettings(sensor_pose=(0.5, 0.0, 0.0))
-    at_base = scan_obstacles(_data(wall_x=1.0), ODOMETRY, 'base_link', settings, 0.3)
-    at_sensor = scan_obstacles(_data(wall_x=1.0, frame='laser'), ODOMETRY, 'base_link', settings,
+    at_base = _obstacles(_data(wall_x=1.0), ODOMETRY, 'base_link', settings, 0.3)
+    at_sensor = _obstacles(_data(wall_x=1.0, frame='laser'), ODOMETRY, 'base_link', settings,
                                0.3)
     assert at_base and at_sensor
     assert min(o.polygon[:, 0].min() for o in at_base) == pytest.approx(1.0, abs=0.06)
@@ -67,7 +74,7 @@ def test_returns_inside_the_footprint_are_the_robot_itself():
         edges, rel = np.roll(polygon, -1, axis=0) - polygon, behind - polygon
         return (edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0] >= 0).all()
     for radius, seen in ((0.3, False), (0.2, True)):
-        obstacles = scan_obstacles(_data(wall_x=0.28), ODOMETRY, 'base_link', IntakeSettings(),
+        obstacles = _obstacles(_data(wall_x=0.28), ODOMETRY, 'base_link', IntakeSettings(),
                                    radius)
         assert obstacles and any(covers(o.polygon) for o in obstacles) is seen
 
@@ -75,7 +82,7 @@ def test_returns_inside_the_footprint_are_the_robot_itself():
 def test_scan_obstacle_depth_sets_how_far_obstacles_reach_behind_the_wall(depth):
     """A wall at x = 1 m: its obstacles end ``scan_obstacle_depth`` beyond it."""
     settings = IntakeSettings(scan_obstacle_depth=depth)
-    obstacles = scan_obstacles(_data(wall_x=1.0), ODOMETRY, 'base_link', settings, 0.3)
+    obstacles = _obstacles(_data(wall_x=1.0), ODOMETRY, 'base_link', settings, 0.3)
     assert obstacles
     assert max(o.polygon[:, 0].max() for o in obstacles) == pytest.approx(1.0 + depth, abs=0.01)
 
@@ -89,7 +96,7 @@ def test_a_scan_is_placed_at_the_odometry_stamped_nearest_it():
     settings = IntakeSettings()
 
     def wall_x(**kwargs):
-        obstacles = scan_obstacles(_data(wall_x=1.0, **kwargs), odometry, 'base_link',
+        obstacles = _obstacles(_data(wall_x=1.0, **kwargs), odometry, 'base_link',
                                    settings, 0.3)
         return min(o.polygon[:, 0].min() for o in obstacles)
 
@@ -141,3 +148,18 @@ def test_a_box_coming_at_the_robot_gets_its_velocity_only_when_tracked(tracking)
                                    atol=0.15)
     else:
         assert not velocities.any()
+
+
+def test_the_worker_prepares_the_views_the_filter_steps_on():
+    """The pipeline prepares the views of the geometry it is handed: the filter's own.
+
+    A filter whose model is off its defaults (diff drive: offset_l 0.01) gets its views.
+    """
+    safety_filter = SafetyFilter(make_model('unicycle', offset_l=0.01), FilterConfig())
+    assert safety_filter.geometry != SPEC  # another guard radius: other views
+    marker = serialize_message(markers(wall([(5.0, -1.0), (5.0, 1.0)])))
+    snapshot = ObstaclePipeline().run(ObstacleJob([(marker, 1.0)], 'odom', IntakeSettings(),
+                                                  safety_filter.geometry, 1.0))
+    prepared = snapshot.obstacles.base or snapshot.obstacles  # a translation: its base
+    assert len(prepared) and safety_filter.geometry.key in prepared.geometry
+    assert SPEC.key not in prepared.geometry

@@ -4,19 +4,26 @@ import math
 import pytest
 from rclpy.serialization import serialize_message
 
+from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_intake import (
     IntakeSettings,
     ObstacleJob,
     ObstaclePipeline,
-    scan_obstacles,
+    read_scan,
 )
 from polyc2bf_ros.static_transforms import read_tf_message, StaticTransforms
 from sim_bridge.cdr import tf_message_cdr
 from test_node_scan import _scan
 
-SPEC = ('unicycle', FilterConfig())
+SPEC = ObstacleGeometry(make_model('unicycle'), FilterConfig())
 ODOMETRY = ((0.0, 0.0, 0.0, 0.0),)  # one sample (stamp, x, y, yaw): at the origin
+
+
+def _obstacles(*arguments):
+    """Return the obstacles ``read_scan(*arguments)`` makes of a serialized scan."""
+    return read_scan(*arguments).obstacles
 
 
 def _yaw(angle):
@@ -103,11 +110,11 @@ def test_a_scan_is_placed_by_the_static_transforms_before_sensor_pose():
     laser = serialize_message(_scan(wall_x=1.0, frame='laser'))
     other = serialize_message(_scan(wall_x=1.0, frame='sonar'))
     base = serialize_message(_scan(wall_x=1.0))
-    assert _nearest_x(scan_obstacles(laser, ODOMETRY, 'base_link', settings, 0.3, tree)) == \
+    assert _nearest_x(_obstacles(laser, ODOMETRY, 'base_link', settings, 0.3, tree)) == \
         pytest.approx(1.5, abs=0.06)
-    assert _nearest_x(scan_obstacles(other, ODOMETRY, 'base_link', settings, 0.3, tree)) == \
+    assert _nearest_x(_obstacles(other, ODOMETRY, 'base_link', settings, 0.3, tree)) == \
         pytest.approx(1.2, abs=0.06)
-    assert _nearest_x(scan_obstacles(base, ODOMETRY, 'base_link', settings, 0.3, tree)) == \
+    assert _nearest_x(_obstacles(base, ODOMETRY, 'base_link', settings, 0.3, tree)) == \
         pytest.approx(1.0, abs=0.06)
 
 

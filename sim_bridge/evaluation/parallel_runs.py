@@ -9,7 +9,7 @@ import os
 from concurrent.futures import as_completed, ProcessPoolExecutor
 from multiprocessing import get_context
 
-from sim_bridge.evaluate import Progress
+from sim_bridge.evaluation.progress import Progress
 
 
 def run_worlds(worlds, combos, run_world, arguments=(), jobs=None, progress=True,

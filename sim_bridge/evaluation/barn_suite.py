@@ -33,14 +33,12 @@ filter's path per nominal) and ``metric_histogram.png``.
 import json
 import math
 import os
-import sys
 import time
 from datetime import datetime
 from pathlib import Path
 
 import numpy as np
 
-from polyc2bf_ros.filter_parameters import ParameterError
 from sim_bridge import plots
 from sim_bridge.barn import (
     barn_metric,
@@ -51,19 +49,10 @@ from sim_bridge.barn import (
     WORLDS_FILE,
 )
 from sim_bridge.closed_loop import run_in_process
-from sim_bridge.evaluate import (
-    actuation_from_args,
-    actuation_line,
-    filter_statistics,
-    group_records,
-    lidar_from_args,
-    lidar_record,
-    obstacle_sources,
-    override_parameters,
-    resolve_filters,
-    table_cell,
-)
-from sim_bridge.parallel_runs import run_worlds
+from sim_bridge.evaluation.arguments import resolve_filters, run_or_exit, run_settings
+from sim_bridge.evaluation.parallel_runs import run_worlds
+from sim_bridge.evaluation.records import filter_statistics, group_records, lidar_record
+from sim_bridge.evaluation.reports import actuation_line, obstacle_sources, table_cell
 from sim_bridge.world import CLEARANCE_RANGE
 
 BARN_KEYS = ('suite', 'world', 'filter', 'nominal', 'obstacle_source', 'success', 'collision',
@@ -252,9 +241,9 @@ def write_barn_outputs(out, records, trajectories, worlds, command, wall_time_s,
             f'Actuation: {actuation_line(records)}.  ',
             f'{len(records)} runs over {len(worlds)} worlds (from `{worlds_label}`); '
             'per run JSON in `results.json`.  Definitions: `sim_bridge/barn.py` and '
-            '`sim_bridge/barn_suite.py` docstrings.  Rates are shares of the worlds; the '
-            "metric is BARN's (failures count 0, at most 0.5); DWA is BARN's published "
-            'baseline, not run here.',
+            '`sim_bridge/evaluation/barn_suite.py` docstrings.  Rates are shares of the '
+            "worlds; the metric is BARN's (failures count 0, at most 0.5); DWA is BARN's "
+            'published baseline, not run here.',
             '', barn_table(rows), '', *deadlock_lines(rows), '']
     if plots_too:
         text += ['![outcomes](outcomes.png)', '', '![trajectories](trajectories.png)', '',
@@ -285,22 +274,9 @@ def main_barn(parser, args, command):
     combos = [(name, nominal) for nominal in args.nominal or ['path'] for name in filters]
     jobs = args.jobs or os.cpu_count() or 1
     out = Path(args.out or 'runs/barn')
-    try:
-        parameters = override_parameters(args)
-    except ValueError as exc:
-        parser.error(str(exc))
-    lidar = lidar_from_args(parser, args)
-    actuation = actuation_from_args(parser, args)
+    settings = run_settings(parser, args)
     start = time.monotonic()
-    try:
-        records, trajectories = run_barn(worlds, combos, jobs, parameters=parameters,
-                                         obstacle_source=args.obstacle_source, lidar=lidar,
-                                         actuation=actuation)
-    except KeyboardInterrupt:
-        print('\nevaluate: interrupted; nothing written', file=sys.stderr)
-        return 130
-    except ParameterError as exc:  # a -p value that some robot's filter refuses
-        parser.error(str(exc))
+    records, trajectories = run_or_exit(parser, run_barn, worlds, combos, jobs, **settings)
     rows = write_barn_outputs(out, records, trajectories, worlds, command,
                               time.monotonic() - start, jobs, not args.no_plots, label)
     print(barn_table(rows))

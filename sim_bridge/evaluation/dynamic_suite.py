@@ -40,14 +40,12 @@ import json
 import math
 import os
 import re
-import sys
 import time
 from datetime import datetime
 from pathlib import Path
 
 import numpy as np
 
-from polyc2bf_ros.filter_parameters import ParameterError
 from sim_bridge import plots
 from sim_bridge.barn import ROBOT_NAME
 from sim_bridge.closed_loop import run_in_process
@@ -62,19 +60,10 @@ from sim_bridge.dynamic_worlds import (
     TIME_LIMIT,
     WORLDS_PER_DIFFICULTY,
 )
-from sim_bridge.evaluate import (
-    actuation_from_args,
-    actuation_line,
-    filter_statistics,
-    group_records,
-    lidar_from_args,
-    lidar_record,
-    obstacle_sources,
-    override_parameters,
-    resolve_filters,
-    table_cell,
-)
-from sim_bridge.parallel_runs import run_worlds
+from sim_bridge.evaluation.arguments import resolve_filters, run_or_exit, run_settings
+from sim_bridge.evaluation.parallel_runs import run_worlds
+from sim_bridge.evaluation.records import filter_statistics, group_records, lidar_record
+from sim_bridge.evaluation.reports import actuation_line, obstacle_sources, table_cell
 
 DYNAMIC_KEYS = ('suite', 'world', 'difficulty', 'filter', 'nominal', 'obstacle_source',
                 'success', 'at_fault_contact', 'passive_contact', 'timeout', 'time_s',
@@ -262,9 +251,9 @@ def write_dynamic_outputs(out, records, trajectories, worlds, command, wall_time
             f'Actuation: {actuation_line(records)}.  ',
             f'{len(records)} runs over {len(worlds)} worlds (generator seed {seeds}); per run '
             'JSON in `results.json`.  Definitions: `sim_bridge/dynamic_worlds.py` and '
-            '`sim_bridge/dynamic_suite.py` docstrings.  A run ends at the first contact '
-            f'(gap <= 0), at the goal (1 m) or after {TIME_LIMIT:g} s; a contact is at fault '
-            f'when the robot moved toward the cylinder at more than {AT_FAULT_SPEED:g} m/s, '
+            '`sim_bridge/evaluation/dynamic_suite.py` docstrings.  A run ends at the first '
+            f'contact (gap <= 0), at the goal (1 m) or after {TIME_LIMIT:g} s; a contact is at '
+            f'fault when the robot moved toward the cylinder at more than {AT_FAULT_SPEED:g} m/s, '
             f'passive otherwise.  Cylinder loops need at most {MAX_OBSTACLE_ACCEL:g} m/s^2.',
             '', dynamic_table(rows), '']
     if at_fault:
@@ -317,22 +306,10 @@ def main_dynamic(parser, args, command):
     combos = [(name, nominal) for nominal in args.nominal or ['goal'] for name in filters]
     jobs = args.jobs or os.cpu_count() or 1
     out = Path(args.out or 'runs/dynamic')
-    try:
-        parameters = override_parameters(args)
-    except ValueError as exc:
-        parser.error(str(exc))
-    lidar = lidar_from_args(parser, args)
-    actuation = actuation_from_args(parser, args)
+    settings = run_settings(parser, args)
     start = time.monotonic()
-    try:
-        records, trajectories = run_dynamic(worlds, combos, jobs, parameters=parameters,
-                                            obstacle_source=args.obstacle_source, lidar=lidar,
-                                            actuation=actuation)
-    except KeyboardInterrupt:
-        print('\nevaluate: interrupted; nothing written', file=sys.stderr)
-        return 130
-    except ParameterError as exc:  # a -p value that some robot's filter refuses
-        parser.error(str(exc))
+    records, trajectories = run_or_exit(parser, run_dynamic, worlds, combos, jobs,
+                                        **settings)
     write_dynamic_outputs(out, records, trajectories, worlds, command,
                           time.monotonic() - start, jobs, not args.no_plots)
     print(dynamic_table(aggregate_dynamic(records)))
