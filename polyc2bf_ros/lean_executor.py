@@ -47,8 +47,8 @@ exclusive).  Exceptions from callbacks propagate out of ``spin`` /
 ``ExternalShutdownException`` and Ctrl-C with ``KeyboardInterrupt``, as with
 rclpy's executors.
 
-Private rclpy API (rclpy 7.1, ROS 2 Jazzy), used only in this module and
-covered by test/node/test_lean_executor.py:
+Private rclpy API (rclpy 7.1, ROS 2 Jazzy), through ``rclpy_private`` and
+checked by test/node/test_rclpy_private.py:
 
 - ``rclpy.impl.implementation_singleton.rclpy_implementation.WaitSet`` (the rcl
   wait set) and the entity handles' ``take_message``, ``call_timer``,
@@ -69,11 +69,12 @@ import time
 
 from rclpy.exceptions import InvalidHandle
 from rclpy.executors import Executor, ExternalShutdownException, TimeoutObject
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
 from rclpy.task import Task
 from rclpy.utilities import timeout_sec_to_nsec
 from rclpy.waitable import NumberOfEntities
+
+from polyc2bf_ros import rclpy_private
 
 _WITH_INFO = Subscription.CallbackType.WithMessageInfo
 # Waitables (in practice the QoS event handlers rclpy attaches to every publisher and
@@ -122,7 +123,7 @@ class _Plan:
                                  len(self.clients), len(self.services))
         for waitable in self.waitables:
             count += waitable.get_num_entities()
-        self.wait_set = wait_set = _rclpy.WaitSet(
+        self.wait_set = wait_set = rclpy_private.WaitSet(
             count.num_subscriptions, count.num_guard_conditions, count.num_timers,
             count.num_clients, count.num_services, count.num_events, context.handle)
         # (bound add method, handle) of every entity but the waitables, in refill order.

@@ -18,8 +18,9 @@ message reaches the console, ``/rosout`` and the log file like any node log.
 import sys
 import time
 
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.impl.logging_severity import LoggingSeverity
+
+from polyc2bf_ros import rclpy_private
 
 
 class LoopLogger:
@@ -44,7 +45,7 @@ class LoopLogger:
         return self._log(LoggingSeverity.INFO, message, throttle_s)
 
     def _log(self, severity, message, throttle_s):
-        if not _rclpy.rclpy_logging_logger_is_enabled_for(self.name, severity):
+        if not rclpy_private.logger_is_enabled_for(self.name, severity):
             return False
         frame = sys._getframe(2)  # the caller of error/warning/info
         code = frame.f_code
@@ -54,6 +55,6 @@ class LoopLogger:
             if last is not None and now - last < throttle_s:
                 return False
             self._last[site] = now
-        _rclpy.rclpy_logging_rcutils_log(severity, self.name, str(message), code.co_name,
-                                         code.co_filename, frame.f_lineno)
+        rclpy_private.log(severity, self.name, str(message), code.co_name, code.co_filename,
+                          frame.f_lineno)
         return True

@@ -26,11 +26,10 @@ then, which would end the node.
 """
 import sys
 
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.serialization import serialize_message
 
-from polyc2bf_ros import conversions
+from polyc2bf_ros import conversions, rclpy_private
 from polyc2bf_ros.node_main import configuration_error_text, CONFIGURATION_ERRORS, run_node
 from polyc2bf_ros.safety_filter_node import SafetyFilterMixin
 
@@ -53,7 +52,7 @@ class SafetyFilterLifecycleNode(SafetyFilterMixin, LifecycleNode):
         """Serve ``change_state``; a transition the current state does not have fails."""
         try:
             return self._rclpy_change_state(request, response)
-        except _rclpy.RCLError as exc:
+        except rclpy_private.RCLError as exc:
             self.get_logger().warning(f'transition {request.transition.id} '
                                       f'{request.transition.label!r} refused: {exc}')
             response.success = False

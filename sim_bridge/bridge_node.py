@@ -113,7 +113,6 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
 )
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
@@ -123,6 +122,7 @@ from sensor_msgs.msg import LaserScan
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from polyc2bf_ros import rclpy_private
 from polyc2bf_ros.conversions import SerializedCommand
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.loop_log import LoopLogger
@@ -234,7 +234,7 @@ class Inbox:
         """Take ``node``'s subscriptions as they are now (none may be destroyed meanwhile)."""
         self._subscriptions = [(s.handle, s.handle.pointer, s.msg_type, s.raw, s.callback)
                                for s in node.subscriptions]
-        self._wait_set = _rclpy.WaitSet(len(self._subscriptions), 0, 0, 0, 0, 0,
+        self._wait_set = rclpy_private.WaitSet(len(self._subscriptions), 0, 0, 0, 0, 0,
                                         node.context.handle)
 
     def wait(self, timeout):
