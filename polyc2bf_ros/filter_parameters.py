@@ -49,7 +49,9 @@ NODE_PARAMETERS = {
     'actuator_tau': (0.0, (0.0, 2.0), "velocity models: time constant [s] of the base's "
                      'first-order velocity loop; commands are scaled so the base realises '
                      "the filter's acceleration, and braking paths stop as slowly "
-                     '(core/input_delay.py)', False),
+                     "(core/input_delay.py); quadrotor: its rotors' time constant, thrust "
+                     'commands are scaled so the rotors reach the filter\'s thrusts '
+                     '(core/rotor_lag.py)', False),
     'velocity_tau': (0.0, (0.0, 10.0), 'tau [s] in u_nom = (v_cmd - v) / tau; 0 = one '
                      'control period (transparent when nothing constrains)', False),
     'odom_timeout': (0.25, (0.002, 10.0), 'odometry older than this [s] -> stop', False),

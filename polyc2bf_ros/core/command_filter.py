@@ -30,6 +30,7 @@ import numpy as np
 from polyc2bf_ros.core import crazyflie
 from polyc2bf_ros.core.command_interface import VELOCITY_MODELS, VelocityCommandInterface
 from polyc2bf_ros.core.input_delay import InputDelay
+from polyc2bf_ros.core.rotor_lag import RotorLag
 from polyc2bf_ros.core.safety_filter import FilterInfo, FilterStatus, SafetyFilter
 
 
@@ -42,21 +43,25 @@ class CommandFilter:
         ``command_latency`` L, ``actuator_tau`` tau [s]: the base's (``core.input_delay``):
         the filter decides at the state predicted L ahead with the commands published
         since (``published``), and publishes the command a base lagging by tau turns into
-        the filter's acceleration.  Velocity models only.
+        the filter's acceleration.  The quadrotor takes tau only, as its rotors' time
+        constant (``core.rotor_lag``).
         """
         self.model = model
         self.safety_filter = SafetyFilter(model, config)
         self.velocity = model.name in VELOCITY_MODELS
-        self.interface = self.delay = None
+        self.interface = self.delay = self.rotors = None
         if self.velocity:
             period = config.control_period
             self.interface = VelocityCommandInterface(model.name, velocity_tau or period, period)
             self.command_dim = self.interface.velocity_dim
             self.delay = InputDelay(model, command_latency, actuator_tau, period)
         else:
-            if command_latency or actuator_tau:
-                raise ValueError(f'command_latency and actuator_tau apply to velocity models '
+            if command_latency:
+                raise ValueError(f'command_latency applies to velocity models '
                                  f'({", ".join(VELOCITY_MODELS)}), not {model.name}')
+            if actuator_tau:
+                self.rotors = RotorLag(actuator_tau, config.control_period, model.input_lower,
+                                       model.input_upper)
             self.command_dim = 4
 
     def filter(self, state, yaw, command, obstacles, obstacle_age=0.0, now=None):
@@ -83,12 +88,16 @@ class CommandFilter:
             if self.delay.gain != 1.0:  # a lagging base (core.input_delay)
                 u_safe = u_safe * self.delay.gain
             return self.interface.safe_command(state, u_safe, yaw), info
+        if self.rotors is not None:  # rotors lagging by tau (core.rotor_lag)
+            u_safe = self.rotors.command(u_safe)
         return crazyflie.wrench_from_thrusts(u_safe), info
 
     def published(self, now, command):
         """Note the command the node published at ``now`` (for the latency's predictor)."""
         if self.delay is not None:
             self.delay.published(now, command)
+        elif self.rotors is not None:
+            self.rotors.published(now, crazyflie.thrusts_from_wrench(command))
 
     def stop(self, state):
         """Return the stop command: zero velocity, or the quadrotor's braking wrench."""

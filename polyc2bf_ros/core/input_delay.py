@@ -25,7 +25,7 @@ make the two agree (design.md 3.13):
    and the braking check's stop follows the base's own (``brake_time_constant`` at least
    tau: a base told to stop decelerates as ``-v / tau``).
 
-Velocity models only (the quadrotor's rotors take thrusts).  The predicted heading of a
+Velocity models only (the quadrotor's rotors lag in ``rotor_lag``).  The predicted heading of a
 point mass is the measured one (its yaw is not in the state; over a few tens of
 milliseconds of latency the difference is the yaw rate times L).
 """

@@ -11,6 +11,7 @@ from sim_bridge.barn import load_worlds, WORLDS_FILE
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluation.barn_suite import run_world
 from sim_bridge.evaluation.cli import main
+from sim_bridge.evaluation.records import summarise
 
 DURATION = 1.5
 
@@ -92,7 +93,7 @@ def test_a_parameter_a_robots_filter_refuses_exits_2_naming_it(capsys):
         main(['--scenarios', 'quadrotor_pillars', '--filters', 'default', '--duration', '0.1',
               '--no-plots', '--out', '/dev/null/none', '-p', 'command_latency:=0.03'])
     assert exit_info.value.code == 2
-    assert 'apply to velocity models' in capsys.readouterr().err
+    assert 'applies to velocity models' in capsys.readouterr().err
 
 
 @pytest.mark.parametrize('told, margin', [((0.03, 0.1), None), ((0.02, 0.07), 0.02)],
@@ -116,3 +117,19 @@ def test_a_late_lagging_base_touches_unless_the_filter_is_told(told, margin):
     assert record['success'] and not record['collision']
     assert record['min_clearance_m'] > 0.0
     assert record['actuation']['latency_s'] == 0.03
+
+
+def test_lagging_rotors_put_a_crazyflie_into_the_pillars_unless_the_filter_is_told():
+    """``quadrotor_pillars`` with rotors lagging by 30 ms: a contact, unless the filter is told.
+
+    Told ``actuator_tau``, it commands thrusts the rotors reach (``core.rotor_lag``) and the
+    run reaches the goal clear of the pillars.
+    """
+    plant = Actuation(actuator_tau=0.03)
+    blind = summarise(run_in_process('quadrotor_pillars', 'polyc2bf_horizon', actuation=plant),
+                      {})
+    assert blind['collision']
+    told = summarise(run_in_process('quadrotor_pillars', 'polyc2bf_horizon', actuation=plant,
+                                    parameters={'actuator_tau': 0.03}), {})
+    assert not told['collision'] and told['goal_reached']
+    assert told['min_clearance_m'] > 0.05
