@@ -50,7 +50,7 @@ NODE_PARAMETERS = {
                      'first-order velocity loop; commands are scaled so the base realises '
                      "the filter's acceleration, and braking paths stop as slowly "
                      "(core/input_delay.py); quadrotor: its rotors' time constant, thrust "
-                     'commands are scaled so the rotors reach the filter\'s thrusts '
+                     "commands are scaled so the rotors reach the filter's thrusts "
                      '(core/rotor_lag.py)', False),
     'velocity_tau': (0.0, (0.0, 10.0), 'tau [s] in u_nom = (v_cmd - v) / tau; 0 = one '
                      'control period (transparent when nothing constrains)', False),
