@@ -56,7 +56,7 @@ def test_the_params_file_names_only_node_parameters_and_builds():
         values = load_parameters([PARAMS_FILE], (), namespace)
         assert values['scan_topics'] == ['scan'] and values['model'] == 'unicycle'
         settings = build_filter(values)
-        assert settings.ignored == ('scan_topics',)  # declared by the node apart (scan sources)
+        assert settings.ignored == () and settings.scan_topics == ('scan',)
         assert settings.parameters['stamped'] is False  # Jazzy's Nav2 sends Twist
         # Obstacles from the scan only: no MarkerArray input and no watchdog for one.
         assert settings.use_markers is False and 'obstacles' not in settings.timeouts
