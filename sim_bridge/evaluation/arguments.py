@@ -6,6 +6,7 @@ filter names (``default``: the robot type's shipped barrier); a bad value exits 
 through the parser with one line.
 """
 
+import os
 import sys
 
 import yaml
@@ -82,3 +83,15 @@ def run_or_exit(parser, run, *arguments, **settings):
         raise SystemExit(130) from None
     except ParameterError as exc:  # a -p value that some robot's filter refuses
         parser.error(str(exc))
+
+
+def world_suite_plan(parser, args, nominal):
+    """Return (combos, jobs, settings) of a suite of worlds for the diff-drive disc.
+
+    ``combos``: every (filter, nominal) of ``--filters`` (default ``default``) x
+    ``--nominal`` (default ``nominal``); ``jobs``: ``--jobs`` or the CPU count; ``settings``:
+    ``run_settings``.
+    """
+    filters = resolve_filters(args.filters or ['default'], 'diff_drive')
+    combos = [(name, chosen) for chosen in args.nominal or [nominal] for name in filters]
+    return combos, args.jobs or os.cpu_count() or 1, run_settings(parser, args)

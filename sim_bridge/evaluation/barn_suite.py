@@ -49,9 +49,14 @@ from sim_bridge.barn import (
     WORLDS_FILE,
 )
 from sim_bridge.closed_loop import run_in_process
-from sim_bridge.evaluation.arguments import resolve_filters, run_or_exit, run_settings
+from sim_bridge.evaluation.arguments import run_or_exit, world_suite_plan
 from sim_bridge.evaluation.parallel_runs import run_worlds
-from sim_bridge.evaluation.records import filter_statistics, group_records, lidar_record
+from sim_bridge.evaluation.records import (
+    filter_statistics,
+    group_records,
+    lidar_record,
+    STEP_KEYS,
+)
 from sim_bridge.evaluation.reports import actuation_line, obstacle_sources, table_cell
 from sim_bridge.world import CLEARANCE_RANGE
 
@@ -95,11 +100,7 @@ def barn_record(world, run):
         'final_distance_m': _round(math.dist(final, world.goal)),
         'final_gap_m': _round(gaps.min()) if len(gaps) else None,
         'path_length_m': metrics['path_length_m'],
-        'latency_p50_us': stats['latency_p50_us'], 'latency_p99_us': stats['latency_p99_us'],
-        'fallback_steps': stats['fallback_steps'], 'steps': stats['steps'],
-        'deadlock_detections': stats['deadlock_detections'],
-        'deadlocked_at_end': stats['deadlocked_at_end'],
-        'negative_h_rate': stats['negative_h_rate'], 'deepest_h': stats['deepest_h'],
+        **{key: stats[key] for key in STEP_KEYS},
         'penetration_m': _round(max(0.0, -metrics['min_clearance_m']))
         if metrics['min_clearance_m'] is not None else None,
         'wall_time_s': round(run.wall_time_s, 2), 'lidar': lidar_record(run),
@@ -270,11 +271,8 @@ def main_barn(parser, args, command):
         worlds = load_worlds(args.worlds or WORLDS_FILE)[:args.limit]
     except BarnError as exc:
         parser.error(str(exc))
-    filters = resolve_filters(args.filters or ['default'], 'diff_drive')
-    combos = [(name, nominal) for nominal in args.nominal or ['path'] for name in filters]
-    jobs = args.jobs or os.cpu_count() or 1
+    combos, jobs, settings = world_suite_plan(parser, args, 'path')
     out = Path(args.out or 'runs/barn')
-    settings = run_settings(parser, args)
     start = time.monotonic()
     records, trajectories = run_or_exit(parser, run_barn, worlds, combos, jobs, **settings)
     rows = write_barn_outputs(out, records, trajectories, worlds, command,

@@ -60,9 +60,14 @@ from sim_bridge.dynamic_worlds import (
     TIME_LIMIT,
     WORLDS_PER_DIFFICULTY,
 )
-from sim_bridge.evaluation.arguments import resolve_filters, run_or_exit, run_settings
+from sim_bridge.evaluation.arguments import run_or_exit, world_suite_plan
 from sim_bridge.evaluation.parallel_runs import run_worlds
-from sim_bridge.evaluation.records import filter_statistics, group_records, lidar_record
+from sim_bridge.evaluation.records import (
+    filter_statistics,
+    group_records,
+    lidar_record,
+    STEP_KEYS,
+)
 from sim_bridge.evaluation.reports import actuation_line, obstacle_sources, table_cell
 
 DYNAMIC_KEYS = ('suite', 'world', 'difficulty', 'filter', 'nominal', 'obstacle_source',
@@ -102,11 +107,7 @@ def dynamic_record(world, run, referee):
         'final_position': [_round(value, 3) for value in final],
         'final_distance_m': _round(math.dist(final, referee.goal)),
         'path_length_m': metrics['path_length_m'],
-        'latency_p50_us': stats['latency_p50_us'], 'latency_p99_us': stats['latency_p99_us'],
-        'fallback_steps': stats['fallback_steps'], 'steps': stats['steps'],
-        'deadlock_detections': stats['deadlock_detections'],
-        'deadlocked_at_end': stats['deadlocked_at_end'],
-        'negative_h_rate': stats['negative_h_rate'], 'deepest_h': stats['deepest_h'],
+        **{key: stats[key] for key in STEP_KEYS},
         'wall_time_s': round(run.wall_time_s, 2), 'lidar': lidar_record(run),
         'actuation': run.actuation.record(),
     }
@@ -302,11 +303,8 @@ def main_dynamic(parser, args, command):
     if not ids:
         parser.error('no dynamic world matches --worlds and --difficulty')
     worlds = [dynamic_world(i, DEFAULT_SEED) for i in ids]
-    filters = resolve_filters(args.filters or ['default'], 'diff_drive')
-    combos = [(name, nominal) for nominal in args.nominal or ['goal'] for name in filters]
-    jobs = args.jobs or os.cpu_count() or 1
+    combos, jobs, settings = world_suite_plan(parser, args, 'goal')
     out = Path(args.out or 'runs/dynamic')
-    settings = run_settings(parser, args)
     start = time.monotonic()
     records, trajectories = run_or_exit(parser, run_dynamic, worlds, combos, jobs,
                                         **settings)

@@ -48,6 +48,11 @@ def _robot_record(trace, metrics, reference_time, period):
             'path_length_m': metrics['path_length_m']}
 
 
+STEP_KEYS = ('latency_p50_us', 'latency_p99_us', 'fallback_steps', 'steps',
+             'deadlock_detections', 'deadlocked_at_end', 'negative_h_rate', 'deepest_h')
+"""The keys of ``filter_statistics`` the BARN and dynamic suites' records carry as they are."""
+
+
 def filter_statistics(run):
     """Return what the filter did in a run (module docstring); filter-only values None for none.
 
