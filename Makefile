@@ -9,12 +9,12 @@ PY := $(VENV)/bin/python
 DEPS_STAMP := $(VENV)/.deps-installed
 DEV_STAMP := $(VENV)/.dev-deps-installed
 PKG_STAMP := $(VENV)/.pkg-installed
-# The filter's kernels are compiled ahead of time into polyc2bf_ros/core/_kernels*.so
-# (polyc2bf_ros/core/jit.py): nodes then start in ~0.2 s without numba/LLVM in memory.
-BUILD_KERNELS := PYTHONPATH=$(CURDIR) $(PY) -m polyc2bf_ros.core.build_kernels
+# The filter's kernels are compiled ahead of time into polyc2bf_ros/core/kernels/_kernels*.so
+# (polyc2bf_ros/core/kernels/jit.py): nodes then start in ~0.2 s without numba/LLVM in memory.
+BUILD_KERNELS := PYTHONPATH=$(CURDIR) $(PY) -m polyc2bf_ros.core.kernels.build
 PKG_SOURCES := setup.py setup.cfg package.xml \
 	$(shell find polyc2bf_ros sim_bridge config launch resource bench/data -type f \
-	        -not -name '*.pyc' -not -name '_kernels*' -not -path '*/__pycache__/*' 2>/dev/null)
+	        -not -name '*.pyc' -not -name '_kernels*' -not -name '_guards.py' -not -path '*/__pycache__/*' 2>/dev/null)
 
 # DDS never leaves this machine. Tests pick a ROS_DOMAIN_ID per pytest worker
 # (test/conftest.py).
@@ -47,7 +47,8 @@ $(DEV_STAMP): requirements-dev.lock $(DEPS_STAMP)
 
 $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
 	@echo "== compiling the filter's kernels ahead of time (numba pycc, about a minute)"
-	@$(BUILD_KERNELS) || { rm -f polyc2bf_ros/core/_kernels*.so polyc2bf_ros/core/_kernels.digest; \
+	@$(BUILD_KERNELS) || { rm -f polyc2bf_ros/core/kernels/_kernels*.so polyc2bf_ros/core/kernels/_kernels.digest \
+	  polyc2bf_ros/core/kernels/_guards.py; \
 	  echo "WARNING: the ahead-of-time kernel build failed (no C compiler or numba.pycc?);" \
 	       "the filter compiles its kernels just in time instead (numba's cache, slower start)"; }
 	@echo "== installing polyc2bf_ros into $(VENV)"

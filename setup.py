@@ -22,9 +22,9 @@ setup(
     version='0.1.0',
     # polyc2bf_ros, polyc2bf_ros.core (and its subpackages) and sim_bridge.
     packages=find_packages(include=[PACKAGE, f'{PACKAGE}.*', 'sim_bridge', 'sim_bridge.*']),
-    # The kernels compiled ahead of time, when built (polyc2bf_ros/core/jit.py).
+    # The kernels compiled ahead of time, when built (polyc2bf_ros/core/kernels/jit.py).
     package_data={'sim_bridge': ['assets/*'],
-                  f'{PACKAGE}.core': ['_kernels*.so', '_kernels.digest']},
+                  f'{PACKAGE}.core.kernels': ['_kernels*.so', '_kernels.digest']},
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),

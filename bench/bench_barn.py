@@ -44,7 +44,7 @@ import numpy as np
 import pybullet as pb
 from bench_io import require_installed_checkout, write_records
 
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge.barn import BarnReferee, load_worlds, ROBOT_NAME, STOP_TIME, WORLDS_FILE
 from sim_bridge.closed_loop import run_in_process

@@ -21,9 +21,9 @@ import numpy as np
 from bench_io import require_installed_checkout, write_records
 
 from polyc2bf_ros.core.decision import ControlDecision, ObstacleSnapshot
-from polyc2bf_ros.core.nominal import PointMassGoalController, UnicycleGoalController
-from polyc2bf_ros.core.simulate import clearance, random_clutter, rk4_step
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters
+from sim_bridge.nominal import PointMassGoalController, UnicycleGoalController
+from sim_bridge.rollout import clearance, random_clutter, rk4_step
 
 CONFIG = Path(__file__).resolve().parents[1] / 'config'
 GOAL = np.array([12.0, 0.0])

@@ -21,7 +21,7 @@ first set's prepared geometry): what pose-only updates cost.
 
 Start-up: fresh processes time the import and the construction of a filter
 for every model and barrier, and report their RSS: with the kernels built
-ahead of time (``polyc2bf_ros.core.jit``), then just in time by numba with an
+ahead of time (``polyc2bf_ros.core.kernels.jit``), then just in time by numba with an
 empty cache directory (compiling) and with the cache that run filled.
 """
 import argparse
@@ -35,12 +35,12 @@ import time
 import numpy as np
 from bench_io import require_installed_checkout, write_records
 
-from polyc2bf_ros.core.geometry import convex_hull
+from polyc2bf_ros.core.geometry.polygons import convex_hull
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import CONE_MODELS, FilterConfig, SafetyFilter
-from polyc2bf_ros.core.simulate import rk4_step
+from sim_bridge.nominal import QuadrotorGoalController, UnicycleGoalController
+from sim_bridge.rollout import rk4_step
 
 OBSTACLE_COUNTS = (1, 10, 50, 200)
 VERTICES = 8

@@ -22,7 +22,7 @@ import time
 import numpy as np
 from bench_io import require_installed_checkout, write_records
 
-from polyc2bf_ros.core.scan_obstacles import scan_to_obstacles, ScanSettings
+from polyc2bf_ros.core.obstacles.scan_conversion import scan_to_obstacles, ScanSettings
 
 BEAMS = 1081
 ANGLE_MIN = math.radians(-135.0)

@@ -31,10 +31,10 @@ import time
 import numpy as np
 from bench_io import require_installed_checkout, write_records
 
-from polyc2bf_ros.core import crazyflie as cf
-from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+from polyc2bf_ros.core.models import crazyflie as cf
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.metrics import RunMetrics
+from sim_bridge.nominal import QuadrotorGoalController, UnicycleGoalController
 from sim_bridge.scenario import load_scenario, scenario_from_dict
 from sim_bridge.world import SimWorld
 

@@ -53,8 +53,8 @@ from bench_scan import (
     SETTINGS,
 )
 
-from polyc2bf_ros.core.scan_obstacles import scan_to_obstacles
-from polyc2bf_ros.core.scan_tracker import ScanTracker
+from polyc2bf_ros.core.obstacles.scan_conversion import scan_to_obstacles
+from polyc2bf_ros.core.obstacles.scan_tracker import ScanTracker
 
 RATE = 20.0
 ROOM_CENTRE, ROOM_HALF = (3.0, 0.0), (10.0, 8.0)  # a 20 m x 16 m room round the robot

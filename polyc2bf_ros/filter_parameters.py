@@ -20,8 +20,8 @@ import yaml
 
 from polyc2bf_ros.core.command_filter import CommandFilter
 from polyc2bf_ros.core.decision import DEADLOCK_DEFAULTS, RESOLUTIONS, ROUTE_DEFAULTS
+from polyc2bf_ros.core.geometry.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
-from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_intake import IntakeSettings, MAX_OBSTACLES
 
@@ -45,13 +45,13 @@ NODE_PARAMETERS = {
     'command_latency': (0.0, (0.0, 1.0), 'velocity models: the base acts on a command this '
                         'long [s] after it is published; the filter decides at the state '
                         'predicted that far ahead with the commands in flight '
-                        '(core/input_delay.py)', False),
+                        '(core/actuation/input_delay.py)', False),
     'actuator_tau': (0.0, (0.0, 2.0), "velocity models: time constant [s] of the base's "
                      'first-order velocity loop; commands are scaled so the base realises '
                      "the filter's acceleration, and braking paths stop as slowly "
-                     "(core/input_delay.py); quadrotor: its rotors' time constant, thrust "
-                     "commands are scaled so the rotors reach the filter's thrusts "
-                     '(core/rotor_lag.py)', False),
+                     "(core/actuation/input_delay.py); quadrotor: its rotors' time constant, "
+                     "thrust commands are scaled so the rotors reach the filter's thrusts "
+                     '(core/actuation/rotor_lag.py)', False),
     'velocity_tau': (0.0, (0.0, 10.0), 'tau [s] in u_nom = (v_cmd - v) / tau; 0 = one '
                      'control period (transparent when nothing constrains)', False),
     'odom_timeout': (0.25, (0.002, 10.0), 'odometry older than this [s] -> stop', False),
@@ -81,7 +81,7 @@ NODE_PARAMETERS = {
     'deadlock_time': (DEADLOCK_DEFAULTS[0], (0.05, 600.0), 'deadlock: the filter held the robot '
                       'against its nominal command for this long [s] ...', False),
     'deadlock_radius': (DEADLOCK_DEFAULTS[1], (0.0, 10.0), '... while its reference point '
-                        'stayed within this distance [m] (core/deadlock.py); reported on '
+                        'stayed within this distance [m] (core/liveness/deadlock.py); reported on '
                         '~/deadlock and in /diagnostics', False),
     'stuck_time': (DEADLOCK_DEFAULTS[2], (0.0, 3600.0), 'also a deadlock: the nominal asked '
                    'to move for this long [s] (0 = off) ...', False),
@@ -94,9 +94,9 @@ NODE_PARAMETERS = {
                                '[s], while the nominal still asks to move', False),
     'deadlock_resolution': ('none', None, "what a reported deadlock does: 'none' (report "
                             "only), 'circulate' (unicycle: the nominal is steered along the "
-                            "blocking obstacle, core/circulation.py) or 'route' (unicycle: "
-                            'along a grid route past the obstacles, core/escape_route.py); no '
-                            'constraint is relaxed', False),
+                            "blocking obstacle, core/liveness/circulation.py) or 'route' "
+                            '(unicycle: along a grid route past the obstacles, '
+                            'core/liveness/escape_route.py); no constraint is relaxed', False),
     'route_ahead': (ROUTE_DEFAULTS[0], (0.5, 14.0), "deadlock_resolution 'route': the route "
                     'ends this far [m] the way the nominal points', False),
     'route_window': (ROUTE_DEFAULTS[1], (2.0, 30.0), '... planned on a square grid of this '
@@ -108,14 +108,15 @@ NODE_PARAMETERS = {
                     '/tf_static transforms links to it (those use the transforms, in the plane)',
                     False),
     'scan_cluster_tolerance': (0.15, (0.06, 10.0), 'largest gap [m] between neighbouring scan '
-                               'endpoints of one obstacle (core/scan_obstacles.py)', False),
+                               'endpoints of one obstacle '
+                               '(core/obstacles/scan_conversion.py)', False),
     'scan_footprint_radius': (-1.0, (-1.0, 10.0), 'scan endpoints this close [m] to the base '
                               'are the robot itself; negative: filter.robot_radius', False),
     'scan_obstacle_depth': (0.10, (0.02, 10.0), 'how far [m] each scan obstacle reaches behind '
                             'the surface the beams lit (the unseen body behind it)', False),
-    'scan_tracking': (True, None, 'track scan clusters from scan to scan (core/scan_tracker.py): '
-                      'obstacles of a confirmed, moving track get its velocity; false: every '
-                      'scan obstacle stands still', False),
+    'scan_tracking': (True, None, 'track scan clusters from scan to scan '
+                      '(core/obstacles/scan_tracker.py): obstacles of a confirmed, moving '
+                      'track get its velocity; false: every scan obstacle stands still', False),
     'odom_position_std': (0.0, (0.0, 1.0), 'noise [m] of the odometry position scans are '
                           'placed at; the scan tracker allows for it in every displacement it '
                           'measures, so a standing object is not taken for a moving one', False),
@@ -144,7 +145,7 @@ FILTER_PARAMETERS = {
                   "'midpoint' (the paper's)"),
     'braking_check': (None, 'planar models: keep an input only if the robot can still brake '
                       'to rest clear of every obstacle afterwards, else brake now '
-                      '(core/braking_check.py)'),
+                      '(core/barrier/braking_check.py)'),
     'braking_check_barrier': (None, 'braking check: also keep every barrier h >= 0 along the '
                               'way to rest (polyc2bf_horizon), else brake now'),
     'braking_margin': ((0.0, 1.0), 'braking check: clearance kept beyond robot_radius [m]'),
@@ -163,7 +164,7 @@ FILTER_PARAMETERS = {
                        'every obstacle all along, checked against standing obstacles only '
                        '(faster past crossing obstacles; trusts their estimated velocities)'),
     'ground_z': (None, '3-D models: height of the ground [m], an obstacle like any other '
-                 '(core/ground.py); -.inf: no ground'),
+                 '(core/obstacles/ground.py); -.inf: no ground'),
 }
 
 class ParameterError(ValueError):

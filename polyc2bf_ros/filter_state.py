@@ -19,7 +19,7 @@ import math
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
-from polyc2bf_ros.core.geometry import signed_distance_batch
+from polyc2bf_ros.core.geometry.polygons import signed_distance_batch
 from polyc2bf_ros.core.safety_filter import FilterStatus
 
 ACTIONS = ('pass', 'limit', 'stop', 'fallback', 'deadlock', 'disabled')

@@ -38,14 +38,14 @@ import numpy as np
 from visualization_msgs.msg import Marker
 
 from polyc2bf_ros.conversions import rotation
-from polyc2bf_ros.core.geometry import convex_hull
-from polyc2bf_ros.core.obstacle_tracker import (
+from polyc2bf_ros.core.geometry.polygon_limits import MAX_PARTS, MAX_VERTICES
+from polyc2bf_ros.core.geometry.polygons import convex_hull
+from polyc2bf_ros.core.obstacles.marker_tracker import (
     outline_polygon,
     Placement,
     POINT_TOLERANCE,
     Shape,
 )
-from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
 
 # (max_vertices, max_parts) of marker outlines (``marker_shape``).
 OUTLINE_LIMITS = (MAX_VERTICES, MAX_PARTS)
@@ -126,7 +126,7 @@ def marker_shape(marker, wall_thickness, cylinder_sides, tilt=None, source=None,
     The pose is not read here (see ``marker_placement``); ``source`` is stored in the shape.
     ``limits``: an outline of more than ``max_vertices`` points, or a LINE_LIST /
     TRIANGLE_LIST of more than ``max_parts`` pieces, becomes the enclosing polygon of all
-    its points (``core.polygon_limits``; the shape is marked ``simplified``).
+    its points (``core.geometry.polygon_limits``; the shape is marked ``simplified``).
     """
     scale, kind = marker.scale, marker.type
     sx, sy, sz = scale.x, scale.y, scale.z

@@ -10,7 +10,7 @@ Per pass (``ObstaclePipeline.run``):
    marks the input unreadable until a readable one follows it;
 2. their markers are merged, newest per ``ns/id`` (``marker_obstacles.conflate_markers``), and
    applied to the ``ObstacleTracker``: only the newest shape of each key is built, each
-   outline capped at ``max_vertices`` points (``core.polygon_limits``);
+   outline capped at ``max_vertices`` points (``core.geometry.polygon_limits``);
 3. the set in the odometry frame is built (``ObstacleTracker.obstacle_set``, at most
    ``max_parts`` convex parts per footprint and ``max_obstacles`` in all) and its views
    are prepared for the filter (``ObstacleGeometry.prepare``, stored in the set: the
@@ -29,14 +29,16 @@ worker runs at niceness ``WORKER_NICENESS``, so the control thread wins the CPU.
 LaserScans (``submit_scan``, the node's ``scan_topics``) take the same path: the newest
 scan per topic is queued serialized with the node's recent odometry (its last
 ``ODOMETRY_HISTORY`` samples), and the worker reads and checks it, places it at the pose of
-the sample stamped nearest the scan's ``header.stamp`` (``core.scan_obstacles.pose_at``: no
-interpolation; a scan older than the samples takes the oldest) and converts it
-(``core.scan_obstacles.scan_to_obstacles``, in ``read_scan``).  With ``scan_tracking`` (the
-default) every scan's clusters go to one ``core.scan_tracker.ScanTracker`` shared by all scan
-topics, and each obstacle takes the velocity of its cluster's track (zero unless the track is
-confirmed and moving).  A topic's obstacles (keys ``<topic>:scan/<i>``) replace its previous
-ones and join the marker obstacles in one ``ObstacleSet``, every obstacle moved along its
-velocity to the newest stamp among them (``t_ref``); a rejected scan keeps them and is
+the sample stamped nearest the scan's ``header.stamp``
+(``core.obstacles.scan_conversion.pose_at``: no interpolation; a scan older than the
+samples takes the oldest) and converts it
+(``core.obstacles.scan_conversion.scan_to_obstacles``, in ``read_scan``).  With
+``scan_tracking`` (the default) every scan's clusters go to one
+``core.obstacles.scan_tracker.ScanTracker`` shared by all scan topics, and each obstacle
+takes the velocity of its cluster's track (zero unless the track is confirmed and
+moving).  A topic's obstacles (keys ``<topic>:scan/<i>``) replace its previous ones and
+join the marker obstacles in one ``ObstacleSet``, every obstacle moved along its velocity
+to the newest stamp among them (``t_ref``); a rejected scan keeps them and is
 reported in ``scan_status``.
 ``/tf_static`` messages (``submit_transforms``) go to the worker too, which keeps the static
 transform tree (``static_transforms``): a scan in another frame than the odometry child
@@ -61,13 +63,13 @@ from typing import NamedTuple
 import numpy as np
 
 from polyc2bf_ros import cdr_reader, marker_obstacles
+from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.decision import ObstacleSnapshot
-from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
-from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
-from polyc2bf_ros.core.obstacles import ObstacleSet
-from polyc2bf_ros.core.polygon_limits import MAX_PARTS, MAX_VERTICES
-from polyc2bf_ros.core.scan_obstacles import pose_at, scan_to_obstacles, ScanSettings
-from polyc2bf_ros.core.scan_tracker import ScanTracker, TrackerSettings, unseen_obstacles
+from polyc2bf_ros.core.geometry.polygon_limits import MAX_PARTS, MAX_VERTICES
+from polyc2bf_ros.core.obstacles.marker_tracker import ObstacleTracker
+from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
+from polyc2bf_ros.core.obstacles.scan_conversion import pose_at, scan_to_obstacles, ScanSettings
+from polyc2bf_ros.core.obstacles.scan_tracker import ScanTracker, TrackerSettings, unseen_obstacles
 from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 
 MAX_OBSTACLES = 1000

@@ -51,7 +51,7 @@ clock), a separate thread publishes the stop and the node's status at level
 ERROR on ``/diagnostics`` (``stall_guard``).
 
 Deadlock: when the filter has held the robot in place against its nominal command for
-``deadlock_time`` (within ``deadlock_radius``; ``core.deadlock``), or it was asked to
+``deadlock_time`` (within ``deadlock_radius``; ``core.liveness.deadlock``), or it was asked to
 move for ``stuck_time`` but stayed within ``stuck_radius``, ``~/deadlock``
 (std_msgs/Bool, reliable + transient local, published on every change) turns true and
 ``/diagnostics`` says so at WARN, for a planner or behaviour tree to act on (replan,
@@ -98,7 +98,7 @@ from std_srvs.srv import SetBool
 from visualization_msgs.msg import MarkerArray
 
 from polyc2bf_ros import conversions, diagnostics, filter_state, rviz_markers
-from polyc2bf_ros.core.command_interface import VELOCITY_MODELS
+from polyc2bf_ros.core.actuation.command_interface import VELOCITY_MODELS
 from polyc2bf_ros.core.decision import ControlDecision
 from polyc2bf_ros.core.models import MODEL_NAMES, MODELS
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus

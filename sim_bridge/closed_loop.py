@@ -52,7 +52,7 @@ the exact information:
 Recorded per robot and period: time, state, nominal and safe commands, the
 model input ``u`` and ``u_nom`` (accelerations, or rotor thrusts), the filter
 status, the wall time of the decision step (the step latency) and the verdict of the
-node's deadlock report (``core.deadlock``, on simulated time, with the parameter file's
+node's deadlock report (``core.liveness.deadlock``, on simulated time, with the parameter file's
 ``deadlock_time`` / ``deadlock_radius``).  The decision is the node's ``ControlDecision``
 with every input fresh (timeouts 0) and the obstacles stamped with the period's time;
 ``parameters`` (e.g. ``{'deadlock_resolution': 'circulate'}``) override the parameter
@@ -69,10 +69,9 @@ from rclpy.serialization import serialize_message
 from visualization_msgs.msg import Marker, MarkerArray
 
 from polyc2bf_ros import marker_obstacles
-from polyc2bf_ros.core import crazyflie
 from polyc2bf_ros.core.decision import ControlDecision, ObstacleSnapshot
-from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.models import crazyflie
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters, NODE_PARAMETERS
 from polyc2bf_ros.obstacle_intake import ObstacleJob, ObstaclePipeline
 from sim_bridge.actuation import Actuation, CommandPipe, Odometry
@@ -86,6 +85,7 @@ from sim_bridge.launcher import (
 )
 from sim_bridge.lidar import laser_scan, LidarSettings, RobotLidars, SCAN_TOPIC
 from sim_bridge.metrics import RunMetrics
+from sim_bridge.nominal import ReferencePath, UnicyclePathController
 from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.scenario import load_scenario
 from sim_bridge.world import SimWorld
@@ -423,7 +423,7 @@ class _MarkerView:
     The full set goes out at the start and whenever an obstacle pops up; in between a
     period carries the moving markers only, and a period without any runs no pass (the
     snapshot holds).  The filter thus gets the tracker's velocity estimates from successive
-    marker poses (``core.obstacle_tracker``: zero at first sight), never the true ones.
+    marker poses (``core.obstacles.marker_tracker``: zero at first sight), never the true ones.
     Over DDS the node may still hold the previous period's markers when it answers; here a
     period's markers always serve it.
     """

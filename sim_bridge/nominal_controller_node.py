@@ -3,7 +3,7 @@
 One node per robot namespace.  On every ``odom`` (nav_msgs/Odometry, read from
 its CDR bytes by ``polyc2bf_ros.conversions.read_odometry``, as the safety filter
 does: rclpy's deserializer costs more than the controller) it answers at once
-with the command of ``polyc2bf_ros.core.nominal``:
+with the command of ``sim_bridge.nominal``:
 
 - ``robot_type: quadruped`` or ``diff_drive``: ``cmd_vel_in``
   (geometry_msgs/TwistStamped), ``linear.x = v``, ``angular.z = omega`` from
@@ -32,10 +32,10 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from polyc2bf_ros import conversions
-from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
 from polyc2bf_ros.loop_log import LoopLogger
 from polyc2bf_ros.node_main import run_node
 from sim_bridge.bag_reader import message_class
+from sim_bridge.nominal import ReferencePath, UnicyclePathController
 from sim_bridge.robots import ROBOT_TYPES
 
 CONTROLLERS = ('goal', 'path')

@@ -25,7 +25,7 @@ from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, FancyArrowPatch, Polygon, Rectangle
 
-from polyc2bf_ros.core.geometry import minimum_enclosing_circle
+from polyc2bf_ros.core.geometry.polygons import minimum_enclosing_circle
 from sim_bridge.dynamic_worlds import COURSE, CYLINDER_RADIUS, GOAL, START
 from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.world import CLEARANCE_RANGE

@@ -7,8 +7,8 @@ plant in ``sim_bridge.world.PLANTS``.
 import dataclasses
 from types import MappingProxyType
 
-from polyc2bf_ros.core import crazyflie as cf
-from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
+from polyc2bf_ros.core.models import crazyflie as cf
+from sim_bridge.nominal import QuadrotorGoalController, UnicycleGoalController
 
 
 @dataclasses.dataclass(frozen=True)

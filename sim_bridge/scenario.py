@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from polyc2bf_ros.core.geometry import (
+from polyc2bf_ros.core.geometry.polygons import (
     clean_polygon,
     convex_hull,
     InvalidPolygonError,

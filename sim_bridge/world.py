@@ -74,8 +74,8 @@ import numpy as np
 import pybullet as pb
 import pybullet_data
 
-from polyc2bf_ros.core import crazyflie as cf
-from polyc2bf_ros.core.geometry import decompose_convex, is_convex
+from polyc2bf_ros.core.geometry.polygons import decompose_convex, is_convex
+from polyc2bf_ros.core.models import crazyflie as cf
 
 GRAVITY = cf.GRAVITY
 # Unicycle plant limits (at least the filter's unicycle bounds, so its inputs are realisable).

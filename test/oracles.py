@@ -8,8 +8,9 @@
 import numpy as np
 
 from polyc2bf_ros.conversions import rotation
-from polyc2bf_ros.core import batch_geometry, geometry, qp, qp_proxsuite
-from polyc2bf_ros.core.barrier import barrier_column, BarrierTerms
+from polyc2bf_ros.core.barrier.cone_barrier import barrier_column, BarrierTerms
+from polyc2bf_ros.core.geometry import batch as batch_geometry, polygons as geometry
+from polyc2bf_ros.core.qp import proxsuite_backend as qp_proxsuite, solver as qp
 
 # Exact up to rounding: far tighter than a solver's certificate (``qp_proxsuite._MULTIPLIER_TOL``).
 _MULTIPLIER_TOL = 1e-12

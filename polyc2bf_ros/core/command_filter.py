@@ -8,14 +8,14 @@ inputs.
 
 Command vectors per model:
 
-- velocity models (``core.command_interface``): ``unicycle`` ``[v, omega]``,
+- velocity models (``core.actuation.command_interface``): ``unicycle`` ``[v, omega]``,
   ``point_mass_2d`` ``[vx, vy]``, ``point_mass_3d`` ``[vx, vy, vz]`` (heading
   frame)::
 
       u_nom  = (Rz(yaw) v_cmd - v) / tau,     v_safe = Rz(yaw)^T (v + u_safe T)
 
 - ``quadrotor``: the wrench ``[T, tau_x, tau_y, tau_z]`` (collective thrust and
-  body torques), mixed into rotor thrusts and back (``core.crazyflie``)::
+  body torques), mixed into rotor thrusts and back (``core.models.crazyflie``)::
 
       f_nom = M^-1 w_nom,                    w_safe = M f_safe
 
@@ -27,10 +27,10 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core import crazyflie
-from polyc2bf_ros.core.command_interface import VELOCITY_MODELS, VelocityCommandInterface
-from polyc2bf_ros.core.input_delay import InputDelay
-from polyc2bf_ros.core.rotor_lag import RotorLag
+from polyc2bf_ros.core.actuation.command_interface import VELOCITY_MODELS, VelocityCommandInterface
+from polyc2bf_ros.core.actuation.input_delay import InputDelay
+from polyc2bf_ros.core.actuation.rotor_lag import RotorLag
+from polyc2bf_ros.core.models import crazyflie
 from polyc2bf_ros.core.safety_filter import FilterInfo, FilterStatus, SafetyFilter
 
 
@@ -40,11 +40,11 @@ class CommandFilter:
     def __init__(self, model, config, velocity_tau=0.0, command_latency=0.0, actuator_tau=0.0):
         """Filter ``model``'s commands with ``config``; ``velocity_tau`` 0 means one period.
 
-        ``command_latency`` L, ``actuator_tau`` tau [s]: the base's (``core.input_delay``):
-        the filter decides at the state predicted L ahead with the commands published
-        since (``published``), and publishes the command a base lagging by tau turns into
-        the filter's acceleration.  The quadrotor takes tau only, as its rotors' time
-        constant (``core.rotor_lag``).
+        ``command_latency`` L, ``actuator_tau`` tau [s]: the base's
+        (``core.actuation.input_delay``): the filter decides at the state predicted L ahead
+        with the commands published since (``published``), and publishes the command a base
+        lagging by tau turns into the filter's acceleration.  The quadrotor takes tau only,
+        as its rotors' time constant (``core.actuation.rotor_lag``).
         """
         self.model = model
         self.safety_filter = SafetyFilter(model, config)
@@ -85,10 +85,10 @@ class CommandFilter:
         if info.status == FilterStatus.INVALID_INPUT:
             return self.stop(state), info
         if self.velocity:
-            if self.delay.gain != 1.0:  # a lagging base (core.input_delay)
+            if self.delay.gain != 1.0:  # a lagging base (core.actuation.input_delay)
                 u_safe = u_safe * self.delay.gain
             return self.interface.safe_command(state, u_safe, yaw), info
-        if self.rotors is not None:  # rotors lagging by tau (core.rotor_lag)
+        if self.rotors is not None:  # rotors lagging by tau (core.actuation.rotor_lag)
             u_safe = self.rotors.command(u_safe)
         return crazyflie.wrench_from_thrusts(u_safe), info
 

@@ -22,12 +22,12 @@ marker): rejected input then stops the robot once it has lasted ``obstacles_time
 once when that is 0 ('blocked_stop').  The obstacles are moved to the odometry's stamp by
 ``age = clip(t_odom - t_ref, 0, max_extrapolation)`` (``extrapolation_age``).  A stop is the
 model's stop command (``CommandFilter.stop``).  Every filtered step also goes to the
-``DeadlockDetector`` (``core.deadlock``: held in place by the filter for ``deadlock_time``
+``DeadlockDetector`` (``core.liveness.deadlock``: held in place by the filter for ``deadlock_time``
 within ``deadlock_radius``), whose verdict the ``Decision`` carries; any other step
 clears it.  With ``deadlock_resolution`` 'circulate' (unicycle only) a reported deadlock
-starts a ``core.circulation.Circulation``: the nominal command handed to the filter is
+starts a ``core.liveness.circulation.Circulation``: the nominal command handed to the filter is
 steered along the blocking obstacle until it releases; with 'route' (unicycle and
-``point_mass_2d``) a ``core.escape_route.RouteEscape`` steers it along a planned route
+``point_mass_2d``) a ``core.liveness.escape_route.RouteEscape`` steers it along a planned route
 (``RESOLVED_MODELS``).  The filter's rows stay as they are.
 The node, offline bag replay and the evaluation all decide through this class.
 """
@@ -35,11 +35,11 @@ import math
 from dataclasses import dataclass, field
 from typing import NamedTuple, Optional
 
-from polyc2bf_ros.core.circulation import Circulation
-from polyc2bf_ros.core.deadlock import DeadlockDetector, holds
-from polyc2bf_ros.core.escape_route import RouteEscape
-from polyc2bf_ros.core.obstacle_tracker import extrapolation_age
-from polyc2bf_ros.core.obstacles import ObstacleSet
+from polyc2bf_ros.core.liveness.circulation import Circulation
+from polyc2bf_ros.core.liveness.deadlock import DeadlockDetector, holds
+from polyc2bf_ros.core.liveness.escape_route import RouteEscape
+from polyc2bf_ros.core.obstacles.marker_tracker import extrapolation_age
+from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterStatus
 from polyc2bf_ros.core.watchdog import Watchdog
 

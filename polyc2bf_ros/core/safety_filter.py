@@ -26,7 +26,7 @@ it out.  This is inherent to collision cones, not a sampling artefact.
 3-D models see each obstacle (a vertical prism) in two planes (paper
 section III, quadrotor): the horizontal plane (footprint polygon) and the
 vertical plane spanned by the footprint's thin axis and z (the prism's shadow
-rectangle); ``polyc2bf_ros.core.views`` says which plane is used where.
+rectangle); ``polyc2bf_ros.core.geometry.views`` says which plane is used where.
 
 Pruning: a row whose left side is >= m for *every* u in the input box can
 never be active; dropping it leaves the feasible set unchanged, so the
@@ -34,7 +34,7 @@ solution is exactly the same.  The QP front end answers most steps without a
 solver run: u_ref (u_nom, or the escape input) itself when it lies in the box
 and meets every row, or its projection onto one row (``qp._single_active``).
 
-Hot path: per step, a few compiled kernels (``polyc2bf_ros.core.jit``: built
+Hot path: per step, a few compiled kernels (``polyc2bf_ros.core.kernels.jit``: built
 ahead of time, or by numba): per plane one pass computes viewpoints, cones and
 barrier terms of all obstacles (``ConeModel.plane``), one more the QP rows, the
 QP's front end and the active parts (``_rows_and_answer``; the solver runs only
@@ -46,7 +46,7 @@ Preparation: per obstacle set the cone model's geometry (inflated polygons,
 enclosing circles, vertical shadows) is computed once and cached.  A set that
 is a translation of a base set (``ObstacleSet.translated``: moving obstacles,
 other robots, tracked markers) reuses the base's cached geometry and moves the
-viewpoints the other way (``polyc2bf_ros.core.views``): the same cones to
+viewpoints the other way (``polyc2bf_ros.core.geometry.views``): the same cones to
 rounding, without preparing or copying any geometry per step.
 
 Fallbacks, always flagged in ``FilterInfo.status``:
@@ -75,7 +75,7 @@ Fallbacks, always flagged in ``FilterInfo.status``:
 * ``backup``: ``braking_check`` (planar models with a ``braking_path``): the input
   found (also an escape's) would leave the robot a less clear way to brake to rest than
   braking now, or (``braking_check_barrier``) a way to rest along which some h falls
-  lower; brake now (``polyc2bf_ros.core.braking_check``).
+  lower; brake now (``polyc2bf_ros.core.barrier.braking_check``).
 * ``invalid_input``: NaN/Inf in state, nominal input or obstacles; brake.
 """
 import enum
@@ -88,18 +88,23 @@ from typing import Optional
 
 import numpy as np
 
-from polyc2bf_ros.core.barrier import BarrierTerms, tighten_for_obstacle_accel
-from polyc2bf_ros.core.braking_check import clear_around, path_clearance
-from polyc2bf_ros.core.cone_models import CONE_AXES, CONE_MODELS
-from polyc2bf_ros.core.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K, PLANE_ROWS
-from polyc2bf_ros.core.ground import ground_offsets
-from polyc2bf_ros.core.jit import B1, F1, F2, I1, kernel, signature
+from polyc2bf_ros.core.barrier.braking_check import clear_around, path_clearance
+from polyc2bf_ros.core.barrier.cone_barrier import BarrierTerms, tighten_for_obstacle_accel
+from polyc2bf_ros.core.barrier.cone_models import CONE_AXES, CONE_MODELS
+from polyc2bf_ros.core.barrier.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K, PLANE_ROWS
+from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
+from polyc2bf_ros.core.geometry.views import choose_planes
+from polyc2bf_ros.core.kernels.jit import B1, F1, F2, I1, kernel, signature
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
-from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.qp import front_end_answers, QPStatus, row_residual, solve_with_shared_slack
-from polyc2bf_ros.core.qp_backends import make_solver, SOLVERS
-from polyc2bf_ros.core.views import choose_planes
+from polyc2bf_ros.core.obstacles.ground import ground_offsets
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
+from polyc2bf_ros.core.qp.backends import make_solver, SOLVERS
+from polyc2bf_ros.core.qp.solver import (
+    front_end_answers,
+    QPStatus,
+    row_residual,
+    solve_with_shared_slack,
+)
 
 ACTIVE_TOLERANCE = 1e-7
 EVASION_STEP = 0.05
@@ -265,7 +270,7 @@ class _Prepared:
     (``cones.PlanarPolygons``; planar models with ``braking_check``, else None);
     ``velocities`` (N, d) are their c_dot in the robot's d dimensions and ``offsets``
     (N, d) how far they moved from where ``views`` has them (zero unless the set is a
-    translation, see ``polyc2bf_ros.core.views``); ``rows_a`` (N, m), ``rows_b`` and
+    translation, see ``polyc2bf_ros.core.geometry.views``); ``rows_a`` (N, m), ``rows_b`` and
     ``index`` (N,) are scratch space for the QP rows (the first rows of a step are valid).
     """
 
@@ -367,7 +372,7 @@ def _rows_and_answer(terms, usable, margin, gamma, lower, upper, prune, rows_a, 
 def compile_kernels():
     """Build one filter per model and barrier, so every kernel has run once.
 
-    Just in time (``polyc2bf_ros.core.jit``) this compiles them all into numba's
+    Just in time (``polyc2bf_ros.core.kernels.jit``) this compiles them all into numba's
     on-disk cache (~10 s cold); with the kernels built ahead of time it is quick.
     """
     for model in MODEL_NAMES:
@@ -565,7 +570,7 @@ class SafetyFilter:
     def _must_brake(self, state, u, prepared, age, now, moving=True):
         """Return True when holding ``u`` leaves a less clear way to stop than braking now.
 
-        ``polyc2bf_ros.core.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x));
+        ``polyc2bf_ros.core.barrier.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x));
         braked only while c(B(x)) > 0 (distances to the footprints less the guard radius);
         moving parts, where the path closes on them, apart and without that exception.
         With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept

@@ -36,8 +36,8 @@ Per run (one record in ``results.json``; the keys of doc/design.md, result recor
   its (virtual) obstacle: no cone, the C3BF failure the paper describes);
 - ``latency_p50_us`` / ``latency_p99_us``: wall time of ``CommandFilter.filter``
   per step, in this process (not the node's DDS round trip);
-- ``deadlock_detections``: onsets of the node's deadlock report (``core.deadlock``: held in
-  place by the filter against the nominal for ``deadlock_time``) summed over robots;
+- ``deadlock_detections``: onsets of the node's deadlock report (``core.liveness.deadlock``: held
+  in place by the filter against the nominal for ``deadlock_time``) summed over robots;
   ``deadlocked_at_end``: some robot was reported deadlocked at the last step.  The
   findings compare them with the ``deadlock`` label (which looks at the speed only).
 

@@ -2,7 +2,7 @@
 import numpy as np
 from hypothesis import settings, strategies as st
 
-from polyc2bf_ros.core.geometry import convex_hull
+from polyc2bf_ros.core.geometry.polygons import convex_hull
 
 
 def examples(count):

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import assume, given, HealthCheck, settings, strategies as st
 
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from strategies import convex_polygons, examples, random_state
 

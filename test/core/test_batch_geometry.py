@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from hypothesis import given, HealthCheck, settings, strategies as st
 
-from polyc2bf_ros.core.cones import CircleCone, InflatedCone, PaperCone
-from polyc2bf_ros.core.geometry import (
+from polyc2bf_ros.core.barrier.cones import CircleCone, InflatedCone, PaperCone
+from polyc2bf_ros.core.geometry.polygons import (
     convex_hull,
     decompose_convex,
     is_convex,
@@ -23,8 +23,8 @@ from polyc2bf_ros.core.geometry import (
     signed_distance,
     signed_distance_batch,
 )
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.views import prepare_views
+from polyc2bf_ros.core.geometry.views import prepare_views
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from strategies import convex_polygons, examples
 
 SETTINGS = settings(max_examples=examples(150), deadline=None,

@@ -4,9 +4,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from polyc2bf_ros.core.simulate import clearance
+from sim_bridge.rollout import clearance
 from strategies import convex_polygons, examples, random_state
 
 

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from polyc2bf_ros.core.circulation import Circulation
+from polyc2bf_ros.core.liveness.circulation import Circulation
 
 
 def info_with_axis(axis, h=0.1):

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.nominal import (
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
+from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
+from sim_bridge.nominal import (
     PointMassGoalController,
     QuadrotorGoalController,
     UnicycleGoalController,
 )
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
-from polyc2bf_ros.core.simulate import random_clutter, rollout
+from sim_bridge.rollout import random_clutter, rollout
 
 RADIUS = 0.3
 LONG_WALL = np.array([[3.0, -10.0], [3.2, -10.0], [3.2, 10.0], [3.0, 10.0]])

@@ -3,10 +3,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core import crazyflie
 from polyc2bf_ros.core.command_filter import CommandFilter
-from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.models import crazyflie, make_model
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus
 from strategies import examples
 

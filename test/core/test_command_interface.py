@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
-from polyc2bf_ros.core.command_interface import VELOCITY_MODELS, VelocityCommandInterface
+from polyc2bf_ros.core.actuation.command_interface import VELOCITY_MODELS, VelocityCommandInterface
 
 finite = st.floats(-10.0, 10.0)
 STATES = {

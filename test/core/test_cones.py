@@ -4,8 +4,12 @@ import pytest
 from hypothesis import assume, given, settings, strategies as st
 
 from oracles import inflate_polygon
-from polyc2bf_ros.core.cones import CircleCone, InflatedCone, PaperCone
-from polyc2bf_ros.core.geometry import minimum_enclosing_circle, PolygonBatch, signed_distance
+from polyc2bf_ros.core.barrier.cones import CircleCone, InflatedCone, PaperCone
+from polyc2bf_ros.core.geometry.polygons import (
+    minimum_enclosing_circle,
+    PolygonBatch,
+    signed_distance,
+)
 from strategies import convex_polygons, examples
 
 viewpoints = st.tuples(st.floats(-8, 8), st.floats(-8, 8)).map(np.array)

@@ -1,4 +1,4 @@
-"""Constant-velocity Kalman filter (polyc2bf_ros.core.constant_velocity).
+"""Constant-velocity Kalman filter (polyc2bf_ros.core.obstacles.constant_velocity).
 
 Hand-computed steps, properties of random sequences (symmetric positive definite
 covariances), and the compiled helpers against the numpy functions, which are checked here
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core import constant_velocity as cv
+from polyc2bf_ros.core.obstacles import constant_velocity as cv
 from strategies import examples
 
 SETTINGS = settings(max_examples=examples(100), deadline=None)

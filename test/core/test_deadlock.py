@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.deadlock import DeadlockDetector, holds, MIN_INTERVENTION
+from polyc2bf_ros.core.liveness.deadlock import DeadlockDetector, holds, MIN_INTERVENTION
 from polyc2bf_ros.core.safety_filter import FilterInfo, FilterStatus
 from strategies import examples
 

@@ -4,10 +4,10 @@ import math
 import numpy as np
 import pytest
 
-from polyc2bf_ros.core.circulation import Circulation
 from polyc2bf_ros.core.decision import ControlDecision, ObstacleSnapshot
-from polyc2bf_ros.core.escape_route import RouteEscape
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.liveness.circulation import Circulation
+from polyc2bf_ros.core.liveness.escape_route import RouteEscape
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter
 
 TIMEOUTS = {'odom': 0.25, 'cmd': 0.5, 'obstacles': 1.0}

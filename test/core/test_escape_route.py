@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
-from polyc2bf_ros.core.cones import PlanarPolygons
-from polyc2bf_ros.core.escape_route import (
+from polyc2bf_ros.core.barrier.cones import PlanarPolygons
+from polyc2bf_ros.core.geometry.polygons import signed_distance
+from polyc2bf_ros.core.liveness.escape_route import (
     grid_clearance,
     MAX_WIDEN,
     PATIENCE,
@@ -15,8 +16,7 @@ from polyc2bf_ros.core.escape_route import (
     RouteEscape,
     WIDEN,
 )
-from polyc2bf_ros.core.geometry import signed_distance
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from strategies import convex_polygons
 
 FREE = 0.522

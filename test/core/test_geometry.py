@@ -1,4 +1,4 @@
-"""Property tests for polyc2bf_ros.core.geometry against brute-force references."""
+"""Property tests for polyc2bf_ros.core.geometry.polygons against brute-force references."""
 import itertools
 import math
 
@@ -8,7 +8,7 @@ from hypothesis import assume, example, given, settings, strategies as st
 from scipy.spatial import ConvexHull
 
 from oracles import inflate_polygon, silhouette_pair
-from polyc2bf_ros.core.geometry import (
+from polyc2bf_ros.core.geometry.polygons import (
     clean_polygon,
     convex_hull,
     decompose_convex,

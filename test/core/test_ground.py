@@ -4,12 +4,12 @@ import math
 import numpy as np
 import pytest
 
-from polyc2bf_ros.core.ground import GROUND_DEPTH, grounded
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.nominal import PointMassGoalController, QuadrotorGoalController
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.ground import GROUND_DEPTH, grounded
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from polyc2bf_ros.core.simulate import clearance, rollout
+from sim_bridge.nominal import PointMassGoalController, QuadrotorGoalController
+from sim_bridge.rollout import clearance, rollout
 
 WALL = np.array([[2.0, -2.0], [2.2, -2.0], [2.2, 2.0], [2.0, 2.0]])
 

@@ -6,11 +6,11 @@ import pytest
 from hypothesis import assume, given, settings, strategies as st
 
 from oracles import inflate_polygon
-from polyc2bf_ros.core.cones import InflatedCone
-from polyc2bf_ros.core.geometry import PolygonBatch, signed_distance
-from polyc2bf_ros.core.horizon_cone import HorizonCone
+from polyc2bf_ros.core.barrier.cones import InflatedCone
+from polyc2bf_ros.core.barrier.horizon_cone import HorizonCone
+from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from strategies import convex_polygons, examples, random_state
 

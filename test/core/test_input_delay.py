@@ -1,14 +1,14 @@
-"""Commands in flight and a lagging base (``core.input_delay``, ``CommandFilter``)."""
+"""Commands in flight and a lagging base (``core.actuation.input_delay``, ``CommandFilter``)."""
 import math
 
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from polyc2bf_ros.core.actuation.input_delay import InputDelay
 from polyc2bf_ros.core.command_filter import CommandFilter
-from polyc2bf_ros.core.input_delay import InputDelay
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.obstacles import ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from strategies import examples
 

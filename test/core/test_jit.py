@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from polyc2bf_ros.core import jit
-from polyc2bf_ros.core.cone_models import CONE_MODELS
-from polyc2bf_ros.core.geometry import convex_hull
+from polyc2bf_ros.core.barrier.cone_models import CONE_MODELS
+from polyc2bf_ros.core.geometry.polygons import convex_hull
+from polyc2bf_ros.core.geometry.views import _viewpoints
+from polyc2bf_ros.core.kernels import jit
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from polyc2bf_ros.core.views import _viewpoints
 from strategies import random_state
 
 REPO = Path(__file__).resolve().parents[2]
@@ -28,8 +28,9 @@ def test_the_built_kernels_are_in_use():
     """A build (make runs it) is in use: the suite runs what users run, without numba."""
     assert os.environ.get(jit.MODE_VARIABLE, 'auto') != 'jit'
     assert jit.AHEAD_OF_TIME is not None, \
-        'run: python -m polyc2bf_ros.core.build_kernels (make does)'
-    assert _viewpoints.__name__ == 'core_views__viewpoints' and hasattr(_viewpoints, 'unchecked')
+        'run: python -m polyc2bf_ros.core.kernels.build (make does)'
+    assert _viewpoints.__name__ == 'core_geometry_views__viewpoints'
+    assert hasattr(_viewpoints, 'unchecked')
 
 
 @needs_build
@@ -42,7 +43,7 @@ def test_the_built_kernels_are_in_use():
 def test_guard_refuses_arrays_compiled_code_would_misread(bad, what):
     """Wrong dtype, layout, rank or type: TypeError naming the kernel and argument."""
     projections = np.zeros((3, 2, 2))
-    with pytest.raises(TypeError, match=r'core_views__viewpoints: argument 2 must be'):
+    with pytest.raises(TypeError, match=r'core_geometry_views__viewpoints: argument 2 must be'):
         _viewpoints(projections, np.zeros(2), bad, np.zeros((3, 2)), 0.0, np.empty((2, 3)))
 
 
@@ -89,7 +90,7 @@ import json, sys
 import numpy as np
 sys.path.insert(0, sys.argv[1])
 from test_jit import filter_steps
-from polyc2bf_ros.core import jit
+from polyc2bf_ros.core.kernels import jit
 assert jit.AHEAD_OF_TIME is None
 print(json.dumps(filter_steps()))
 """

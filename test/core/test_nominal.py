@@ -4,9 +4,9 @@ import math
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core import crazyflie as cf
+from polyc2bf_ros.core.models import crazyflie as cf
 from polyc2bf_ros.core.models.quadrotor import rotation_matrix
-from polyc2bf_ros.core.nominal import QuadrotorGoalController
+from sim_bridge.nominal import QuadrotorGoalController
 from strategies import examples
 
 

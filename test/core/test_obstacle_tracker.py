@@ -5,9 +5,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.geometry import signed_area
-from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker, outline_polygon, Placement, Shape
-from polyc2bf_ros.core.obstacles import ObstacleSet
+from polyc2bf_ros.core.geometry.polygons import signed_area
+from polyc2bf_ros.core.obstacles.marker_tracker import (
+    ObstacleTracker,
+    outline_polygon,
+    Placement,
+    Shape,
+)
+from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from strategies import examples
 
 SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])

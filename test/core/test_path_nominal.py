@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from polyc2bf_ros.core.nominal import ReferencePath, UnicyclePathController
+from sim_bridge.nominal import ReferencePath, UnicyclePathController
 
 U_TURN = [[0.0, 0.0], [5.0, 0.0], [5.0, 0.0], [5.0, 0.3], [0.0, 0.3]]
 

@@ -4,19 +4,19 @@ import math
 import numpy as np
 from hypothesis import given, strategies as st
 
-from polyc2bf_ros.core.geometry import (
+from polyc2bf_ros.core.geometry.polygon_limits import (
+    bounded_convex_parts,
+    enclosing_polygon,
+    reflex_count,
+)
+from polyc2bf_ros.core.geometry.polygons import (
     clean_polygon,
     convex_hull,
     is_convex,
     point_in_polygon,
     signed_area,
 )
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.polygon_limits import (
-    bounded_convex_parts,
-    enclosing_polygon,
-    reflex_count,
-)
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 
 
 def _star(points, inner=0.5, phase=0.0):

@@ -8,10 +8,10 @@ from hypothesis.extra.numpy import arrays
 from proxsuite import proxqp
 
 from oracles import ReferenceSolver
-from polyc2bf_ros.core import qp
-from polyc2bf_ros.core.qp import DaqpSolver, QPStatus, solve_with_shared_slack
-from polyc2bf_ros.core.qp_backends import make_solver, SOLVERS
-from polyc2bf_ros.core.qp_proxsuite import ProxsuiteSolver
+from polyc2bf_ros.core.qp import solver as qp
+from polyc2bf_ros.core.qp.backends import make_solver, SOLVERS
+from polyc2bf_ros.core.qp.proxsuite_backend import ProxsuiteSolver
+from polyc2bf_ros.core.qp.solver import DaqpSolver, QPStatus, solve_with_shared_slack
 from strategies import examples
 
 # One instance per backend for the whole module, so that DAQP's per-size models are reused

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
 
 BOX = np.array([[2.0, -0.5], [3.0, -0.5], [3.0, 0.5], [2.0, 0.5]])

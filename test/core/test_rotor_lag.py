@@ -1,15 +1,14 @@
-"""Rotors lagging their thrust commands (``core.rotor_lag``, ``CommandFilter``)."""
+"""Rotors lagging their thrust commands (``core.actuation.rotor_lag``, ``CommandFilter``)."""
 import math
 
 import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
-from polyc2bf_ros.core import crazyflie
+from polyc2bf_ros.core.actuation.rotor_lag import RotorLag
 from polyc2bf_ros.core.command_filter import CommandFilter
-from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.obstacles import ObstacleSet
-from polyc2bf_ros.core.rotor_lag import RotorLag
+from polyc2bf_ros.core.models import crazyflie, make_model
+from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig
 
 PERIOD = 0.002

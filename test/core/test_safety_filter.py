@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, HealthCheck, settings, strategies as st
 
-from polyc2bf_ros.core.cones import PLANE_ROWS
+from polyc2bf_ros.core.barrier.cones import PLANE_ROWS
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
-from polyc2bf_ros.core.qp import QPSolver, QPStatus, row_residuals
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
+from polyc2bf_ros.core.qp.solver import QPSolver, QPStatus, row_residuals
 from polyc2bf_ros.core.safety_filter import (
     _assemble_rows,
     ACTIVE_TOLERANCE,

@@ -1,4 +1,4 @@
-"""Laser scan to convex obstacles (polyc2bf_ros.core.scan_obstacles), checked independently.
+"""Laser scan to convex obstacles (core.obstacles.scan_conversion), checked independently.
 
 Endpoints, point-to-polygon distances and convexity are recomputed here from their
 definitions; scenes are ray-cast against wall segments.
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.obstacles import ObstacleSet
-from polyc2bf_ros.core.scan_obstacles import (
+from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
+from polyc2bf_ros.core.obstacles.scan_conversion import (
     beam_endpoints,
     pose_at,
     scan_obstacles,

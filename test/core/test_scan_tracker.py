@@ -1,4 +1,4 @@
-"""Tracked scan obstacles (polyc2bf_ros.core.scan_tracker), on ray-cast scans.
+"""Tracked scan obstacles (polyc2bf_ros.core.obstacles.scan_tracker), on ray-cast scans.
 
 Scans are 1081 beams over 270 degrees (``scan_simulator``), turned into clusters by
 ``scan_to_obstacles(..., with_clusters=True)`` and fed to a ``ScanTracker`` at 10 or 20 Hz.
@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.scan_obstacles import (
+from polyc2bf_ros.core.obstacles.scan_conversion import (
     beam_endpoints,
     scan_obstacles,
     scan_to_obstacles,
     scan_wraps,
     ScanSettings,
 )
-from polyc2bf_ros.core.scan_tracker import (
+from polyc2bf_ros.core.obstacles.scan_tracker import (
     register_outline,
     ScanTracker,
     TrackerSettings,

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from hypothesis import given, HealthCheck, settings, strategies as st
 
-from polyc2bf_ros.core.cone_models import CONE_MODELS, make_cone_model
-from polyc2bf_ros.core.geometry import PolygonBatch
+from polyc2bf_ros.core.barrier.cone_models import CONE_MODELS, make_cone_model
+from polyc2bf_ros.core.geometry.polygons import PolygonBatch
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from strategies import convex_polygons, examples, random_state
 

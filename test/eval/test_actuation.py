@@ -122,8 +122,8 @@ def test_a_late_lagging_base_touches_unless_the_filter_is_told(told, margin):
 def test_lagging_rotors_put_a_crazyflie_into_the_pillars_unless_the_filter_is_told():
     """``quadrotor_pillars`` with rotors lagging by 30 ms: a contact, unless the filter is told.
 
-    Told ``actuator_tau``, it commands thrusts the rotors reach (``core.rotor_lag``) and the
-    run reaches the goal clear of the pillars.
+    Told ``actuator_tau``, it commands thrusts the rotors reach (``core.actuation.rotor_lag``) and
+    the run reaches the goal clear of the pillars.
     """
     plant = Actuation(actuator_tau=0.03)
     blind = summarise(run_in_process('quadrotor_pillars', 'polyc2bf_horizon', actuation=plant),

@@ -231,7 +231,7 @@ def test_scan_mode_goal_nominal_keeps_clear_of_the_row_it_sees_by_lidar(tmp_path
 def test_a_standing_row_of_posts_gets_no_velocity_from_the_scan_tracker():
     """A shipped world whose rows of posts match themselves shifted by a post.
 
-    Before the tracker tested rest (``core/scan_tracker.py``, step 3) a standing row here
+    Before the tracker tested rest (``core/obstacles/scan_tracker.py``, step 3) a standing row here
     got 2.4 m/s, and go-to-goal from the scan drove into it.  Evasion is off, for it steers
     clear of a phantom that moves.
     """

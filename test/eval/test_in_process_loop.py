@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from polyc2bf_ros.core.scan_obstacles import ScanSettings
+from polyc2bf_ros.core.obstacles.scan_conversion import ScanSettings
 from polyc2bf_ros.filter_parameters import load_parameters
 from sim_bridge.closed_loop import _ObstacleView, _Robot, _ScanView, obstacle_free, run_in_process
 from sim_bridge.evaluation.records import summarise

@@ -5,7 +5,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 
 from polyc2bf_ros.core.decision import Decision
-from polyc2bf_ros.core.obstacles import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterInfo, FilterStatus
 from polyc2bf_ros.filter_state import classify, closest_obstacle, state_status
 

@@ -8,7 +8,7 @@ from nav_msgs.msg import Odometry
 from visualization_msgs.msg import MarkerArray
 
 from node_harness import Harness, LATCHED, markers, node_log, odometry, running_filter, twist
-from polyc2bf_ros.core import crazyflie
+from polyc2bf_ros.core.models import crazyflie
 
 RATE = 50.0
 # Long enough that a starved harness (both cores busy) never leaves an input silent that

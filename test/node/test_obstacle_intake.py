@@ -6,9 +6,9 @@ from visualization_msgs.msg import Marker
 
 from node_harness import markers, wall
 from polyc2bf_ros import cdr_reader, marker_obstacles
+from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
-from polyc2bf_ros.core.obstacle_tracker import ObstacleTracker
+from polyc2bf_ros.core.obstacles.marker_tracker import ObstacleTracker
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_intake import IntakeSettings, ObstacleIntake
 

@@ -7,8 +7,8 @@ from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
 
 from node_harness import markers, wall
+from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from polyc2bf_ros.obstacle_intake import (
     IntakeSettings,

@@ -4,8 +4,8 @@ import math
 import pytest
 from rclpy.serialization import serialize_message
 
+from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_intake import (
     IntakeSettings,

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core.geometry import decompose_convex
+from polyc2bf_ros.core.geometry.polygons import decompose_convex
 from sim_bridge.bag_reader import BagReader
 from sim_bridge.world import (
     QUADRUPED_MAX_ACCEL,

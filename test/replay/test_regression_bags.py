@@ -35,7 +35,7 @@ import pytest
 import rclpy
 
 import scoring
-from polyc2bf_ros.core.obstacles import ObstacleSet
+from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge import bag_player, bag_replay, launcher
 from sim_bridge.bag_reader import BagReader

@@ -1,6 +1,6 @@
 """One source for the Crazyflie's constants: the shipped URDF carries crazyflie.py's numbers.
 
-``polyc2bf_ros.core.crazyflie`` is what the filter's quadrotor model uses, so it is
+``polyc2bf_ros.core.models.crazyflie`` is what the filter's quadrotor model uses, so it is
 the source; ``sim_bridge/assets/crazyflie21.urdf`` (parsed here with ElementTree)
 must match it, and so must what PyBullet makes of the URDF when the world loads it.
 """
@@ -11,7 +11,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from polyc2bf_ros.core import crazyflie as cf
+from polyc2bf_ros.core.models import crazyflie as cf
 from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.scenario import scenario_from_dict
 from sim_bridge.world import CRAZYFLIE_HALF_HEIGHT, CRAZYFLIE_URDF, SimWorld

@@ -5,7 +5,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from polyc2bf_ros.core.geometry import signed_distance
+from polyc2bf_ros.core.geometry.polygons import signed_distance
 from sim_bridge.barn import load_worlds, WORLDS_FILE
 from sim_bridge.lidar import LidarSettings, RobotLidars
 from sim_bridge.metrics import RunMetrics

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 import yaml
 
-from polyc2bf_ros.core import crazyflie as cf
-from polyc2bf_ros.core.geometry import minimum_enclosing_circle, signed_distance
+from polyc2bf_ros.core.geometry.polygons import minimum_enclosing_circle, signed_distance
+from polyc2bf_ros.core.models import crazyflie as cf
 from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.scenario import (
     load_scenario,

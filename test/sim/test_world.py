@@ -5,12 +5,11 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from polyc2bf_ros.core import crazyflie as cf
-from polyc2bf_ros.core.geometry import signed_distance
-from polyc2bf_ros.core.models import make_model
-from polyc2bf_ros.core.nominal import QuadrotorGoalController, UnicycleGoalController
-from polyc2bf_ros.core.simulate import rk4_step
+from polyc2bf_ros.core.geometry.polygons import signed_distance
+from polyc2bf_ros.core.models import crazyflie as cf, make_model
 from sim_bridge.metrics import RunMetrics
+from sim_bridge.nominal import QuadrotorGoalController, UnicycleGoalController
+from sim_bridge.rollout import rk4_step
 from sim_bridge.scenario import load_scenario, scenario_from_dict
 from sim_bridge.world import (
     A1_STANDING_POSE,

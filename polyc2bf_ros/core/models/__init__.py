@@ -1,5 +1,7 @@
 """Robot models behind one interface; ``make_model(name, **params)`` builds one.
 
+Also the Crazyflie 2.1's constants (``crazyflie``).  Imports only ``kernels``.
+
 Adding a model is one new file that subclasses ``RobotModel``, decorates it
 with ``@register_model`` and is imported here.
 """

@@ -2,7 +2,7 @@
 
 State x = [p (3), v (3), roll, pitch, yaw, w (3 body rates)], input u = f (4 rotor
 thrusts, N).  With R = Rz(yaw) Ry(pitch) Rx(roll) (body to world), the
-mixer [T, tau] = M f of ``polyc2bf_ros.core.crazyflie`` and inertia I::
+mixer [T, tau] = M f of ``polyc2bf_ros.core.models.crazyflie`` and inertia I::
 
     p_dot = v
     v_dot = [0, 0, -g] + R e_z T / m
@@ -24,8 +24,8 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core import crazyflie as cf
-from polyc2bf_ros.core.jit import F1, F2, kernel, signature
+from polyc2bf_ros.core.kernels.jit import F1, F2, kernel, signature
+from polyc2bf_ros.core.models import crazyflie as cf
 from polyc2bf_ros.core.models.base import ReferenceKinematics, register_model, RobotModel
 
 

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core.jit import F1, F2, kernel, signature
+from polyc2bf_ros.core.kernels.jit import F1, F2, kernel, signature
 from polyc2bf_ros.core.models.base import (
     damped_brake,
     ReferenceKinematics,

@@ -1,0 +1,67 @@
+"""What a filter prepares of an obstacle set before any step: its views, once per geometry.
+
+The views (``views.prepare_views``: silhouettes, cones, for 3-D models the vertical planes)
+depend only on the cone model's settings, the robot's position dimension and the guard
+radius, and, for 3-D models with a ground, on the ground's height.  ``ObstacleGeometry``
+holds exactly those, so the node's obstacle worker prepares sets off the control path
+without building a filter (its solver, its warm-up steps), and the filter that steps on
+the set finds the views under the same ``key`` in ``ObstacleSet.geometry``.  The filter
+hands its own (``SafetyFilter.geometry``) to the worker, so the two always agree, whatever
+the model's parameters; two are equal when they prepare the same views for the same body.
+"""
+import math
+
+from polyc2bf_ros.core.barrier.cone_models import make_cone_model
+from polyc2bf_ros.core.geometry.views import prepare_views
+from polyc2bf_ros.core.obstacles.ground import grounded
+
+
+class ObstacleGeometry:
+    """Prepares obstacle sets' views for one cone model, dimension, guard radius and ground."""
+
+    def __init__(self, model, config):
+        """For ``model`` (a ``RobotModel``) and a validated ``FilterConfig``.
+
+        The guard radius is the body's radius grown by the model's offset l: the guarded
+        point keeps R + l, so the body around its centre keeps R (``guard_offset``).
+        """
+        self.dim = model.position_dim
+        self.robot_radius = float(config.robot_radius)
+        self.guard_radius = float(config.robot_radius + model.guard_offset)
+        self.cone_model = make_cone_model(config.barrier, self.guard_radius,
+                                          config.inflation_segments, config.horizon,
+                                          config.cone_axis)
+        self.ground = (float(config.ground_z) if self.dim == 3 and math.isfinite(config.ground_z)
+                       else None)
+        self.key = (type(self.cone_model).__name__, tuple(sorted(vars(self.cone_model).items())),
+                    self.dim, self.guard_radius)
+
+    def __eq__(self, other):
+        """Equal when both prepare the same views for the same body."""
+        return (isinstance(other, ObstacleGeometry) and self.key == other.key
+                and self.ground == other.ground and self.robot_radius == other.robot_radius)
+
+    def __hash__(self):
+        """Hash of what equality compares."""
+        return hash((self.key, self.ground, self.robot_radius))
+
+    def prepare(self, obstacles):
+        """Compute the views of a finite set now (a translated set: of its base)."""
+        if obstacles.base is not None:
+            obstacles = obstacles.base
+        if obstacles.is_finite():
+            self.views(self.grounded(obstacles))
+
+    def grounded(self, obstacles):
+        """Return ``obstacles`` standing on the ground (``obstacles.ground``), if there is one."""
+        if self.ground is None:
+            return obstacles
+        return grounded(obstacles, self.ground, self.guard_radius)
+
+    def views(self, obstacles):
+        """Return the views of ``obstacles``, computed once per set and ``key``."""
+        views = obstacles.geometry.get(self.key)
+        if views is None:
+            views = prepare_views(obstacles, self.cone_model, self.dim, self.guard_radius)
+            obstacles.geometry[self.key] = views
+        return views

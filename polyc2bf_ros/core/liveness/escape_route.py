@@ -1,0 +1,361 @@
+"""Deadlock resolution by a route: steer the nominal along a grid route past the blockage.
+
+Circulation (``core.liveness.circulation``) follows the boundary of the one obstacle part holding
+the robot.  In clutter that is often the wrong way: the side it latches ends in a gap
+narrower than the guard disc, or in a pocket of several parts, and a reactive rule has no
+way to know.  The filter holds every obstacle it guards against, so when a deadlock is
+reported this resolution looks at all of them once and plans where to go instead.
+
+Intent.  The nominal [v, omega] held at the deadlock points where its law wants to go:
+the direction d = R(clip(omega t_i, +-pi/2)) (cos theta, sin theta), t_i = 1 s (a
+go-to-goal law turns at omega = k e towards its goal, so d leans the way it turns).
+
+Grid.  A square window of side ``window`` about the reference point p, cells of side
+``cell``.  Each cell centre q gets its clearance c(q) = min over parts n of the signed
+distance from q to footprint n (negative inside; ``grid_clearance``).  A cell is free when
+c >= c_min = guard radius + braking margin (+ 2 cm), the distance the filter's braking
+check keeps (``core.barrier.braking_check``).  The held robot stands closer than that, so cells
+within ``START_CELLS`` of p need only c >= min(c_min, c(p)): no closer to any part than p
+is.  A step that loses clearance there points into the cone of the part it nears, which
+the filter refuses from the boundary (measured: BARN robots turned onto such a first leg
+and stood).
+
+Route.  Dijkstra over the 8-connected free cells from p's cell (``route_search``), each
+step costing its length times 1 + w max(0, c_pref - c) / (c_pref - c_min) with
+c_pref = c_min + ``preferred_margin``: a route keeps away from the parts where it can.  It
+ends at the first cell popped whose offset from p along d is at least ``ahead`` and whose
+clearance is at least c_min + ``preferred_margin`` / 2: the nearest free place the way the
+nominal wants, past whatever holds the robot.  That includes backing out of a pocket.
+
+Following.  Per step the target is the route point ``lookahead`` (arc length) beyond the
+point nearest the reference point (searched forward from the last one), and, for a
+unicycle as circulation does, with e = wrap(atan2(target - p) - theta)::
+
+    omega* = clip(k_theta e, +-omega_max),    v* = v_n max(0, cos e)
+
+v_n as in circulation (the larger of the nominal's |v| now and at the report).  The safety
+filter filters that command like any other: no CBF row is dropped or relaxed.
+
+Release.  The nominal takes over again at the route's end (within ``lookahead`` of it) or
+after max(``max_time``, 3 L / v_n) s for a route of length L.  A route the filter holds the
+robot on (the cone of a part it passes close by covers the way to its next point: the
+cones forbid more than the clearance does) is *blocked* once the robot has not moved
+0.1 m in ``PATIENCE`` s; the deadlock still held, the next plan keeps ``WIDEN`` more
+clearance, up to ``MAX_WIDEN`` times in a row, then circulation takes over.  A second
+report while following (held again after moving: a part moved, or the route was too
+tight) plans a new route from where the robot stands; so does a deadlock that outlasts a
+route.  When no route exists in the window (every way blocked, or none ``ahead`` far
+enough), the resolution falls back to circulation, and a deadlock that outlasts that plans
+again only ``max_time`` later (not on every held step).  A nominal stop passes unchanged.
+
+Holonomic bases (``point_mass_2d``, body-frame commands [vx, vy] at the odometry yaw psi)
+take d = Rz(psi) [vx, vy] / |[vx, vy]| and follow with the velocity v_n (target - p) /
+|target - p|, turned back into the body frame; v_n = |[vx, vy]|.  Without a route they
+keep their nominal (there is no circulation for them).
+"""
+import math
+
+import numpy as np
+
+from polyc2bf_ros.core.barrier.cones import nearest_edge, PlanarPolygons, polygon_box
+from polyc2bf_ros.core.kernels.jit import F1, F2, I1, kernel, signature
+from polyc2bf_ros.core.liveness.circulation import Circulation, steer_towards
+
+START_CELLS = 3
+PATIENCE = 3.0   # s: a route the robot has not moved 0.1 m along in this long is blocked
+#                  (longer than a half turn in place at 1.5 rad/s)
+WIDEN = 0.1      # m: each blocked route in a row plans the next this much wider ...
+MAX_WIDEN = 2    # ... this many times; one more, and circulation takes over
+INTENT_TIME = 1.0  # s: d leans by omega * INTENT_TIME, at most 90 degrees
+_DIAGONAL = math.sqrt(2.0)
+
+
+@kernel(signature('void', F2, F2, F2, F2, F2, I1, 'f8', 'f8', 'f8', 'f8', F2))
+def grid_clearance(x, y, edge_x, edge_y, inv_sq, counts, x0, y0, cell, cutoff, out):
+    """Fill ``out`` (rows i, columns j) with min(cutoff, signed distance of cell centres).
+
+    Cell (i, j) has its centre at (x0 + j cell, y0 + i cell); polygon n (rows of ``x``,
+    ``y``, as ``cones.PlanarPolygons``) is only measured at cells within ``cutoff`` of its
+    bounding box.  Negative inside.
+    """
+    rows, columns = out.shape
+    for i in range(rows):
+        for j in range(columns):
+            out[i, j] = cutoff
+    for n in range(counts.shape[0]):
+        low_x, high_x, low_y, high_y = polygon_box(x, y, counts[n], n)
+        first_i = max(0, int(math.floor((low_y - cutoff - y0) / cell)))
+        last_i = min(rows - 1, int(math.ceil((high_y + cutoff - y0) / cell)))
+        first_j = max(0, int(math.floor((low_x - cutoff - x0) / cell)))
+        last_j = min(columns - 1, int(math.ceil((high_x + cutoff - x0) / cell)))
+        for i in range(first_i, last_i + 1):
+            for j in range(first_j, last_j + 1):
+                square, _, _, _, inside = nearest_edge(
+                    x, y, edge_x, edge_y, inv_sq, counts[n], n, x0 + j * cell, y0 + i * cell)
+                distance = -math.sqrt(square) if inside else math.sqrt(square)
+                out[i, j] = min(out[i, j], distance)
+
+
+@kernel
+def _push(heap_cost, heap_index, size, cost, index):
+    """Push (cost, index) onto the binary min-heap held in the first ``size`` slots."""
+    k = size
+    heap_cost[k], heap_index[k] = cost, index
+    while k > 0:
+        parent = (k - 1) // 2
+        if heap_cost[parent] <= heap_cost[k]:
+            break
+        heap_cost[parent], heap_cost[k] = heap_cost[k], heap_cost[parent]
+        heap_index[parent], heap_index[k] = heap_index[k], heap_index[parent]
+        k = parent
+    return size + 1
+
+
+@kernel
+def _pop(heap_cost, heap_index, size):
+    """Remove the heap's smallest entry; return (cost, index, new size)."""
+    cost, index = heap_cost[0], heap_index[0]
+    size -= 1
+    heap_cost[0], heap_index[0] = heap_cost[size], heap_index[size]
+    k = 0
+    while True:
+        child = 2 * k + 1
+        if child >= size:
+            break
+        if child + 1 < size and heap_cost[child + 1] < heap_cost[child]:
+            child += 1
+        if heap_cost[k] <= heap_cost[child]:
+            break
+        heap_cost[child], heap_cost[k] = heap_cost[k], heap_cost[child]
+        heap_index[child], heap_index[k] = heap_index[k], heap_index[child]
+        k = child
+    return cost, index, size
+
+
+@kernel(signature('i8', F2, 'i8', 'i8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', I1, F1,
+                  I1))
+def route_search(clearance, start_i, start_j, dir_x, dir_y, ahead, free, start_free,
+                 preferred, weight, parent, cost, heap_index):
+    """Return the flat index of the route's end cell, or -1; ``parent`` holds the route.
+
+    Dijkstra from (start_i, start_j) over 8-connected cells with clearance >= ``free``
+    (>= ``start_free`` within ``START_CELLS`` of the start), step cost = length in cells
+    times 1 + weight max(0, preferred - c) / (preferred - free).  The end is the first cell
+    popped whose offset from the start, in cells, along (dir_x, dir_y) is >= ``ahead`` with
+    clearance >= (free + preferred) / 2.  Scratch: ``cost`` (9 rows x columns: the cells'
+    costs, then the heap's keys) and ``heap_index`` (8 rows x columns: each cell enters the
+    heap at most once per neighbour).
+    """
+    rows, columns = clearance.shape
+    cells = rows * columns
+    for k in range(cells):
+        cost[k] = math.inf
+        parent[k] = -1
+    heap_cost = cost[cells:]
+    start = start_i * columns + start_j
+    cost[start] = 0.0
+    size = _push(heap_cost, heap_index, 0, 0.0, start)
+    span = preferred - free
+    goal_clearance = 0.5 * (free + preferred)
+    while size > 0:
+        here, index, size = _pop(heap_cost, heap_index, size)
+        if here > cost[index]:
+            continue
+        i, j = index // columns, index % columns
+        if ((i - start_i) * dir_y + (j - start_j) * dir_x >= ahead
+                and clearance[i, j] >= goal_clearance):
+            return index
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                ni, nj = i + di, j + dj
+                if (di == 0 and dj == 0) or ni < 0 or nj < 0 or ni >= rows or nj >= columns:
+                    continue
+                c = clearance[ni, nj]
+                near = max(abs(ni - start_i), abs(nj - start_j)) <= START_CELLS
+                if c < free and not (near and c >= start_free):
+                    continue
+                step = _DIAGONAL if di != 0 and dj != 0 else 1.0
+                step *= 1.0 + weight * max(0.0, preferred - c) / span
+                neighbour = ni * columns + nj
+                if here + step < cost[neighbour] and size < heap_index.shape[0]:
+                    cost[neighbour] = here + step
+                    parent[neighbour] = index
+                    size = _push(heap_cost, heap_index, size, here + step, neighbour)
+    return -1
+
+
+def plan_route(obstacles, position, direction, free, window=10.0, cell=0.1, ahead=3.0,
+               preferred_margin=0.4, weight=4.0):
+    """Return the route (K, 2) from ``position`` ``ahead`` m along ``direction``, or None.
+
+    ``obstacles``: an ``ObstacleSet``; ``free``: the clearance c_min a cell needs; the
+    start band needs min(c_min, clearance at ``position``) (module docstring).
+    """
+    count = int(round(window / cell)) | 1
+    half = (count // 2) * cell
+    x0, y0 = float(position[0]) - half, float(position[1]) - half
+    clearance = np.empty((count, count))
+    polygons = PlanarPolygons.from_batch(obstacles.footprints)
+    preferred = free + preferred_margin
+    grid_clearance(polygons.x, polygons.y, polygons.edge_x, polygons.edge_y,
+                   polygons.inv_sq, np.ascontiguousarray(polygons.counts, dtype=np.int64),
+                   x0, y0, cell, preferred + cell, clearance)
+    cells = count * count
+    parent = np.empty(cells, dtype=np.int64)
+    scratch = np.empty(9 * cells)
+    heap = np.empty(8 * cells, dtype=np.int64)
+    centre = count // 2
+    end = route_search(clearance, centre, centre, float(direction[0]), float(direction[1]),
+                       ahead / cell, free, min(free, clearance[centre, centre]), preferred,
+                       weight, parent, scratch, heap)
+    if end < 0:
+        return None
+    indices = [int(end)]
+    while parent[indices[-1]] >= 0:
+        indices.append(int(parent[indices[-1]]))
+    indices = np.array(indices[::-1])
+    route = np.column_stack((x0 + (indices % count) * cell, y0 + (indices // count) * cell))
+    route[0] = position
+    return route
+
+
+class RouteEscape:
+    """The rule of the module docstring; ``ControlDecision`` drives it like ``Circulation``."""
+
+    def __init__(self, free_clearance, holonomic=False, max_time=10.0, turn_gain=2.0,
+                 max_turn_rate=1.5, lookahead=0.25, **route):
+        """Follow routes keeping ``free_clearance`` [m]; ``route``: ``plan_route``'s options.
+
+        ``holonomic``: commands are body-frame velocities [vx, vy] (``point_mass_2d``), not
+        unicycle [v, omega]; there is no circulation to fall back on.
+        """
+        if not (free_clearance > 0.0 and max_time > 0.0 and turn_gain > 0.0
+                and max_turn_rate > 0.0 and lookahead > 0.0):
+            raise ValueError('escape route: free_clearance, max_time, turn_gain, '
+                             'max_turn_rate and lookahead must be positive')
+        self.free_clearance = float(free_clearance)
+        self.holonomic = bool(holonomic)
+        self.max_time, self.lookahead = float(max_time), float(lookahead)
+        self.turn_gain, self.max_turn_rate = float(turn_gain), float(max_turn_rate)
+        self.route_options = route
+        self.fallback = Circulation(max_time=max_time, turn_gain=turn_gain,
+                                    max_turn_rate=max_turn_rate)
+        self.engagements = 0   # routes planned (or circulations started without one)
+        self.routes = 0        # of those, routes found
+        self._route = None     # (K, 2) route points
+        self._arc = None       # (K,) arc length at each point
+        self._progress = 0     # index of the route point nearest the robot
+        self._since = math.nan
+        self._limit = math.inf
+        self._speed = 0.0
+        self._failed = -math.inf  # when planning last found no route
+        self.blocked = 0          # routes in a row the filter held the robot on
+        self._anchor, self._moved = None, math.nan
+
+    @property
+    def active(self):
+        """Return True while following a route or circulating for want of one."""
+        return self._route is not None or self.fallback.active
+
+    @property
+    def mode(self):
+        """Return what steers the nominal now: 'route', 'circulate' (fallback) or 'none'."""
+        return 'route' if self._route is not None else self.fallback.mode
+
+    @property
+    def side(self):
+        """Return the fallback circulation's side (0 while following a route)."""
+        return self.fallback.side
+
+    def observe(self, info):
+        """Pass the step's filter info to the fallback circulation."""
+        self.fallback.observe(info)
+
+    def engage(self, now, position, yaw, nominal, obstacles=None, renew=False):
+        """Plan a route from ``position`` the way ``nominal`` points (module docstring).
+
+        ``renew`` (the deadlock outlasted the last resolution, asked every held step) plans
+        at most once per ``max_time`` after a plan that found no route.
+        """
+        if renew and now - self._failed < self.max_time:
+            return
+        if self.holonomic:
+            if not any(nominal):
+                return
+            bearing = math.atan2(float(nominal[1]), float(nominal[0])) + yaw
+        else:
+            bearing = yaw + min(max(float(nominal[1]) * INTENT_TIME, -0.5 * math.pi),
+                                0.5 * math.pi)
+        self._speed = max(self._speed_of(nominal), self._speed if self.active or renew else 0.0)
+        direction = (math.cos(bearing), math.sin(bearing))
+        route = None
+        if obstacles is not None and len(obstacles) and self.blocked <= MAX_WIDEN:
+            route = plan_route(obstacles, position, direction,
+                               self.free_clearance + WIDEN * self.blocked, **self.route_options)
+        self.engagements += 1
+        if route is None:
+            self.blocked = 0
+            self._route, self._failed = None, now
+            if not self.holonomic:
+                self.fallback.engage(now, position, yaw, nominal, renew=renew)
+            return
+        self.fallback.side = 0
+        self.routes += 1
+        self._route, self._progress, self._since = route, 0, now
+        self._anchor, self._moved = np.array(position, dtype=float), now
+        self._arc = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(route, axis=0).T))))
+        speed = max(self._speed, 1e-3)
+        self._limit = max(self.max_time, 3.0 * float(self._arc[-1]) / speed)
+
+    def release_if_done(self, now, position, passes):
+        """End the route at its end, after its time limit or blocked; the fallback by its rule.
+
+        Blocked: the reference point stayed within 0.1 m for ``PATIENCE`` s; the next plan
+        (the deadlock still held) keeps ``WIDEN`` more clearance per blocked route in a row.
+        """
+        if self._route is None:
+            self.fallback.release_if_done(now, position, passes)
+            return
+        self._advance(position)
+        position = np.asarray(position, dtype=float)
+        if np.linalg.norm(position - self._anchor) > 0.1:
+            self._anchor, self._moved = position, now
+        if now - self._moved >= PATIENCE:
+            self._route, self.blocked = None, self.blocked + 1
+        elif (now - self._since >= self._limit
+                or self._arc[-1] - self._arc[self._progress] <= self.lookahead):
+            self._route, self.blocked = None, 0
+
+    def probe(self, nominal):
+        """Return the fallback's probe of ``nominal`` (``Circulation.probe``)."""
+        return self.fallback.probe(nominal)
+
+    def command(self, yaw, nominal, position=None):
+        """Return the command [v, omega] to ask the filter for (module docstring)."""
+        if self._route is None:
+            return self.fallback.command(yaw, nominal)
+        if not any(nominal) or position is None:
+            return nominal
+        self._advance(position)
+        target_arc = self._arc[self._progress] + self.lookahead
+        target = self._route[min(int(np.searchsorted(self._arc, target_arc)),
+                                 len(self._route) - 1)]
+        bearing = math.atan2(target[1] - position[1], target[0] - position[0])
+        speed = max(self._speed_of(nominal), self._speed)
+        if self.holonomic:   # the velocity towards the target, in the body frame
+            return speed * np.array([math.cos(bearing - yaw), math.sin(bearing - yaw)])
+        return steer_towards(bearing, yaw, speed, self.turn_gain, self.max_turn_rate)
+
+    def _speed_of(self, nominal):
+        """Return the nominal's speed: |[vx, vy]| (holonomic) or |v| (unicycle)."""
+        if self.holonomic:
+            return math.hypot(float(nominal[0]), float(nominal[1]))
+        return abs(float(nominal[0]))
+
+    def _advance(self, position):
+        """Move the progress index to the nearest route point within reach ahead."""
+        reach = self._arc[self._progress] + 2.0 * self.lookahead
+        last = int(np.searchsorted(self._arc, reach, side='right'))
+        window = self._route[self._progress:max(last, self._progress + 1)]
+        offsets = window - np.asarray(position, dtype=float)
+        self._progress += int(np.argmin(np.einsum('ij,ij->i', offsets, offsets)))

@@ -1,0 +1,995 @@
+"""Track laser-scan clusters over time and give moving ones a velocity (numpy, no ROS).
+
+Input per scan: its stamp and its clusters (``scan_obstacles(..., with_clusters=True)``: the
+endpoints of each cluster in chain order, odometry frame).  Output: one ``TrackEstimate`` per
+cluster, in the same order.  One tracker serves every scan source; a stamp earlier than the
+newest seen by more than ``max_backstep`` (a bag loop, a simulation reset) resets it, a
+smaller step back is taken as no time passing.
+
+Each track has a constant-velocity Kalman filter with a clone (``constant_velocity``: state
+``[p, v, c]``, c the position when the track took its outline, the points of the cluster it
+last matched).  Per scan, with ``dt`` the time since the newest stamp:
+
+1. Predict every filter by ``dt`` (white-noise acceleration of spectral density
+   ``accel_std^2``).  A track's predicted displacement since its outline is ``d0 = p - c``.
+2. Associate.  A track's predicted box is its outline's bounding box moved by ``d0``; a
+   cluster may pair with it when the boxes are at most ``gate`` apart and both or neither
+   are structure (below), at a cost of the mean distance between their corresponding
+   corners (a stray point near a box costs its distance to both corners; a centroid would
+   move with the lit side).  Pairs that are each other's only candidate go together; the
+   rest is solved by ``scipy.optimize.linear_sum_assignment`` on squared costs, where a
+   track or a cluster may also stay unpaired at ``gate^2`` (so that no pair is forced).
+3. Measure the displacement d: translation-only point-to-line registration (ICP) of the new
+   cluster onto the track's outline.  Both are first smoothed alike: each point is replaced
+   by the centroid c of its window, the run of chain neighbours symmetric about it whose
+   ends lie within ``span`` of each other, and given the unit tangent t of the chord across
+   that window without the point itself (so that its range noise does not tilt its own
+   line).  A window cut short by an end of the chain is not used (the ends of a cluster move
+   as the view changes), nor one where the chain turns by more than 45 degrees (a corner,
+   whose line is ambiguous).  Smoothing divides the range noise by about the square root of
+   the window's size, and a window's curvature bias (its centroid lies ``w^2 / (6 rho)``
+   inside an arc of radius rho for a half-width w) is the same on both sides and cancels.
+   Each new centroid (every k-th one, weighted by k, where windows are dense: k = a third of
+   the mean window size, for neighbouring centroids share most of their points), moved by
+   ``-d``, pairs with the outline centroid ``c_j`` nearest it (searched along the outline
+   from the previous pair) and its residual is its distance to that centroid's line,
+   ``r_i = n_j . (c_i - d - c_j)``, n the normal.  A pair is trimmed
+   when ``|r_i|`` exceeds the trim distance: ``reach`` at the first iteration (``trim`` plus
+   3 sigma of the predicted displacement, at most ``gate``), halving down to ``trim``.
+   Gauss-Newton from ``d0`` (and, while the prediction is uncertain, its standard deviation
+   above ``trim`` as in a young track, also from the shift of the boxes' centres, keeping the
+   start that pairs more points)::
+
+       A = sum n_j n_j^T,   g = sum n_j r_i,   (A + lambda I) delta = g - lambda (d - d0)
+
+   (``lambda = 1e-3``, a thousandth of one point's information, keeps unmeasured directions
+   at ``d0``), up to ``iterations`` times with new pairs, until a step under 0.1 mm.  It
+   fails with fewer than 3 pairs or fewer than ``min_overlap`` of the smaller side's usable
+   windows.  Rest is tested last: a displacement longer than ``trim`` gives way to the
+   registration from d = 0 (first trim distance ``trim``) when that keeps at least as many
+   pairs at most ``REST_VARIANCE`` times the residual variance.  (A row of small posts, as
+   BARN's, matches itself shifted by one post: a standing row so registered got 2.4 m/s in
+   one scan, its track then failed every later registration and kept that velocity, and
+   the robot drove into the row.)
+
+   Its information.  A smoothed residual's variance is ``sigma^2 (1 / m_i + 1 / m_j)`` for
+   window sizes m and range noise sigma, so ``sigma^2 = max(point_std^2, sum r^2 / sum(1 /
+   m_i + 1 / m_j) k / (k - 2))`` over the k pairs.  A normal taken from a chord of length l
+   between two noisy points turns by about ``sqrt(2) sigma / l``, which lends A spurious
+   information along the outline, where a straight wall has none; that expected leak ``L =
+   sum 2 sigma^2 / l_j^2 t_j t_j^T`` is removed twice over, and eigenvalues of ``A - 2 L``
+   below 2 (two points' worth) are set to 0: H.  The filter then takes d as a displacement,
+   ``d = p - c`` (``update_relative``), with covariance ``R = sigma^2 (H + lambda I)^-1``,
+   and its clone restarts at p.  Along a straight wall H is 0 and R huge, so the wall's
+   velocity along itself keeps its prior, 0.  When H measures one direction only (a wall, a
+   box face-on) the update moves the filter along that direction only (``free``, a consider
+   update): the registration measures along the face's true normal, not along its noisy
+   estimate, and the estimate's wobble from scan to scan would otherwise let the filter read
+   the along-face velocity out of noise.  Not the centroid of the raw cluster: a wall passed
+   by a moving robot, or a cylinder whose lit side turns as the robot drives round it, moves
+   its centroid without moving (``test_scan_tracker`` measures such a centroid's speed).
+   (Measured on simulated scans with 1 cm range noise: displacement errors 2-3 mm per scan,
+   their normalised squares averaging 0.7-0.9, so R is honest.)  A failed registration leaves
+   the filter predicted and restarts the clone.
+4. Classify.  The known velocity ``v`` is the filter's without its components along
+   eigenvectors of ``P_vv`` whose standard deviation exceeds ``max_velocity_std``;
+   ``sigma_v = sqrt(v^T P_vv v) / |v|`` is its standard deviation along itself.  A
+   registration passes when ``|v| > max(moving_speed, n_sigma sigma_v)``; after
+   ``moving_scans`` successive registrations that pass, the track is moving, after as many
+   that do not (a failed registration does not pass), it is still again.  The published
+   velocity is v for a confirmed moving track and exactly 0 otherwise; ``with_velocities``
+   gives it to the obstacles of the cluster.
+   (Along v, not along the worst axis: a box seen face-on is measured only across its face,
+   and its approach speed is known though its sideways speed is not.)
+
+Birth, confirmation, deletion.  A cluster no track takes starts a track at its centroid
+(position variance ``point_std^2``, velocity ``speed_std`` per axis) with one hit; each
+successful registration is a hit, and a track is confirmed from ``confirm_hits`` hits on.  A
+track not matched for more than ``max_coast`` seconds is dropped; until then a confirmed
+moving one stays an obstacle where its prediction puts it (``unseen_obstacles``).  A
+cluster whose bounding box's diagonal exceeds ``static_extent`` is structure: its track is
+matched, but neither registered nor classified (it keeps no outline), and publishes 0.
+Why: such clusters are walls and room corners (or objects linked to them); a phantom
+velocity on the wall beside the robot would let the filter drive into it, while moving
+objects that large are outside what this tracker is for; they hold most of a scan's
+points, so skipping them keeps the cost down; and keeping them away from small tracks keeps
+the room's box, which overlaps every object in it, out of every assignment.
+
+Accuracy (1081-beam scans at 10-20 Hz, ``test_scan_tracker``): a box or cylinder 2-4 m
+away moving at 0.3-2 m/s, seen from a robot standing or driving, gets its velocity within
+0.1 m/s from the fourth scan on with 5 mm range noise (the largest error in 40 random runs:
+0.055 m/s); with 1 cm noise the error is about 0.05 m/s rms and exceeded 0.1 m/s on 3 scans
+in 820.  A person accelerating at 1.5 m/s^2 is followed about 0.1 m/s behind.  Standing
+objects seen from a robot driving at up to 2 m/s and turning at up to 1 rad/s stay below
+``moving_speed`` (their filter's velocity peaks near 0.1 m/s with 1 cm noise), so they
+publish 0.
+
+Limits.  Clusters, not objects, are tracked: an object within ``cluster_tolerance`` of
+another (a person beside a wall) shares its cluster and track and loses its velocity until
+they part; of a cluster that splits, the part nearest the prediction keeps the track and the
+others start new ones, which publish after ``confirm_hits`` and ``moving_scans`` more scans.
+An outline shorter than ``span`` has no whole window and is never measured (it publishes 0);
+a box seen face-on publishes its velocity across the face only.  The measurement is a
+translation: a turning object registers with a small bias.  Several scan sources share the
+tracks, so a source that sees another side of an object registers it against the other
+source's outline (trimmed to their overlap).  A scan is not de-skewed.  A velocity that
+changes abruptly (a bounce) takes about a second to follow.
+
+Cost.  Two compiled kernels per scan, ``_gate`` (cluster boxes, prediction, gated costs,
+unique pairs, the padded matrix) and ``_advance`` (smoothing, in linear time and once per
+cluster, registration, filter update, classification, births, deletion, outlines), about
+thirty numpy calls around them, and ``linear_sum_assignment`` with ``_assign`` only when
+pairs are ambiguous: ``bench/bench_tracking.py``.  ``scipy.optimize`` (about half a second
+to import on the benchmark VM) is imported by the first ``ScanTracker`` made, not with this
+module.
+"""
+import math
+import numbers
+from dataclasses import dataclass
+from itertools import repeat
+from typing import NamedTuple
+
+import numpy as np
+
+from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, kernel, signature
+from polyc2bf_ros.core.obstacles.constant_velocity import predict_one, reclone_one, update_one
+from polyc2bf_ros.core.obstacles.marker_tracker import outline_polygon
+from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle
+
+RIDGE = 1.0e-3
+"""lambda: the prior information on the displacement, in points (module docstring, step 3)."""
+LEAK = 2.0
+"""kappa: how many times its expected size the information leaked by noisy normals is removed."""
+CORNER = math.cos(math.radians(45.0))
+"""A point where the chain turns by more than this angle is a corner and is not paired."""
+REST_VARIANCE = 2.0
+"""A registration is replaced by one from rest (d = 0, trim ``trim``) that keeps as many pairs
+with at most this many times its residual variance (module docstring, step 3)."""
+MIN_INFORMATION = 2.0
+"""An eigenvalue of H below this many points' worth of information is taken as none."""
+STRIDE = 3.0
+"""Registration pairs every (mean window size / STRIDE)-th centroid of a dense chain."""
+WALK = 2
+"""How many outline points either side of the last pair the nearest-point search looks at."""
+FAR = 1.0e6
+"""The cost of a pair outside the gate [m] (real costs are a few metres at most)."""
+UNSEEN_VERTICES = 8
+"""Vertices of an unseen moving track's polygon at most (``unseen_obstacles``)."""
+UNSEEN_THICKNESS = 0.05
+"""m: the thickness given to an unseen track's outline when it is straight."""
+ZERO = np.zeros(2)  # the velocity of every track that is not published: shared, read-only
+ZERO.flags.writeable = False
+
+# Columns of the per-track arrays: floats (bounding box, centroid, last matched stamp) and
+# integers (id, hits, moving streak, moving, outline first, size).  A track's filter state
+# is [p, v, c] (``constant_velocity``, with the clone c of its position at its outline).
+LOW, HIGH, CENTROID, SEEN, TRACK_FLOATS = 0, 2, 4, 6, 7
+ID, HITS, STREAK, MOVING, FIRST, SIZE, TRACK_INTS = 0, 1, 2, 3, 4, 5, 6
+# Entries of the settings vector the kernels read.
+(GATE, ACCEL, SPEED, POINT, TRIM, SPAN, ITERATIONS, OVERLAP, CONFIRM, COAST, MOVING_SPEED,
+ SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING, ORIGIN_X, ORIGIN_Y, PARAMETERS) = range(21)
+I2 = 'i8[:, ::1]'
+B2 = 'b1[:, ::1]'
+
+
+class TrackEstimate(NamedTuple):
+    """A cluster's track: its id, published velocity (2,), and the filter's confidence.
+
+    ``velocity`` [m/s]: zeros unless the track is ``confirmed`` and ``moving``;
+    ``velocity_std`` [m/s]: the filter's velocity standard deviation along its worst axis.
+    """
+
+    track_id: int
+    velocity: np.ndarray
+    velocity_std: float
+    confirmed: bool
+    moving: bool
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    """How clusters are tracked (module docstring); checked when made (``validate``).
+
+    - ``gate`` [m] 0.3, > 0: the largest gap between a track's predicted bounding box and a
+      cluster's (an object at 2 m/s moves 0.2 m between scans at 10 Hz before its track
+      knows its speed).
+    - ``accel_std`` [m s^-3/2] 0.3, > 0: the filter's white-noise acceleration, whose
+      spectral density ``accel_std^2`` lets the velocity wander 0.3 m/s in a second (one
+      sigma).  With 1 cm range noise it follows a person accelerating at 1.5 m/s^2 about
+      0.1 m/s behind and holds a constant velocity to about 0.05 m/s (rms); larger values
+      follow faster and hold worse.
+    - ``speed_std`` [m/s] 2.0, > 0: the velocity's standard deviation at birth.
+    - ``point_std`` [m] 0.01, > 0: the least range noise assumed of a point (the noise is
+      estimated from the residuals; this keeps noise-free data from being trusted blindly).
+    - ``trim`` [m] 0.05, > 0: the final trim distance of a residual.
+    - ``span`` [m] 0.1, > 0: the width of the windows an outline is smoothed over and its
+      normals taken across (longer: less noise, more of each end unused).
+    - ``iterations`` 8, >= 1: Gauss-Newton iterations at most.
+    - ``min_overlap`` 0.3, in [0, 1]: the fewest pairs of a registration, as a share of the
+      whole windows of the smaller side.
+    - ``confirm_hits`` 3, >= 1: hits (birth and successful registrations) to confirm.
+    - ``max_coast`` [s] 0.5, >= 0: how long an unmatched track is kept.
+    - ``moving_speed`` [m/s] 0.15, >= 0: the least speed of a moving track; standing
+      objects are measured well below it.
+    - ``n_sigma`` 2.5, >= 0: the least speed of a moving track, in standard deviations.
+    - ``moving_scans`` 3, >= 1: successive registrations to start or stop moving.
+    - ``max_velocity_std`` [m/s] 0.3, > 0: a velocity component known worse than this is
+      not used (taken as 0) to classify or publish.
+    - ``static_extent`` [m] 3.0, > 0: clusters with a longer bounding-box diagonal are
+      structure.
+    - ``max_backstep`` [s] 0.25, >= 0: a stamp this much before the newest resets the
+      tracker.
+    - ``pose_std`` [m] 0, >= 0, and ``heading_std`` [rad] 0, >= 0: the noise of the
+      odometry pose each scan is placed at.  Two scans' poses err independently, so a
+      displacement measured between them gains ``2 (pose_std^2 + r^2 heading_std^2)`` of
+      variance per axis, r the cluster's range from the sensor (``update``'s ``origin``):
+      with it, a standing object shaken by the pose noise is not taken for a moving one.
+    """
+
+    gate: float = 0.3
+    accel_std: float = 0.3
+    speed_std: float = 2.0
+    point_std: float = 0.01
+    trim: float = 0.05
+    span: float = 0.1
+    iterations: int = 8
+    min_overlap: float = 0.3
+    confirm_hits: int = 3
+    max_coast: float = 0.5
+    moving_speed: float = 0.15
+    n_sigma: float = 2.5
+    moving_scans: int = 3
+    max_velocity_std: float = 0.3
+    static_extent: float = 3.0
+    max_backstep: float = 0.25
+    pose_std: float = 0.0
+    heading_std: float = 0.0
+
+    def __post_init__(self):
+        """Refuse settings out of range (``validate``)."""
+        self.validate()
+
+    def validate(self):
+        """Raise ValueError naming the first field out of range, in one line."""
+        for name, positive in (('gate', True), ('accel_std', True), ('speed_std', True),
+                               ('point_std', True), ('trim', True), ('span', True),
+                               ('max_coast', False), ('moving_speed', False),
+                               ('n_sigma', False), ('max_velocity_std', True),
+                               ('static_extent', True),
+                               ('max_backstep', False), ('pose_std', False),
+                               ('heading_std', False)):
+            value = getattr(self, name)
+            if (isinstance(value, bool) or not isinstance(value, numbers.Real)
+                    or not math.isfinite(value) or value < 0 or (positive and value == 0)):
+                bound = '> 0' if positive else '>= 0'
+                raise ValueError(f'{name} must be a finite number {bound}, got {value!r}')
+        for name in ('iterations', 'confirm_hits', 'moving_scans'):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+                raise ValueError(f'{name} must be an integer >= 1, got {value!r}')
+        value = self.min_overlap
+        if (isinstance(value, bool) or not isinstance(value, numbers.Real)
+                or not 0 <= value <= 1):
+            raise ValueError(f'min_overlap must be a number in [0, 1], got {value!r}')
+
+    def vector(self, link):
+        """Return the settings as the kernels read them (``link``: the cluster tolerance)."""
+        values = np.zeros(PARAMETERS)  # ORIGIN_X, ORIGIN_Y: set per scan (``update``)
+        values[[GATE, ACCEL, SPEED, POINT, TRIM, SPAN, ITERATIONS, OVERLAP, CONFIRM, COAST,
+                MOVING_SPEED, SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING]] = (
+            self.gate, self.accel_std, self.speed_std, self.point_std, self.trim, self.span,
+            self.iterations, self.min_overlap, self.confirm_hits, self.max_coast,
+            self.moving_speed, self.n_sigma, self.moving_scans, self.max_velocity_std,
+            self.static_extent, link, self.pose_std, self.heading_std)
+        return values
+
+
+DEFAULT_TRACKER_SETTINGS = TrackerSettings()
+
+
+@kernel
+def _smooth(points, first, count, span, out, sums):
+    """Fill ``out[:count]`` (7 columns) for the chain ``points[first:first + count]`` (step 3).
+
+    Per point j, its window a..b = j - w..j + w with w the largest whose end points lie at
+    most ``span`` apart (found from the previous point's w, and summed from the running sums
+    ``sums`` (count + 1, 2): linear in the chain's length).  Row j: the window's centroid
+    c_j (2), the unit tangent (2) and length of the chord from point min(a, j - 1) to point
+    max(b, j + 1) (clipped to the chain), the window's size m_j, and 1 when the window is
+    whole (it stopped at ``span``, not at an end of the chain, and the chain does not turn
+    at point j by more than ``CORNER``'s angle between the chord's halves), else 0.
+    """
+    span_sq = span * span
+    sums[0, 0] = sums[0, 1] = 0.0
+    for k in range(count):
+        sums[k + 1, 0] = sums[k, 0] + points[first + k, 0]
+        sums[k + 1, 1] = sums[k, 1] + points[first + k, 1]
+    w = 0
+    for j in range(count):
+        w = max(min(w - 1, j, count - 1 - j), 0)
+        while w > 0 and _chord_sq(points, first, j - w, j + w) > span_sq:
+            w -= 1
+        whole = 0.0
+        while True:
+            if w >= j or w >= count - 1 - j:
+                break
+            if _chord_sq(points, first, j - w - 1, j + w + 1) > span_sq:
+                whole = 1.0
+                break
+            w += 1
+        a, b = j - w, j + w
+        size = b - a + 1
+        out[j, 0] = (sums[b + 1, 0] - sums[a, 0]) / size
+        out[j, 1] = (sums[b + 1, 1] - sums[a, 1]) / size
+        start = min(a, j - 1) if j > 0 else a
+        stop = max(b, j + 1) if j < count - 1 else b
+        qx, qy = points[first + j, 0], points[first + j, 1]
+        bx, by = qx - points[first + start, 0], qy - points[first + start, 1]
+        fx, fy = points[first + stop, 0] - qx, points[first + stop, 1] - qy
+        if bx * fx + by * fy < CORNER * math.sqrt((bx * bx + by * by) * (fx * fx + fy * fy)):
+            whole = 0.0  # the chain turns at point j: a corner, whose line is ambiguous
+        tx, ty = bx + fx, by + fy
+        length = math.sqrt(tx * tx + ty * ty)
+        if length > 0.0:
+            out[j, 2], out[j, 3], out[j, 4] = tx / length, ty / length, length
+        else:
+            out[j, 2], out[j, 3], out[j, 4] = 1.0, 0.0, 0.0
+        out[j, 5] = size
+        out[j, 6] = whole
+
+
+@kernel
+def _chord_sq(points, first, a, b):
+    """Return the squared distance between chain points a and b."""
+    ex = points[first + b, 0] - points[first + a, 0]
+    ey = points[first + b, 1] - points[first + a, 1]
+    return ex * ex + ey * ey
+
+
+@kernel
+def _nearest(outline, count, j, x, y, reach_sq):
+    """Return (j, squared distance) of the outline centroid (rows of ``outline``) nearest (x, y).
+
+    From row ``j`` (-1: none yet) the search looks ``WALK`` rows either side and moves to
+    the nearest, until that is where it stands; the whole outline is searched at the start
+    and when the walk stops farther than ``reach_sq``.
+    """
+    if j >= 0:
+        best = (x - outline[j, 0]) ** 2 + (y - outline[j, 1]) ** 2
+        while True:
+            at = j
+            for k in range(max(at - WALK, 0), min(at + WALK + 1, count)):
+                distance = (x - outline[k, 0]) ** 2 + (y - outline[k, 1]) ** 2
+                if distance < best:
+                    best, j = distance, k
+            if j == at:
+                break
+        if best <= reach_sq:
+            return j, best
+    else:
+        j, best = 0, (x - outline[0, 0]) ** 2 + (y - outline[0, 1]) ** 2
+    for k in range(count):
+        distance = (x - outline[k, 0]) ** 2 + (y - outline[k, 1]) ** 2
+        if distance < best:
+            best, j = distance, k
+    return j, best
+
+
+@kernel
+def _eigen(a, b, d):
+    """Return (m, h, ux, uy) of the symmetric [[a, b], [b, d]].
+
+    Its eigenvalues are m +- h, and (ux, uy) is the unit eigenvector of m + h.
+    """
+    middle, half = 0.5 * (a + d), math.hypot(0.5 * (a - d), b)
+    if b != 0.0:
+        ux, uy = middle + half - d, b
+        norm = math.sqrt(ux * ux + uy * uy)
+        return middle, half, ux / norm, uy / norm
+    if a >= d:
+        return middle, half, 1.0, 0.0
+    return middle, half, 0.0, 1.0
+
+
+@kernel
+def _register_pair(current, start, size, outline, first, count, gx0, gy0, reach, params,
+                   result):
+    """Register one smoothed chain onto another (rows of ``_smooth``; step 3).
+
+    The chain is ``current[start:start + size]``, the outline ``outline[first:first +
+    count]``; ``(gx0, gy0)``: d0; ``reach``: the first trim distance.  ``result`` (10,): d (2), H's
+    ``xx, xy, yy``, the kept pairs k (0: failed, or H is 0), sigma^2, the whole windows of
+    the smaller side, and the unit direction H does not measure ((0, 0) when it measures
+    both).
+    """
+    result[:] = 0.0
+    result[0], result[1] = gx0, gy0
+    if count < 3 or size < 3:
+        return
+    outline = outline[first:first + count]
+    current = current[start:start + size]
+    trim, link = params[TRIM], params[LINK]
+    whole_old = whole_new = 0
+    windows = 0.0
+    for j in range(count):
+        whole_old += outline[j, 6] > 0.0
+    for i in range(size):
+        if current[i, 6] > 0.0:
+            whole_new += 1
+            windows += current[i, 5]
+    result[7] = min(whole_old, whole_new)
+    # Neighbouring centroids share most of their windows: pairing every stride-th one, each
+    # weighted by the stride, measures about as well for a fraction of the work.
+    stride = max(int(windows / max(whole_new, 1) / STRIDE), 1)
+    dx, dy = gx0, gy0
+    cut = max(reach, trim)
+    axx = axy = ayy = lxx = lxy = lyy = rss = spread = 0.0
+    kept = pairs = 0
+    for _ in range(int(params[ITERATIONS])):
+        axx = axy = ayy = gx = gy = lxx = lxy = lyy = rss = spread = 0.0
+        kept = pairs = 0
+        j = -1
+        reach_sq = (cut + link) * (cut + link)
+        for i in range(0, size, stride):
+            if current[i, 6] == 0.0:
+                continue
+            x, y = current[i, 0] - dx, current[i, 1] - dy
+            j, best = _nearest(outline, count, j, x, y, reach_sq)
+            if best > reach_sq or outline[j, 6] == 0.0 or outline[j, 4] == 0.0:
+                continue  # too far, or at (or beyond) the outline's ends
+            tx, ty = outline[j, 2], outline[j, 3]
+            r = (y - outline[j, 1]) * tx - (x - outline[j, 0]) * ty  # n . e, n = (-ty, tx)
+            if abs(r) > cut:
+                continue
+            axx += stride * ty * ty
+            axy -= stride * tx * ty
+            ayy += stride * tx * tx
+            gx -= stride * ty * r
+            gy += stride * tx * r
+            weight = stride / (outline[j, 4] * outline[j, 4])
+            lxx += weight * tx * tx
+            lxy += weight * tx * ty
+            lyy += weight * ty * ty
+            rss += r * r
+            spread += 1.0 / current[i, 5] + 1.0 / outline[j, 5]
+            kept += stride
+            pairs += 1
+        if pairs < 3:
+            return
+        bxx, byy = axx + RIDGE, ayy + RIDGE
+        rx = gx - RIDGE * (dx - gx0)
+        ry = gy - RIDGE * (dy - gy0)
+        det = bxx * byy - axy * axy
+        step_x = (byy * rx - axy * ry) / det
+        step_y = (bxx * ry - axy * rx) / det
+        dx += step_x
+        dy += step_y
+        final = cut <= trim
+        cut = max(trim, 0.5 * cut)
+        if final and step_x * step_x + step_y * step_y < 1.0e-8:  # under 0.1 mm
+            break
+    variance = max(params[POINT] ** 2, rss / spread * pairs / max(pairs - 2, 1))
+    scale = LEAK * 2.0 * variance
+    hxx, hxy, hyy = axx - scale * lxx, axy - scale * lxy, ayy - scale * lyy
+    middle, half, ux, uy = _eigen(hxx, hxy, hyy)
+    result[0], result[1] = dx, dy
+    if middle + half < MIN_INFORMATION:
+        return  # measures nothing
+    result[2], result[3], result[4] = (middle + half) * ux * ux, (middle + half) * ux * uy, \
+        (middle + half) * uy * uy
+    if middle - half >= MIN_INFORMATION:
+        result[2] += (middle - half) * uy * uy
+        result[3] -= (middle - half) * ux * uy
+        result[4] += (middle - half) * ux * ux
+    else:
+        result[8], result[9] = -uy, ux
+    result[5], result[6] = kept, variance
+
+
+@kernel(signature('void', F2, F2, F1, 'f8', F1, F1))
+def register_outline(new, old, guess, reach, params, result):
+    """Register the chain ``new`` onto the outline ``old`` from d0 = ``guess`` (step 3).
+
+    ``params``: ``TrackerSettings.vector``; ``result`` (10,) as ``_register_pair``'s.
+    """
+    if params.shape[0] != PARAMETERS or result.shape[0] != 10 or new.shape[1] != 2 \
+            or old.shape[1] != 2 or guess.shape[0] != 2:
+        raise ValueError('register_outline: new and old must be (n, 2), guess (2,), params '
+                         'TrackerSettings.vector(...), result (10,)')
+    outline = np.empty((old.shape[0], 7))
+    current = np.empty((new.shape[0], 7))
+    sums = np.empty((max(old.shape[0], new.shape[0]) + 1, 2))
+    _smooth(old, 0, old.shape[0], params[SPAN], outline, sums)
+    _smooth(new, 0, new.shape[0], params[SPAN], current, sums)
+    _register_pair(current, 0, new.shape[0], outline, 0, old.shape[0], guess[0], guess[1],
+                   reach, params, result)
+
+
+@kernel(signature('UniTuple(i8, 2)', F2, I1, F2, F3, F2, 'i8', 'f8', F1, F2, B1, F2, I1, I1,
+                  I1, I1, F1))
+def _gate(points, starts, states, covariances, tracks, count, dt, params, stats, structure,
+          cost, match, claimed, rows, columns, padded):
+    """Run steps 1 and 2 up to the ambiguous pairs; return their (tracks R, clusters K).
+
+    Fills ``stats`` (C, 6) (bounding box low, high, centroid per cluster), ``structure``
+    (C,), predicts the ``count`` tracks, fills ``cost`` (count, C) (FAR outside the gate, or
+    between structure and a track whose last cluster was not, or the other way round),
+    ``match`` (count,) / ``claimed`` (C,): the partner of a unique pair, else -1; and for
+    the ambiguous ones their indices ``rows[:R]``, ``columns[:K]`` and the (R + K)^2
+    row-major matrix ``padded`` for ``linear_sum_assignment``: squared costs, ``gate^2`` on
+    the diagonals of the off blocks (unpaired), FAR^2 elsewhere, 0 in the corner block.
+    Returns (-1, 0) and does nothing else when a cluster is empty or a point not finite.
+    """
+    clusters = starts.shape[0] - 1
+    for c in range(clusters):
+        if starts[c + 1] <= starts[c]:
+            return -1, 0
+    for i in range(points.shape[0]):
+        if not (math.isfinite(points[i, 0]) and math.isfinite(points[i, 1])):
+            return -1, 0
+    extent_sq = params[EXTENT] * params[EXTENT]
+    for c in range(clusters):
+        lx = hx = points[starts[c], 0]
+        ly = hy = points[starts[c], 1]
+        sx = sy = 0.0
+        for i in range(starts[c], starts[c + 1]):
+            x, y = points[i, 0], points[i, 1]
+            lx, hx, ly, hy = min(lx, x), max(hx, x), min(ly, y), max(hy, y)
+            sx += x
+            sy += y
+        size = starts[c + 1] - starts[c]
+        stats[c, 0], stats[c, 1], stats[c, 2], stats[c, 3] = lx, ly, hx, hy
+        stats[c, 4], stats[c, 5] = sx / size, sy / size
+        structure[c] = (hx - lx) ** 2 + (hy - ly) ** 2 > extent_sq
+        claimed[c] = 0
+    q = params[ACCEL] * params[ACCEL]
+    gate_sq = params[GATE] * params[GATE]
+    for t in range(count):
+        predict_one(states[t], covariances[t], dt, q)
+        track = tracks[t]
+        gx, gy = states[t, 0] - states[t, 4], states[t, 1] - states[t, 5]
+        large = ((track[HIGH] - track[LOW]) ** 2
+                 + (track[HIGH + 1] - track[LOW + 1]) ** 2 > extent_sq)
+        match[t] = 0
+        for c in range(clusters):
+            if structure[c] != large:
+                cost[t, c] = FAR  # structure pairs with structure only
+                continue
+            wx = max(max(stats[c, 0] - track[HIGH] - gx, track[LOW] + gx - stats[c, 2]), 0.0)
+            wy = max(max(stats[c, 1] - track[HIGH + 1] - gy,
+                         track[LOW + 1] + gy - stats[c, 3]), 0.0)
+            if wx * wx + wy * wy <= gate_sq:
+                cost[t, c] = 0.5 * (math.hypot(stats[c, 0] - track[LOW] - gx,
+                                               stats[c, 1] - track[LOW + 1] - gy)
+                                    + math.hypot(stats[c, 2] - track[HIGH] - gx,
+                                                 stats[c, 3] - track[HIGH + 1] - gy))
+                match[t] += 1
+                claimed[c] += 1
+            else:
+                cost[t, c] = FAR
+    ambiguous = 0
+    for t in range(count):
+        candidates = match[t]
+        match[t] = -1
+        if candidates == 0:
+            continue
+        if candidates == 1:
+            for c in range(clusters):
+                if cost[t, c] < FAR and claimed[c] == 1:
+                    match[t] = c
+                    claimed[c] = -3 - t  # paired; decoded below
+        if match[t] == -1:
+            rows[ambiguous] = t
+            ambiguous += 1
+    width = 0
+    for c in range(clusters):
+        if claimed[c] <= -3:
+            claimed[c] = -3 - claimed[c]
+        elif claimed[c] == 0:
+            claimed[c] = -1
+        else:
+            claimed[c] = -1
+            columns[width] = c
+            width += 1
+    size = ambiguous + width
+    alone, far = params[GATE] * params[GATE], FAR * FAR
+    for i in range(size):
+        for j in range(size):
+            if i < ambiguous and j < width:
+                value = cost[rows[i], columns[j]] ** 2
+            elif i < ambiguous:
+                value = alone if j - width == i else far
+            elif j < width:
+                value = alone if i - ambiguous == j else far
+            else:
+                value = 0.0
+            padded[i * size + j] = value
+    return ambiguous, width
+
+
+@kernel(signature('void', I1, I1, I1, I1, 'i8', 'i8', F1, I1, I1))
+def _assign(chosen_rows, chosen_columns, rows, columns, ambiguous, width, padded, match,
+            claimed):
+    """Apply ``linear_sum_assignment``'s answer on ``_gate``'s padded matrix (step 2)."""
+    size = ambiguous + width
+    for k in range(chosen_rows.shape[0]):
+        i, j = chosen_rows[k], chosen_columns[k]
+        if i < ambiguous and j < width and padded[i * size + j] < FAR * FAR:
+            match[rows[i]] = columns[j]
+            claimed[columns[j]] = rows[i]
+
+
+@kernel
+def _known_velocity(state, P, limit):
+    """Return the filter's velocity without its components whose std exceeds ``limit``.
+
+    The velocity block ``P_vv = [[a, b], [b, d]]`` has eigenvalues ``(a + d) / 2 +- sqrt(((a
+    - d) / 2)^2 + b^2)``; the velocity's component along each eigenvector whose eigenvalue
+    exceeds ``limit^2`` is removed.
+    """
+    middle, half, ux, uy = _eigen(P[2, 2], P[2, 3], P[3, 3])
+    vx, vy = state[2], state[3]
+    limit_sq = limit * limit
+    if middle + half > limit_sq:
+        along = vx * ux + vy * uy
+        vx, vy = vx - along * ux, vy - along * uy
+    if middle - half > limit_sq:
+        along = -vx * uy + vy * ux
+        vx, vy = vx + along * uy, vy - along * ux
+    return vx, vy
+
+
+@kernel
+def _classify(state, P, track, params, registered):
+    """Step 4 for a matched track: count passes and flip ``track[MOVING]``.
+
+    A failed registration (``registered`` false) does not pass.
+    """
+    vx, vy = _known_velocity(state, P, params[KNOWN])
+    speed_sq = vx * vx + vy * vy
+    along_sq = vx * vx * P[2, 2] + 2.0 * vx * vy * P[2, 3] + vy * vy * P[3, 3]
+    passes = (registered and speed_sq > params[MOVING_SPEED] ** 2
+              and speed_sq * speed_sq > params[SIGMAS] ** 2 * along_sq)
+    if passes != (track[MOVING] == 1):
+        track[STREAK] += 1
+    else:
+        track[STREAK] = 0
+    if track[STREAK] >= params[SCANS]:
+        track[MOVING] = 1 - track[MOVING]
+        track[STREAK] = 0
+
+
+@kernel
+def _measure(smoothed, starts, c, box, storage, state, P, floats, ints, params, H, result,
+             other, scratch):
+    """Register cluster c onto the track's outline and update its filter (step 3).
+
+    ``smoothed``: the cluster's rows of ``_smooth``; ``box``: its bounding box; ``storage``:
+    the outline's rows.  When the predicted displacement is uncertain (its std above
+    ``trim``: a young track) the registration also starts from the shift of the boxes'
+    centres and the start that keeps more pairs wins.  Return whether the registration
+    succeeded.  Either way the clone restarts at the track's position, for the cluster's
+    points are its next outline.
+    """
+    gx, gy = state[0] - state[4], state[1] - state[5]
+    spread = P[0, 0] + P[1, 1] - 2.0 * (P[0, 4] + P[1, 5]) + P[4, 4] + P[5, 5]
+    reach = min(params[TRIM] + 3.0 * math.sqrt(max(spread, 0.0)), params[GATE])
+    size = starts[c + 1] - starts[c]
+    _register_pair(smoothed, starts[c], size, storage, ints[FIRST], ints[SIZE], gx, gy, reach,
+                   params, result)
+    if spread > params[TRIM] ** 2:
+        bx = 0.5 * (box[0] + box[2] - floats[LOW] - floats[HIGH])
+        by = 0.5 * (box[1] + box[3] - floats[LOW + 1] - floats[HIGH + 1])
+        _register_pair(smoothed, starts[c], size, storage, ints[FIRST], ints[SIZE], bx, by,
+                       reach, params, other)
+        if other[5] > result[5] or (other[5] == result[5] and other[6] < result[6]):
+            result[:] = other
+    if result[5] > 0.0 and result[0] * result[0] + result[1] * result[1] > params[TRIM] ** 2:
+        _register_pair(smoothed, starts[c], size, storage, ints[FIRST], ints[SIZE], 0.0, 0.0,
+                       params[TRIM], params, other)
+        if other[5] >= result[5] and other[6] <= REST_VARIANCE * result[6]:
+            result[:] = other
+    kept = result[5]
+    good = kept >= 3 and kept >= params[OVERLAP] * result[7]
+    if good:
+        hxx, hxy, hyy, variance = result[2] + RIDGE, result[3], result[4] + RIDGE, result[6]
+        det = hxx * hyy - hxy * hxy
+        # The two scans' pose errors (``pose_std``, ``heading_std`` at the cluster's range).
+        rx, ry = box[4] - params[ORIGIN_X], box[5] - params[ORIGIN_Y]
+        pose = 2.0 * (params[POSE] ** 2 + (rx * rx + ry * ry) * params[HEADING] ** 2)
+        update_one(state, P, H, result[0] - gx, result[1] - gy, variance * hyy / det + pose,
+                   -variance * hxy / det, variance * hxx / det + pose, result[8], result[9],
+                   scratch)
+    reclone_one(state, P)
+    return good
+
+
+@kernel(signature('UniTuple(i8, 2)', F2, I1, F2, B1, I1, I1, F2, F3, F2, I2, 'i8', 'f8', F1,
+                  F2, F2, I1, F2, B2, I1))
+def _advance(points, starts, stats, structure, match, claimed, states, covariances, floats,
+             ints, count, stamp, params, storage, new_storage, next_id, out, flags, ids):
+    """Run steps 3 and 4, births, deletion and outlines; return (tracks, outline rows).
+
+    Arrays as ``_gate``'s, plus the per-track ``floats`` and ``ints`` (capacity at least
+    ``count`` + clusters), the smoothed outlines' ``storage`` and ``new_storage`` (7
+    columns, rows at least ``len(points) + len(storage)``; structure tracks keep none),
+    ``next_id`` (1,); per cluster ``out`` (C, 3): the published velocity and the worst-axis
+    velocity standard deviation, ``flags`` (C, 3): confirmed, moving, published, and
+    ``ids`` (C,).  Every cluster but structure is smoothed once, here.
+    """
+    clusters = starts.shape[0] - 1
+    smoothed = np.empty((points.shape[0], 7))
+    widest = 0
+    for c in range(clusters):
+        widest = max(widest, starts[c + 1] - starts[c])
+    sums = np.empty((widest + 1, 2))
+    for c in range(clusters):
+        if not structure[c]:
+            _smooth(points, starts[c], starts[c + 1] - starts[c], params[SPAN],
+                    smoothed[starts[c]:], sums)
+    result = np.empty(10)
+    other = np.empty(10)
+    scratch = np.empty((18, 6))
+    relative = np.zeros((2, 6))  # H of a displacement, p - c
+    relative[0, 0] = relative[1, 1] = 1.0
+    relative[0, 4] = relative[1, 5] = -1.0
+    for t in range(count):
+        c = match[t]
+        if c < 0:
+            continue
+        if not structure[c]:
+            registered = _measure(smoothed, starts, c, stats[c], storage, states[t],
+                                  covariances[t], floats[t], ints[t], params, relative,
+                                  result, other, scratch)
+            ints[t, HITS] += registered
+            _classify(states[t], covariances[t], ints[t], params, registered)
+        else:
+            reclone_one(states[t], covariances[t])
+            ints[t, MOVING] = ints[t, STREAK] = 0
+        floats[t, SEEN] = stamp
+        for k in range(6):
+            floats[t, LOW + k] = stats[c, k]
+    total = count
+    for c in range(clusters):
+        if claimed[c] >= 0:
+            continue
+        claimed[c] = total
+        states[total, :] = 0.0
+        states[total, 0], states[total, 1] = stats[c, 4], stats[c, 5]
+        covariances[total, :, :] = 0.0
+        covariances[total, 0, 0] = covariances[total, 1, 1] = params[POINT] ** 2
+        covariances[total, 2, 2] = covariances[total, 3, 3] = params[SPEED] ** 2
+        reclone_one(states[total], covariances[total])
+        for k in range(6):
+            floats[total, LOW + k] = stats[c, k]
+        floats[total, SEEN] = stamp
+        ints[total, :] = 0
+        ints[total, ID] = next_id[0]
+        ints[total, HITS] = 1
+        next_id[0] += 1
+        total += 1
+    row_cluster = np.full(total, -1)
+    for c in range(clusters):
+        row_cluster[claimed[c]] = c
+    kept = used = 0
+    for t in range(total):
+        c = row_cluster[t]
+        if c < 0 and stamp - floats[t, SEEN] > params[COAST]:
+            continue
+        if kept != t:
+            states[kept, :] = states[t, :]
+            covariances[kept, :, :] = covariances[t, :, :]
+            floats[kept, :] = floats[t, :]
+            ints[kept, :] = ints[t, :]
+        if c >= 0:
+            size = 0 if structure[c] else starts[c + 1] - starts[c]
+            new_storage[used:used + size, :] = smoothed[starts[c]:starts[c] + size, :]
+            claimed[c] = kept
+        else:
+            size = ints[kept, SIZE]
+            first = ints[kept, FIRST]
+            new_storage[used:used + size, :] = storage[first:first + size, :]
+        ints[kept, FIRST], ints[kept, SIZE] = used, size
+        used += size
+        kept += 1
+    for c in range(clusters):
+        t = claimed[c]
+        P = covariances[t]
+        a, b, d = P[2, 2], P[2, 3], P[3, 3]
+        out[c, 2] = math.sqrt(max(0.5 * (a + d) + math.hypot(0.5 * (a - d), b), 0.0))
+        confirmed = ints[t, HITS] >= params[CONFIRM]
+        moving = ints[t, MOVING] == 1 and not structure[c]
+        published = confirmed and moving
+        vx, vy = _known_velocity(states[t], P, params[KNOWN])
+        out[c, 0] = vx if published else 0.0
+        out[c, 1] = vy if published else 0.0
+        flags[c, 0], flags[c, 1], flags[c, 2] = confirmed, moving, published
+        ids[c] = ints[t, ID]
+    return kept, used
+
+
+class ScanTracker:
+    """Tracks of scan clusters with constant-velocity estimates (module docstring).
+
+    ``update(stamp, clusters)`` per scan; ``link`` [m]: the scan conversion's
+    ``cluster_tolerance`` (how far a paired centroid may lie from its outline centroid
+    beyond the trim distance).
+    """
+
+    def __init__(self, settings=DEFAULT_TRACKER_SETTINGS, link=0.15):
+        """Start with no tracks."""
+        settings.validate()
+        if not (isinstance(link, numbers.Real) and math.isfinite(link) and link >= 0):
+            raise ValueError(f'link must be a finite number >= 0, got {link!r}')
+        # scipy.optimize takes about half a second to import: paid by the first tracker made,
+        # not by every process that imports this module.
+        from scipy.optimize import linear_sum_assignment
+        self._solve = linear_sum_assignment
+        self.settings = settings
+        self._params = settings.vector(float(link))
+        self._next_id = np.zeros(1, dtype=np.int64)
+        self.reset()
+
+    def reset(self):
+        """Drop every track (ids keep counting)."""
+        self._stamp = None
+        self._count = 0
+        self._allocate(16)
+        self._storage = np.zeros((0, 7))
+
+    def _allocate(self, capacity):
+        """Make room for ``capacity`` tracks, keeping the live ones."""
+        arrays = (np.zeros((capacity, 6)), np.zeros((capacity, 6, 6)),
+                  np.zeros((capacity, TRACK_FLOATS)), np.zeros((capacity, TRACK_INTS),
+                                                               dtype=np.int64))
+        if self._count:
+            for new, old in zip(arrays, (self._states, self._covariances, self._floats,
+                                         self._ints)):
+                new[:self._count] = old[:self._count]
+        self._states, self._covariances, self._floats, self._ints = arrays
+
+    def __len__(self):
+        """Return the number of tracks held."""
+        return self._count
+
+    def update(self, stamp, clusters, origin=(0.0, 0.0)):
+        """Take one scan's clusters at ``stamp`` [s]; return one ``TrackEstimate`` per cluster.
+
+        ``clusters``: (n_i, 2) arrays of points in chain order, n_i >= 1 (``scan_obstacles``
+        with ``with_clusters=True``); ``origin``: the sensor's position (ranges for
+        ``heading_std``).  Malformed input raises ValueError.
+        """
+        stamp = float(stamp)
+        if not math.isfinite(stamp):
+            raise ValueError(f'stamp must be a finite number, got {stamp!r}')
+        self._params[ORIGIN_X], self._params[ORIGIN_Y] = origin
+        if self._stamp is not None and stamp < self._stamp - self.settings.max_backstep:
+            self.reset()
+        dt = 0.0 if self._stamp is None else max(stamp - self._stamp, 0.0)
+        self._stamp = stamp if self._stamp is None else max(stamp, self._stamp)
+        cluster_count = len(clusters)
+        starts = np.zeros(cluster_count + 1, dtype=np.int64)
+        if cluster_count:
+            np.cumsum(np.fromiter(map(len, clusters), dtype=np.int64, count=cluster_count),
+                      out=starts[1:])
+            points = np.concatenate(clusters).astype(np.float64, order='C', copy=False)
+            if points.ndim != 2 or points.shape[1] != 2:
+                raise ValueError('clusters must be non-empty (n, 2) arrays of finite numbers')
+        else:
+            points = np.zeros((0, 2))
+        count = self._count
+        if count + cluster_count > len(self._states):
+            self._allocate(2 * (count + cluster_count))
+        stats = np.empty((cluster_count, 6))
+        structure = np.empty(cluster_count, dtype=bool)
+        cost = np.empty((count, cluster_count))
+        match = np.empty(count, dtype=np.int64)
+        claimed = np.empty(cluster_count, dtype=np.int64)
+        rows = np.empty(count, dtype=np.int64)
+        columns = np.empty(cluster_count, dtype=np.int64)
+        padded = np.empty((count + cluster_count) ** 2)
+        ambiguous, width = _gate.unchecked(points, starts, self._states, self._covariances,
+                                           self._floats, count, dt, self._params, stats,
+                                           structure, cost, match, claimed, rows, columns,
+                                           padded)
+        if ambiguous < 0:
+            raise ValueError('clusters must be non-empty (n, 2) arrays of finite numbers')
+        if ambiguous:
+            size = ambiguous + width
+            chosen_rows, chosen_columns = self._solve(padded[:size * size].reshape(size, size))
+            _assign.unchecked(chosen_rows, chosen_columns, rows, columns, ambiguous, width,
+                              padded, match, claimed)
+        storage = np.empty((len(points) + len(self._storage), 7))
+        out = np.empty((cluster_count, 3))
+        flags = np.empty((cluster_count, 3), dtype=bool)
+        ids = np.empty(cluster_count, dtype=np.int64)
+        self._count, used = _advance.unchecked(
+            points, starts, stats, structure, match, claimed, self._states, self._covariances,
+            self._floats, self._ints, count, stamp, self._params, self._storage, storage,
+            self._next_id, out, flags, ids)
+        self._storage = storage[:used]
+        velocities = out[:, :2]
+        velocities.flags.writeable = False
+        published = flags[:, 2].nonzero()[0].tolist()
+        shown = [ZERO] * cluster_count
+        for c in published:
+            shown[c] = velocities[c]
+        # tuple.__new__ straight from C: a NamedTuple's own constructor is a Python call.
+        return list(map(tuple.__new__, repeat(TrackEstimate),
+                        zip(ids.tolist(), shown, out[:, 2].tolist(), flags[:, 0].tolist(),
+                            flags[:, 1].tolist())))
+
+    def unseen_moving(self):
+        """Return (outline (k, 2), velocity (2,)) of each moving track the last scan missed.
+
+        A confirmed moving track that no cluster of the newest scan took (hidden behind or
+        inside another object, out of view, or merged into another track's cluster) is
+        kept for up to ``max_coast`` s; here its outline (the smoothed centroids it last
+        matched) is moved to its predicted position, ``+ p - c``, with its known velocity.
+        (Moving cylinders that pass through each other merge into one cluster that keeps
+        one track's velocity; the other, unpublished, came out of it at the robot.)
+        """
+        count, known = self._count, self._params[KNOWN]
+        if not count:
+            return []
+        ints, floats = self._ints[:count], self._floats[:count]
+        unseen = ((floats[:, SEEN] < self._stamp) & (ints[:, MOVING] == 1)
+                  & (ints[:, HITS] >= self._params[CONFIRM]) & (ints[:, SIZE] > 0))
+        result = []
+        for t in unseen.nonzero()[0].tolist():
+            state, first = self._states[t], ints[t, FIRST]
+            outline = self._storage[first:first + ints[t, SIZE], :2] + (state[:2] - state[4:6])
+            result.append((outline, np.array(_known_velocity(state, self._covariances[t],
+                                                             known))))
+        return result
+
+    def tracks(self):
+        """Return (ids (T,), states (T, 4), covariances (T, 4, 4)) of the tracks held (copies).
+
+        States are [x, y, vx, vy] (the filter's, the clone left out).
+        """
+        count = self._count
+        return (self._ints[:count, ID].copy(), self._states[:count, :4].copy(),
+                self._covariances[:count, :4, :4].copy())
+
+
+def with_velocities(obstacles, owner, estimates):
+    """Return the scan's obstacles with the velocities their clusters' tracks publish.
+
+    ``obstacles``, ``owner``: from ``scan_to_obstacles(..., with_clusters=True)``;
+    ``estimates``: ``ScanTracker.update`` of its clusters.  An obstacle whose track publishes
+    0 is returned as it is (the shared zero velocity); the others become new ``Obstacle``s,
+    same polygon and key, with velocity ``(vx, vy, 0)``.
+    """
+    moving = {index for index, estimate in enumerate(estimates) if estimate.moving
+              and estimate.confirmed and estimate.velocity.any()}
+    if not moving:
+        return list(obstacles)
+    result = []
+    for obstacle, index in zip(obstacles, owner.tolist()):
+        if index in moving:
+            velocity = np.zeros(3)
+            velocity[:2] = estimates[index].velocity
+            velocity.flags.writeable = False
+            obstacle = Obstacle(polygon=obstacle.polygon, velocity=velocity,
+                                z_min=obstacle.z_min, z_max=obstacle.z_max, key=obstacle.key)
+        result.append(obstacle)
+    return result
+
+
+def unseen_obstacles(tracker, prefix=''):
+    """Return obstacles for the moving tracks the last scan missed (``unseen_moving``).
+
+    Each is its outline's enclosing polygon (at most ``UNSEEN_VERTICES`` vertices; a
+    straight outline ``UNSEEN_THICKNESS`` thick) with the track's velocity, keyed
+    ``<prefix>unseen/<i>``; an outline that makes no polygon is left out.
+    """
+    result = []
+    for index, (outline, velocity) in enumerate(tracker.unseen_moving()):
+        try:
+            polygon = outline_polygon(outline, UNSEEN_THICKNESS, UNSEEN_VERTICES)
+        except ValueError:
+            continue
+        result.append(Obstacle(polygon=polygon, velocity=np.array([*velocity, 0.0]),
+                               key=f'{prefix}unseen/{index}'))
+    return result
