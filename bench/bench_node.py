@@ -10,7 +10,10 @@ Three processes per measurement, so the driver cannot be the bottleneck:
   reference for what the default's extra work costs; or a bare
   **echo** node that republishes each command (the floor: DDS plus Python),
   spun by this package's ``LeanExecutor`` (``echo``) or by ``rclpy.spin``
-  (``echo_rclpy``);
+  (``echo_rclpy``); and, to compare executors, ``echo_events`` (``echo`` on rclpy's
+  ``EventsExecutor``) and ``command_events`` (``command``, same parameters, spun by
+  ``EventsExecutor`` instead of ``LeanExecutor``: bench/events_executor_subject.py,
+  which says what the pinned rclpy needs for it); not run unless named;
 - the **sender** (this file, ``--role sender``): publishes odometry and a
   stamped command, both serialized in advance, every ``1/rate`` s on a fixed
   schedule; the command's ``header.frame_id`` is its sequence number and both
@@ -42,7 +45,7 @@ percentiles 0, 0.5, ..., 100) and beside it ``node.png``, those distributions
 against the targets.  DDS stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
 
     .venv/bin/python bench/bench_node.py [--rate 1000] [--obstacles 50] [--duration 10]
-        [--subjects echo echo_rclpy command timer]
+        [--subjects echo echo_rclpy command timer] [--out /tmp/node.json]
 
 ``--obstacle-updates`` instead times the node's obstacle handling in-process
 (``run_obstacle_updates``): messages shaped like the sim bridge's (``--robots``
@@ -68,6 +71,7 @@ import numpy as np
 import rclpy
 from bench_io import require_installed_checkout, write_records
 from diagnostic_msgs.msg import DiagnosticArray
+from events_executor_subject import SlicedEventsExecutor
 from geometry_msgs.msg import Point, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -88,10 +92,13 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SEQ_DIGITS = 10  # fixed-width sequence numbers keep the serialized layout fixed
 STAMP = struct.Struct('<iI')
-SUBJECTS = ('echo', 'echo_rclpy', 'command', 'timer', 'command_eq7')
+SUBJECTS = ('echo', 'echo_rclpy', 'command', 'timer', 'command_eq7')  # the default
+EVENTS_SUBJECTS = ('echo_events', 'command_events')  # rclpy's EventsExecutor, on request
+EVENTS_NODE = Path(__file__).with_name('events_executor_subject.py')
 #: subject -> (trigger, extra node parameters)
 FILTER_SUBJECTS = {
     'command': ('command', ()),
+    'command_events': ('command', ()),
     'timer': ('timer', ()),
     'command_eq7': ('command', ('filter.barrier:=polyc2bf_inflated', 'filter.cone_axis:=midpoint',
                                 'filter.braking_check:=false')),
@@ -148,24 +155,31 @@ def subject_args(subject, rate):
     if subject.startswith('echo'):
         return [sys.executable, __file__, '--role', subject]
     trigger, extra = FILTER_SUBJECTS[subject]
-    return [sys.executable, '-m', 'polyc2bf_ros.safety_filter_node', '--ros-args',
+    node = ([str(EVENTS_NODE)] if subject in EVENTS_SUBJECTS
+            else ['-m', 'polyc2bf_ros.safety_filter_node'])
+    return [sys.executable, *node, '--ros-args',
             '-r', f'__ns:={NAMESPACE}', '-p', 'model:=unicycle', '-p', f'trigger:={trigger}',
             '-p', 'stamped:=true', '-p', f'rate:={float(rate)}',
             '-p', 'obstacles_timeout:=0.0', '-p', 'cmd_timeout:=0.5',
             *[arg for value in extra for arg in ('-p', value)], '--log-level', 'warn']
 
 
-def run_echo(lean):
-    """Bare echo: every command is republished as it came (plus an idle odometry subscription)."""
+def run_echo(role):
+    """Bare echo: every command is republished as it came (plus an idle odometry subscription).
+
+    ``echo`` and ``echo_events``: serialized in and out, like the filter node, on
+    ``LeanExecutor`` or rclpy's ``EventsExecutor``; ``echo_rclpy``: typed messages on
+    rclpy's ``SingleThreadedExecutor``.
+    """
     rclpy.init()
     node = rclpy.create_node('safety_filter', namespace=NAMESPACE)
-    if lean:  # serialized in and out, like the filter node
+    if role != 'echo_rclpy':
         publisher = node.create_publisher(TwistStamped, 'cmd_vel_out', COMMANDS)
         node.create_subscription(Odometry, 'odom', lambda data: None, 1, raw=True)
         node.create_subscription(TwistStamped, 'cmd_vel_in', publisher.publish, COMMANDS,
                                  raw=True)
-        executor = LeanExecutor()
-    else:  # typed messages and rclpy's stock executor
+        executor = LeanExecutor() if role == 'echo' else SlicedEventsExecutor()
+    else:
         publisher = node.create_publisher(TwistStamped, 'cmd_vel_out', COMMANDS)
         node.create_subscription(Odometry, 'odom', lambda msg: None, 1)
         node.create_subscription(TwistStamped, 'cmd_vel_in', publisher.publish, COMMANDS)
@@ -543,14 +557,16 @@ def plot_latency(records, path):
 def main(argv=None):
     """Run the node benchmark for each subject and rate; print the table and write the JSON."""
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-    parser.add_argument('--role', choices=('bench', 'sender', 'echo', 'echo_rclpy'),
+    parser.add_argument('--role', choices=('bench', 'sender', 'echo', 'echo_rclpy',
+                                           'echo_events'),
                         default='bench', help=argparse.SUPPRESS)
     parser.add_argument('--count', type=int, help=argparse.SUPPRESS)
     parser.add_argument('--rate', type=float, nargs='+', default=[1000.0], help='Hz')
     parser.add_argument('--obstacles', type=int, default=50)
     parser.add_argument('--duration', type=float, default=10.0, help='measured seconds')
     parser.add_argument('--warmup', type=float, default=2.0, help='seconds before measuring')
-    parser.add_argument('--subjects', nargs='+', choices=SUBJECTS, default=list(SUBJECTS))
+    parser.add_argument('--subjects', nargs='+', choices=SUBJECTS + EVENTS_SUBJECTS,
+                        default=list(SUBJECTS))
     parser.add_argument('--out', type=Path, help=f'default {RESULTS}, or '
                         f'{OBSTACLE_RESULTS} with --obstacle-updates')
     parser.add_argument('--obstacle-updates', action='store_true',
@@ -568,7 +584,7 @@ def main(argv=None):
     if args.role == 'sender':
         return run_sender(args.rate[0], args.count)
     if args.role.startswith('echo'):
-        return run_echo(lean=args.role == 'echo')
+        return run_echo(args.role)
     require_installed_checkout()
     if args.obstacle_updates:
         records = run_obstacle_updates(args.obstacles, args.robots, args.moving, args.messages)
