@@ -23,7 +23,7 @@ from polyc2bf_ros.core.decision import DEADLOCK_DEFAULTS, RESOLUTIONS, ROUTE_DEF
 from polyc2bf_ros.core.geometry.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
 from polyc2bf_ros.core.safety_filter import FilterConfig
-from polyc2bf_ros.obstacle_intake import IntakeSettings, MAX_OBSTACLES
+from polyc2bf_ros.obstacle_settings import IntakeSettings, MAX_OBSTACLES
 
 NODE_NAME = 'safety_filter'
 # With ``trigger: command`` the node's timer (stale-command stops) runs at most this often.

@@ -1,10 +1,13 @@
-"""Obstacle messages -> a prepared ``ObstacleSet``, off the control path, with bounded work.
+"""Obstacle messages -> a prepared ``ObstacleSet``, off the control path: the transport.
+
+This module moves the work to a worker process and the snapshots back; the work itself
+is ``obstacle_pipeline`` and its parameters ``obstacle_settings``.
 
 The subscription callback only queues the serialized message (``submit``: an append and an
 event, microseconds).  All obstacle work runs in a **worker process**
 (``python -m polyc2bf_ros.obstacle_intake``, started by ``start``), fed by a thread of the
 node that takes everything queued at once, so a flood is conflated rather than replayed.
-Per pass (``ObstaclePipeline.run``):
+Per pass (``obstacle_pipeline.ObstaclePipeline.run``):
 
 1. every queued message is read (``cdr_reader.read_marker_array``); an unreadable one
    marks the input unreadable until a readable one follows it;
@@ -50,259 +53,21 @@ If the worker process dies, the obstacles it held are lost: the snapshot stays u
 ``process`` waits until everything submitted before the call (messages, frame, settings)
 has been processed (tests, tools); without ``start`` it runs the pipeline in the caller.
 """
-import dataclasses
-import math
 import os
 import pickle
 import signal
 import subprocess
 import sys
 import threading
-from typing import NamedTuple
 
-import numpy as np
-
-from polyc2bf_ros import cdr_reader, marker_obstacles
-from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.decision import ObstacleSnapshot
-from polyc2bf_ros.core.geometry.polygon_limits import MAX_PARTS, MAX_VERTICES
-from polyc2bf_ros.core.obstacles.marker_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
-from polyc2bf_ros.core.obstacles.scan_conversion import pose_at, scan_to_obstacles, ScanSettings
-from polyc2bf_ros.core.obstacles.scan_tracker import ScanTracker, TrackerSettings, unseen_obstacles
-from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
+from polyc2bf_ros.obstacle_pipeline import ObstacleJob, ObstaclePipeline
+from polyc2bf_ros.obstacle_settings import IntakeSettings
 
-MAX_OBSTACLES = 1000
 # Odometry samples a scan is matched against: 0.2 s of 1 kHz odometry, 4 s of 50 Hz.
 ODOMETRY_HISTORY = 200
 _PROTOCOL = pickle.HIGHEST_PROTOCOL
-
-
-class IntakeSettings(NamedTuple):
-    """How markers become obstacles (node parameters of the same names)."""
-
-    wall_thickness: float = 0.05
-    cylinder_sides: int = 12
-    max_vertices: int = MAX_VERTICES
-    max_parts: int = MAX_PARTS
-    max_obstacles: int = MAX_OBSTACLES
-    sensor_pose: tuple = (0.0, 0.0, 0.0)
-    scan_cluster_tolerance: float = 0.15
-    scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
-    scan_obstacle_depth: float = 0.10
-    scan_tracking: bool = True
-    odom_position_std: float = 0.0
-    odom_heading_std: float = 0.0
-
-
-class ScanObstacles(NamedTuple):
-    """One scan's obstacles: the scan's stamp [s], ``Obstacle`` list, cluster per obstacle.
-
-    ``origin``: the sensor's position (x, y) in the odometry frame when the scan was taken.
-
-    ``owner[i]`` indexes ``clusters``, the endpoints (n, 2) of each cluster in the odometry
-    frame (``scan_to_obstacles(..., with_clusters=True)``).
-    """
-
-    stamp: float
-    obstacles: list
-    owner: np.ndarray
-    clusters: list
-    origin: tuple = (0.0, 0.0)
-
-
-class ScanStatus(NamedTuple):
-    """One scan topic: receipt times of its last accepted and last scan, rejections."""
-
-    accepted: object = None
-    received: object = None
-    rejected: int = 0
-    reason: str = ''
-
-
-class ObstacleJob(NamedTuple):
-    """One pass: messages [(data, received)], odometry frame, settings, geometry, stamp [s].
-
-    ``data`` is a serialized MarkerArray, or a MarkerArray message (offline replay).
-    ``scans``: the newest scan per topic, ``(topic, data, received, odometry samples
-    ((stamp [s], x, y, yaw), ...), odometry child frame)``; ``transforms``: serialized
-    ``/tf_static`` messages, oldest first.
-    """
-
-    messages: list
-    frame: object
-    settings: IntakeSettings
-    geometry: ObstacleGeometry
-    now: float
-    scans: tuple = ()
-    transforms: tuple = ()
-
-
-class ObstaclePipeline:
-    """Steps 1-3 of the module docstring, with the tracker they keep between passes."""
-
-    def __init__(self):
-        """Start with no obstacles and no filter to prepare for."""
-        self._tracker = ObstacleTracker()
-        self._unreadable = ''
-        self._received = None
-        self._scans = {}  # topic: (stamp [s], its obstacles)
-        self._scan_tracker = self._tracking = None  # made on the first tracked scan
-        self._static = StaticTransforms()
-        self.scan_status = {}  # topic: ScanStatus
-
-    def run(self, job):
-        """Process one ``ObstacleJob``; return the ``ObstacleSnapshot``."""
-        markers = []
-        for data, received in job.messages:
-            try:
-                markers += (cdr_reader.read_marker_array(data) if isinstance(data, bytes)
-                            else data).markers
-            except ValueError as exc:
-                self._unreadable = f'malformed obstacle message: {exc}'
-                continue
-            self._unreadable, self._received = '', received
-        settings, tracker = job.settings, self._tracker
-        dim = job.geometry.dim
-        for data in job.transforms:
-            self._static.update(data)
-        for scan in job.scans:
-            self._take_scan(*scan, settings, job.geometry.robot_radius)
-        marker_obstacles.apply_markers(
-            tracker, cdr_reader.MarkerArrayView(tuple(marker_obstacles.conflate_markers(markers))),
-            job.now, settings.wall_thickness, settings.cylinder_sides,
-            (settings.max_vertices, settings.max_parts))
-        obstacles, t_ref, wrong_frame, error = ObstacleSet.empty(), math.nan, {}, ''
-        if job.frame is not None:
-            try:
-                if self._scans:
-                    obstacles, t_ref, wrong_frame = self._combined(job.frame, dim, settings)
-                else:
-                    obstacles, t_ref, wrong_frame = tracker.obstacle_set(
-                        job.frame, dim, settings.max_parts, settings.max_obstacles)
-                job.geometry.prepare(obstacles)
-            except ValueError as exc:
-                obstacles, error = ObstacleSet.empty(), f'obstacle set could not be built: {exc}'
-        return ObstacleSnapshot(
-            obstacles=obstacles, t_ref=t_ref, received=self._received,
-            rejected=tracker.rejected, wrong_frame=wrong_frame, invalid=tracker.has_invalid,
-            unreadable=self._unreadable, error=error, tracked=len(tracker),
-            simplified=tracker.simplified, hulled=obstacles.capped)
-
-    def _combined(self, frame, dim, settings):
-        """Return (markers and scans as one ``ObstacleSet``, t_ref, wrong_frame).
-
-        ``t_ref`` is the newest stamp among the markers and the scans; every obstacle is
-        moved along its velocity from its own stamp to it.
-        """
-        markers, marker_ref, wrong_frame = self._tracker.snapshot(frame, dim)
-        stamps = [stamp for stamp, _ in self._scans.values()]
-        t_ref = max(stamps + ([marker_ref] if markers else []))
-        obstacles = [_moved(o, t_ref - marker_ref) for o in markers]
-        obstacles += [_moved(o, t_ref - stamp)
-                      for stamp, scan in self._scans.values() for o in scan]
-        result = ObstacleSet.from_obstacles(obstacles, settings.max_parts)
-        if len(result) > settings.max_obstacles:
-            raise ValueError(f'{len(result)} obstacle parts exceed max_obstacles '
-                             f'({settings.max_obstacles})')
-        return result, t_ref, wrong_frame
-
-    def _take_scan(self, topic, data, received, odometry, base_frame, settings, radius):
-        """Convert one serialized LaserScan of ``topic``; a bad one is counted, not used."""
-        status = self.scan_status.get(topic, ScanStatus())
-        try:
-            scan = read_scan(data, odometry, base_frame, settings, radius, self._static)
-        except ValueError as exc:
-            self.scan_status[topic] = status._replace(
-                received=received, rejected=status.rejected + 1, reason=str(exc))
-            return
-        velocities, unseen = [STILL_3D] * len(scan.clusters), []
-        if settings.scan_tracking:
-            # Unstamped scans and odometry: the tracker times them by their receipt.
-            clock = scan.stamp if scan.stamp > 0.0 else received
-            link = float(settings.scan_cluster_tolerance)
-            tracking = (link, float(settings.odom_position_std),
-                        float(settings.odom_heading_std))
-            if tracking != self._tracking:  # clusters link at the scan's own tolerance
-                self._scan_tracker = ScanTracker(TrackerSettings(
-                    pose_std=tracking[1], heading_std=tracking[2]), link=link)
-                self._tracking = tracking
-            velocities = [np.array([*track.velocity, 0.0])
-                          for track in self._scan_tracker.update(clock, scan.clusters,
-                                                                 scan.origin)]
-            unseen = unseen_obstacles(self._scan_tracker, f'{topic}:')
-        self._scans[topic] = (scan.stamp, [
-            dataclasses.replace(o, key=f'{topic}:{o.key}', velocity=velocities[cluster])
-            for o, cluster in zip(scan.obstacles, scan.owner.tolist())] + unseen)
-        self.scan_status[topic] = status._replace(accepted=received, received=received)
-
-
-
-def _moved(obstacle, dt):
-    """Return ``obstacle`` moved along its velocity for ``dt`` [s] (itself when it stands)."""
-    velocity = np.asarray(obstacle.velocity, dtype=float)
-    if dt == 0.0 or not velocity[:2].any():
-        return obstacle
-    return dataclasses.replace(obstacle, polygon=obstacle.polygon + velocity[:2] * dt)
-
-
-STILL_3D = np.zeros(3)
-STILL_3D.flags.writeable = False
-
-
-def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=None):
-    """Return the ``ScanObstacles`` of a serialized LaserScan; ValueError says why it is unusable.
-
-    ``odometry``: samples ``(stamp [s], x, y, yaw)`` of the base in the odometry frame,
-    oldest first (empty: no odometry yet); the scan is taken at the one stamped nearest its
-    ``header.stamp`` (``pose_at``).  A scan in another frame than ``base_frame`` (the
-    odometry child frame) was taken where the ``StaticTransforms`` ``transforms`` put that
-    frame, else at ``settings.sensor_pose``; a non-finite transform on the way refuses the
-    scan.  Every range NaN is refused (no measurement at all).
-    """
-    # Imported on the first scan: a worker without scan input does not pay for them.
-    from rclpy.serialization import deserialize_message
-    from sensor_msgs.msg import LaserScan
-    if not odometry:
-        raise ValueError('no odometry yet: the robot pose at the scan is unknown')
-    try:
-        scan = deserialize_message(data, LaserScan)
-    except Exception as exc:  # noqa: BLE001 - any decoding failure is a malformed message
-        raise ValueError(f'malformed LaserScan: {exc}') from None
-    stamp = scan.header.stamp.sec + 1e-9 * scan.header.stamp.nanosec
-    robot_pose = pose_at(odometry, stamp)
-    ranges = scan.ranges
-    if len(ranges) == 0:
-        raise ValueError('LaserScan without ranges')
-    if len(scan.intensities) not in (0, len(ranges)):
-        raise ValueError(f'LaserScan with {len(ranges)} ranges but {len(scan.intensities)} '
-                         'intensities')
-    ranges = np.asarray(ranges, dtype=np.float64)
-    if np.isnan(ranges).all():
-        raise ValueError('LaserScan whose ranges are all NaN')
-    sensor_pose = _sensor_pose(scan.header.frame_id.lstrip('/'), base_frame, settings,
-                               transforms)
-    radius = settings.scan_footprint_radius
-    scan_settings = ScanSettings(cluster_tolerance=float(settings.scan_cluster_tolerance),
-                                 footprint_radius=float(robot_radius if radius < 0 else radius),
-                                 depth=float(settings.scan_obstacle_depth))
-    obstacles, owner, clusters = scan_to_obstacles(
-        ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max,
-        sensor_pose, robot_pose, scan_settings, with_clusters=True)
-    # An unstamped scan is taken at the latest odometry sample (``pose_at``): its stamp too.
-    x, y, yaw = robot_pose
-    origin = (x + math.cos(yaw) * sensor_pose[0] - math.sin(yaw) * sensor_pose[1],
-              y + math.sin(yaw) * sensor_pose[0] + math.cos(yaw) * sensor_pose[1])
-    return ScanObstacles(stamp if stamp > 0.0 else float(odometry[-1][0]), obstacles, owner,
-                         clusters, origin)
-
-
-def _sensor_pose(frame, base_frame, settings, transforms):
-    """Return ``(x, y, yaw)`` of a scan's ``frame`` in the base frame (``read_scan``)."""
-    if frame == base_frame:
-        return IDENTITY
-    pose = None if transforms is None else transforms.pose(base_frame, frame)
-    return tuple(settings.sensor_pose) if pose is None else pose
 
 
 def _encode(snapshot, last_base, scan_status=None):

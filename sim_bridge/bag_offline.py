@@ -11,7 +11,7 @@ into the node's decision, ``core.decision.ControlDecision``, configured from the
 parameter file(s) the node takes (rcl's YAML: the sections whose node name
 pattern matches ``/NS/safety_filter``, e.g. ``/**/safety_filter``) plus ``-p``
 overrides, with the node's defaults for the rest.  Obstacles go through the
-node's own pipeline (``obstacle_intake.ObstaclePipeline``, in process), and the log
+node's own pipeline (``obstacle_pipeline.ObstaclePipeline``, in process), and the log
 times stand in for the node's steady clock.
 
 Each recorded safe command (``/NS/cmd_vel_out`` / ``/NS/wrench_out``, stamped
@@ -34,7 +34,7 @@ import numpy as np
 from polyc2bf_ros import conversions
 from polyc2bf_ros.core.decision import ControlDecision
 from polyc2bf_ros.filter_parameters import build_filter
-from polyc2bf_ros.obstacle_intake import ObstacleJob, ObstaclePipeline
+from polyc2bf_ros.obstacle_pipeline import ObstacleJob, ObstaclePipeline
 from sim_bridge.bag_player import log, ReplayError, stamp_ns
 from sim_bridge.bag_reader import BagReader
 

@@ -73,7 +73,7 @@ from polyc2bf_ros.core.decision import ControlDecision, ObstacleSnapshot
 from polyc2bf_ros.core.models import crazyflie
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters, NODE_PARAMETERS
-from polyc2bf_ros.obstacle_intake import ObstacleJob, ObstaclePipeline
+from polyc2bf_ros.obstacle_pipeline import ObstacleJob, ObstaclePipeline
 from sim_bridge.actuation import Actuation, CommandPipe, Odometry
 from sim_bridge.launcher import (
     body_parameters,
@@ -366,7 +366,7 @@ class _ScanView:
     bridge publishes it and, at the start of the next control period, goes with the
     pose (x, y, yaw) of that period's odometry as the only odometry sample (the node takes
     the odometry stamped nearest the scan: in lockstep, that one) to the node's own
-    obstacle pipeline (``obstacle_intake.ObstaclePipeline``:
+    obstacle pipeline (``obstacle_pipeline.ObstaclePipeline``:
     ``scan_obstacles``, then the ``ObstacleSet``, prepared for the filter), which has had
     the empty marker set the bridge sends in scan mode.  The snapshot holds until the next
     scan; its obstacles have velocity 0.
@@ -414,7 +414,7 @@ class _MarkerView:
     (``bridge_node``: a static prism as its LINE_STRIP outline at z_min with ``scale.z`` its
     height; a moving one as the same outline about a pose at its vertex mean; every other
     robot as a CYLINDER of its radius; frame ``world``, stamped with the period's time) runs
-    through the robot's own ``obstacle_intake.ObstaclePipeline``, as the node's obstacle
+    through the robot's own ``obstacle_pipeline.ObstaclePipeline``, as the node's obstacle
     worker runs it: conflation, the ``ObstacleTracker`` (shapes kept while only poses
     change, the set translated, not rebuilt) and the prepared ``ObstacleSet``.  It goes as
     the message, not serialized (the pipeline's offline-replay input; the marker functions

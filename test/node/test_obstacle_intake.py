@@ -10,7 +10,8 @@ from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacles.marker_tracker import ObstacleTracker
 from polyc2bf_ros.core.safety_filter import FilterConfig
-from polyc2bf_ros.obstacle_intake import IntakeSettings, ObstacleIntake
+from polyc2bf_ros.obstacle_intake import ObstacleIntake
+from polyc2bf_ros.obstacle_settings import IntakeSettings
 
 SQUARE = [(3.0, -0.5), (4.0, -0.5), (4.0, 0.5), (3.0, 0.5), (3.0, -0.5)]
 

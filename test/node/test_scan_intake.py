@@ -10,12 +10,8 @@ from node_harness import markers, wall
 from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from polyc2bf_ros.obstacle_intake import (
-    IntakeSettings,
-    ObstacleJob,
-    ObstaclePipeline,
-    read_scan,
-)
+from polyc2bf_ros.obstacle_pipeline import ObstacleJob, ObstaclePipeline, read_scan
+from polyc2bf_ros.obstacle_settings import IntakeSettings
 from test_node_scan import _scan
 
 SPEC = ObstacleGeometry(make_model('unicycle'), FilterConfig())

@@ -7,12 +7,8 @@ from rclpy.serialization import serialize_message
 from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.safety_filter import FilterConfig
-from polyc2bf_ros.obstacle_intake import (
-    IntakeSettings,
-    ObstacleJob,
-    ObstaclePipeline,
-    read_scan,
-)
+from polyc2bf_ros.obstacle_pipeline import ObstacleJob, ObstaclePipeline, read_scan
+from polyc2bf_ros.obstacle_settings import IntakeSettings
 from polyc2bf_ros.static_transforms import read_tf_message, StaticTransforms
 from sim_bridge.cdr import tf_message_cdr
 from test_node_scan import _scan
