@@ -236,9 +236,9 @@ FILTER_FIELDS = tuple(f.name for f in dataclasses.fields(FilterConfig)
 class NodeSettings:
     """Everything the node derives from its parameters, built and validated together.
 
-    ``timeouts``: the watchdogs', ``obstacles`` only with ``use_markers``; the node adds one
-    per scan topic (``scan_topics``, deduplicated, each ``scan_timeout``, named by
-    ``scan_watchdog``); ``parameters`` is
+    ``timeouts``: the watchdogs', ``obstacles`` only with ``use_markers``; the node's
+    ``watchdog_timeouts`` add one per scan topic (``scan_topics``, deduplicated, each
+    ``scan_timeout``, named by ``scan_watchdog``); ``parameters`` is
     every value used (defaults filled in); ``ignored`` the names given that the node does not
     declare (callers report them).
     """
@@ -266,17 +266,36 @@ class NodeSettings:
         """Return the period of the node's timer: the step, or the stale-command check."""
         return max(self.period, COMMAND_WATCHDOG_PERIOD) if self.per_command else self.period
 
+    @property
+    def scan_watchdogs(self):
+        """Return ``{scan topic: the name of its watchdog}``."""
+        return {topic: scan_watchdog(topic) for topic in self.scan_topics}
+
+    @property
+    def watchdog_timeouts(self):
+        """Return the node's watchdog timeouts: ``timeouts`` and one per scan topic."""
+        return {**self.timeouts,
+                **dict.fromkeys(self.scan_watchdogs.values(), self.scan_timeout)}
+
 
 def scan_watchdog(topic):
     """Return the watchdog name of the scan topic ``topic`` (``scan_`` + its path)."""
     return 'scan_' + topic.strip('/').replace('/', '_')
 
 
-def build_settings(values, model=None):
+def _filter_values(values):
+    """Return what ``build_settings`` builds the ``CommandFilter`` from, besides the model."""
+    return ([values[name] for name in ('rate', 'velocity_tau', 'command_latency', 'actuator_tau')]
+            + [values[f'filter.{name}'] for name in FILTER_FIELDS])
+
+
+def build_settings(values, model=None, reuse=None):
     """Return ``NodeSettings`` from ``{name: value}``; ``ParameterError`` names what is wrong.
 
     ``values`` holds every node parameter (``model_params.*`` and ``filter.*`` included);
     ``model`` reuses an already built model instead of building one from ``model_params``.
+    ``reuse``: settings built before with that ``model``; their filter is taken when
+    ``values`` would build the same one, so checking a change of anything else builds none.
     """
     model_name = values['model']
     if model_name not in MODELS:
@@ -305,9 +324,12 @@ def build_settings(values, model=None):
         period = 1.0 / rate
         config = FilterConfig(control_period=period, **{
             name: values[f'filter.{name}'] for name in FILTER_FIELDS}).validate()
-        command_filter = CommandFilter(model, config, float(values['velocity_tau']),
-                                       float(values['command_latency']),
-                                       float(values['actuator_tau']))
+        if reuse is not None and _filter_values(reuse.parameters) == _filter_values(values):
+            command_filter = reuse.command_filter
+        else:
+            command_filter = CommandFilter(model, config, float(values['velocity_tau']),
+                                           float(values['command_latency']),
+                                           float(values['actuator_tau']))
     except (TypeError, ValueError) as exc:
         raise ParameterError(f'invalid filter parameters: {exc}') from None
     use_markers = bool(values['use_markers'])

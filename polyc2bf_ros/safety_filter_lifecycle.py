@@ -115,13 +115,11 @@ class SafetyFilterLifecycleNode(SafetyFilterMixin, LifecycleNode):
         of the command type when none came.
         """
         self._deactivate()
-        cmd = self._cmd or conversions.SerializedCommand(
+        cmd = self._commands.last or conversions.SerializedCommand(
             serialize_message(self._command_type()), self._has_header)
         self._publish_stop(cmd, self._decision.stop())
-        self._report_deadlock(False)
-        self._state = INACTIVE_STATE
-        self._publish_state()
-        self._state = None  # the timer must not repeat it once active again
+        self._reporter.report_deadlock(False)
+        self._reporter.publish_state_once(INACTIVE_STATE)
 
 
 def main(args=None):

@@ -2,7 +2,12 @@
 import pytest
 
 from polyc2bf_ros.core.decision import ControlDecision
-from polyc2bf_ros.filter_parameters import build_filter, load_parameters, ParameterError
+from polyc2bf_ros.filter_parameters import (
+    build_filter,
+    build_settings,
+    load_parameters,
+    ParameterError,
+)
 
 
 def test_parameter_files_match_node_names_like_rcl(tmp_path):
@@ -73,3 +78,20 @@ def test_scan_sources_are_checked_offline_as_in_the_node():
                           'scan_timeout': 0.0})
     assert setup.scan_topics == ('scan', '/scan') and setup.scan_timeout == 0.0
     assert setup.ignored == ()
+
+
+def test_a_change_that_keeps_the_filter_values_is_checked_without_building_a_filter():
+    """``reuse``: its filter when only other values change; a filter value builds a new one."""
+    setup = build_filter({'model': 'quadrotor', 'scan_topics': ['/robot/scan']})
+    model = setup.command_filter.model
+    changed = build_settings(dict(setup.parameters, odom_timeout=0.3), model, setup)
+    assert changed.command_filter is setup.command_filter and changed.timeouts['odom'] == 0.3
+    assert changed.watchdog_timeouts == {'odom': 0.3, 'cmd': 0.5, 'obstacles': 1.0,
+                                         'scan_robot_scan': 1.0}
+    with pytest.raises(ParameterError, match=r'odom_timeout \(0.005 s\) must exceed'):
+        build_settings(dict(setup.parameters, odom_timeout=0.005), model, setup)
+    with pytest.raises(ParameterError, match='command_latency applies to velocity models'):
+        build_settings(dict(setup.parameters, command_latency=0.1), model, setup)
+    rebuilt = build_settings(dict(setup.parameters, **{'filter.gamma': 2.0}), model, setup)
+    assert rebuilt.command_filter is not setup.command_filter
+    assert rebuilt.command_filter.safety_filter.config.gamma == 2.0

@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 import rclpy
 from geometry_msgs.msg import Twist
+from rclpy.parameter import Parameter
 from visualization_msgs.msg import Marker, MarkerArray
 
 from node_harness import Harness, node_log, odometry, REPO, twist, wall
@@ -94,11 +95,14 @@ def test_an_obstacle_pass_that_ends_after_destroy_node_is_ignored():
     """A feeder pass that ends after ``destroy_node`` wakes nothing and raises nothing.
 
     On a loaded machine ``destroy_node`` can give up waiting for the feeder thread's last
-    pass; that pass then found the guard condition destroyed: a traceback at Ctrl-C.
+    pass; that pass then found the guard condition destroyed: a traceback at Ctrl-C.  Only
+    ``match_stamps`` (its lockstep gate) has the feeder wake the node.
     """
     context = rclpy.Context()
     rclpy.init(context=context)
-    node = SafetyFilterNode(context=context)
+    node = SafetyFilterNode(context=context, parameter_overrides=[
+        Parameter('trigger', value='command'), Parameter('stamped', value=True),
+        Parameter('match_stamps', value=True)])
     node._obstacles_processed()  # the running node: the guard condition fires
     node.destroy_node()
     try:

@@ -49,7 +49,7 @@ def test_unreadable_obstacles_brake_until_a_readable_message():
         assert answer(frame='map') == 0.0
         counts = node._decision.counts
         assert counts['invalid_input'] == 2 and counts['stale_stop'] == 0
-        assert 'truncated' in node._last_invalid
+        assert 'truncated' in node._invalid.last
         take(good)
         assert answer(frame='map') > 0.4  # readable again; the wall is in another frame
         assert answer() > 0.4 and len(node._decision.snapshot.obstacles) == 1
