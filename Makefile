@@ -52,6 +52,9 @@ $(PKG_STAMP): $(DEPS_STAMP) $(PKG_SOURCES)
 	  echo "WARNING: the ahead-of-time kernel build failed (no C compiler or numba.pycc?);" \
 	       "the filter compiles its kernels just in time instead (numba's cache, slower start)"; }
 	@echo "== installing polyc2bf_ros into $(VENV)"
+	@# setuptools copies into build/ and never deletes there: a module moved or removed since
+	@# the last install would be installed again (and change the kernels' digest).
+	rm -rf build
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation .
 	@touch $@
 
