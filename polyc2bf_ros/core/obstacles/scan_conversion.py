@@ -1,5 +1,8 @@
 """Convex obstacle polygons from a 2-D laser scan (plain numbers and numpy arrays, no ROS).
 
+Over 500 lines on purpose: one algorithm, the steps below, each a short function, read
+top to bottom.
+
 Method, for a scan of N beams taken by a sensor at ``(s_x, s_y, s_yaw)`` in the robot's base
 frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry frame:
 
