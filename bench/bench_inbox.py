@@ -23,7 +23,8 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 
 from polyc2bf_ros.lean_executor import LeanExecutor  # noqa: E402
-from sim_bridge.bridge_node import COMMAND_QOS, Inbox  # noqa: E402
+from sim_bridge.bridge_node import COMMAND_QOS  # noqa: E402
+from sim_bridge.inbox import Inbox  # noqa: E402
 
 
 def waiter(kind, node):

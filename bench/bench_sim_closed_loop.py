@@ -181,7 +181,8 @@ def relay(source, target):
     from nav_msgs.msg import Odometry
     from rclpy.serialization import serialize_message
 
-    from sim_bridge.bridge_node import COMMAND_QOS, Inbox
+    from sim_bridge.bridge_node import COMMAND_QOS
+    from sim_bridge.inbox import Inbox
     rclpy, node = _lean_node(f'relay_{target}')
     publisher = node.create_publisher(TwistStamped, target, COMMAND_QOS)
     answer = serialize_message(TwistStamped())
@@ -203,7 +204,8 @@ def floor(hops, workdir):
     from nav_msgs.msg import Odometry
     from rclpy.serialization import serialize_message
 
-    from sim_bridge.bridge_node import COMMAND_QOS, Inbox
+    from sim_bridge.bridge_node import COMMAND_QOS
+    from sim_bridge.inbox import Inbox
     chain = ['odom', *(f'hop_{i}' for i in range(1, hops)), 'answer']
     env = {**os.environ, 'PYTHONPATH': str(REPO), 'ROS_LOG_DIR': str(workdir / 'log')}
     relays = [subprocess.Popen([sys.executable, __file__, '--relay', source, target], env=env,

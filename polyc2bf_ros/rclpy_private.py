@@ -5,7 +5,7 @@ one module, and ``test/node/test_rclpy_private.py`` fails loudly, naming what mo
 
 - ``WaitSet``: the rcl wait set (``rclpy_implementation.WaitSet``), filled with entity
   handles and read with ``get_ready_entities``, as ``rclpy.executors`` and
-  ``rclpy.wait_for_message`` use it (``lean_executor``, ``sim_bridge.bridge_node.Inbox``);
+  ``rclpy.wait_for_message`` use it (``lean_executor``, ``sim_bridge.inbox.Inbox``);
   the handles' ``take_message``, ``call_timer``, ``is_timer_ready``,
   ``service_take_request``, ``take_response`` and ``pointer`` belong with it;
 - ``logger_is_enabled_for`` / ``log``: rcutils logging without rclpy's caller lookup,

@@ -52,7 +52,8 @@ from pathlib import Path
 import numpy as np
 
 from sim_bridge.robots import DIFF_DRIVE_RADIUS
-from sim_bridge.scenario import FieldReader, SCENARIO_DIR, scenario_from_dict, ScenarioError
+from sim_bridge.scenario import FieldReader, SCENARIO_DIR, scenario_from_dict
+from sim_bridge.scenario_specs import ScenarioError
 
 # The shipped copy: <repo>/bench/data/barn from a checkout, <share>/polyc2bf_ros/bench/...
 # when installed (SCENARIO_DIR is <root>/config/scenarios in both).

@@ -85,12 +85,17 @@ not want) and ``/diagnostics``.
 Log time is sim time.  Published messages are serialized once (odometry
 and tf by ``sim_bridge.cdr``) and the same bytes are published and
 recorded; received ones are taken raw.  Messages are waited for on one rcl
-wait set of the bridge's subscriptions (``Inbox``), the executor turns every
+wait set of the bridge's subscriptions (``sim_bridge.inbox``), the executor turns every
 0.1 s (wall) for the parameter services.  SIGINT/SIGTERM
 close the bag cleanly (``close_on_signals``; rclpy's own handlers are off, the
 bag path being a parameter).  At the end of the scenario (exit 0, summary on
 stdout) or on shutdown the run metrics (``sim_bridge.metrics``) are written
 to ``metrics_path`` (default: ``metrics.json`` beside the bag directory).
+
+The markers are built by ``sim_bridge.bridge_markers``.  The rest is one module of over
+500 lines (100 of them this docstring) on purpose: ``BridgeNode``'s parameters, per-robot
+topics, publishing and recording of a period, lockstep waits and run loop all act on the
+node's one recorder, current stamp and robot list, which a cut would have to pass around.
 """
 import dataclasses
 import gc
@@ -102,10 +107,8 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -119,16 +122,16 @@ from rclpy.serialization import serialize_message
 from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import LaserScan
-from std_msgs.msg import ColorRGBA
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import MarkerArray
 
-from polyc2bf_ros import rclpy_private
 from polyc2bf_ros.conversions import SerializedCommand
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.loop_log import LoopLogger
 from polyc2bf_ros.node_main import CONFIGURATION_ERRORS, log_configuration_error
 from sim_bridge.bag_reader import message_class
+from sim_bridge.bridge_markers import ObstacleMarkers
 from sim_bridge.cdr import OdometryCdr, tf_message_cdr, TF_MESSAGE_TYPE
+from sim_bridge.inbox import Inbox
 from sim_bridge.lidar import (
     laser_scan,
     lidar_settings,
@@ -196,61 +199,12 @@ DIAGNOSTICS_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 RECEIVE_DEPTH = 100  # reader history of the bridge's subscriptions (recorded as offered above)
 STARTUP_RESEND = 0.25  # wall s between re-sends of the t = 0 topics while waiting
 SERVICE_PERIOD = 0.1  # wall s between turns of the executor for services; longest wait
-LINE_WIDTH = 0.02
-COLORS = {'static': ColorRGBA(r=0.6, g=0.6, b=0.6, a=0.9),
-          'moving': ColorRGBA(r=1.0, g=0.5, b=0.0, a=0.9),
-          'robot': ColorRGBA(r=0.2, g=0.4, b=1.0, a=0.6)}
 
 
 def stamp(ns):
     """Return builtin_interfaces/Time of ``ns`` nanoseconds."""
     sec, nanosec = divmod(ns, 1_000_000_000)
     return Time(sec=sec, nanosec=nanosec)
-
-
-def _point(x, y, z=0.0):
-    return Point(x=float(x), y=float(y), z=float(z))
-
-
-class Inbox:
-    """Wait on a node's subscriptions and pass each queued message to its callback.
-
-    The lean path of ``rclpy.wait_for_message``: one rcl wait set built once,
-    refilled with the same handles per wait; every queued message is taken.
-    This serves subscriptions only (the executor serves the parameter services
-    every ``SERVICE_PERIOD``).  The bridge waits several times per period
-    between physics steps, and ``LeanExecutor`` keeps its plan only within
-    ``spin``: each ``spin_once`` rebuilds its entity lists, wait set and handle
-    holds, as ``SingleThreadedExecutor.spin_once`` does.  bench/bench_inbox.py
-    (4 subscriptions, parameter services, 2 shared cores): a round of 4
-    messages costs 41-62 us CPU here, 300-420 us with ``LeanExecutor`` and
-    390-660 us with ``SingleThreadedExecutor``; an empty wait 27-30 us against
-    286-302 and 259-275 us.  Private rclpy API, as in ``rclpy.wait_for_message``:
-    ``rclpy_implementation.WaitSet`` and the subscription handles'
-    ``take_message`` and ``pointer``.
-    """
-
-    def __init__(self, node):
-        """Take ``node``'s subscriptions as they are now (none may be destroyed meanwhile)."""
-        self._subscriptions = [(s.handle, s.handle.pointer, s.msg_type, s.raw, s.callback)
-                               for s in node.subscriptions]
-        self._wait_set = rclpy_private.WaitSet(len(self._subscriptions), 0, 0, 0, 0, 0,
-                                        node.context.handle)
-
-    def wait(self, timeout):
-        """Wait up to ``timeout`` s for messages, then run the callback of each one taken."""
-        wait_set = self._wait_set
-        wait_set.clear_entities()
-        for handle, *_ in self._subscriptions:
-            wait_set.add_subscription(handle)
-        wait_set.wait(int(timeout * 1e9))
-        ready = wait_set.get_ready_entities('subscription')
-        for handle, pointer, msg_type, raw, callback in self._subscriptions:
-            if pointer in ready:
-                taken = handle.take_message(msg_type, raw)
-                while taken is not None:
-                    callback(taken[0])
-                    taken = handle.take_message(msg_type, raw)
 
 
 @dataclasses.dataclass
@@ -342,7 +296,7 @@ class BridgeNode(Node):
                 self._tf_static_pub = self._publisher(TFMessage, '/tf_static', LATCHED_QOS)
             elif self.recorder is not None:
                 self.recorder.add_topic('/tf_static', TF_MESSAGE_TYPE, LATCHED_QOS)
-        self._markers = {}  # (footprint.robot, footprint.index) -> (Marker, dynamic)
+        self._markers = ObstacleMarkers(self.world, self.frame)
         self._obstacle_version = self.world.obstacle_version
         self._record_only(DIAGNOSTICS_QOS, 'diagnostic_msgs/msg/DiagnosticArray', '/diagnostics')
         self._inbox = Inbox(self)
@@ -422,44 +376,6 @@ class BridgeNode(Node):
                               f'{name}/safety_filter/markers')
         return robot
 
-    def _marker(self, footprint):
-        """Return (Marker, dynamic) of a footprint, made on first sight and then reused."""
-        key = (footprint.robot, footprint.index)
-        entry = self._markers.get(key)
-        if entry is None:
-            if footprint.robot:
-                entry = (self._robot_marker(footprint), True)
-            else:
-                kind = 'moving' if np.any(footprint.velocity) else 'static'
-                entry = (self._outline_marker(footprint, kind), kind == 'moving')
-            self._markers[key] = entry
-        return entry
-
-    def _outline_marker(self, footprint, kind):
-        """LINE_STRIP outline at z_min, height in scale.z; moving ones relative to their pose."""
-        centre = footprint.polygon.mean(axis=0) if kind == 'moving' else np.zeros(2)
-        ring = np.vstack([footprint.polygon, footprint.polygon[:1]]) - centre
-        marker = Marker(ns='obstacles', id=footprint.index, type=Marker.LINE_STRIP,
-                        action=Marker.ADD,
-                        color=COLORS[kind], points=[_point(x, y) for x, y in ring])
-        marker.header.frame_id = self.frame
-        marker.scale.x = LINE_WIDTH
-        marker.scale.z = footprint.z_max - footprint.z_min
-        marker.pose.position = _point(*centre, footprint.z_min)
-        marker.pose.orientation.w = 1.0
-        return marker
-
-    def _robot_marker(self, footprint):
-        """CYLINDER of the robot's footprint radius over its z range."""
-        marker = Marker(ns='robots', id=footprint.index, type=Marker.CYLINDER,
-                        action=Marker.ADD, color=COLORS['robot'], text=footprint.name)
-        marker.header.frame_id = self.frame
-        diameter = 2.0 * self.world.robot_spec(footprint.name).radius
-        marker.scale.x = marker.scale.y = diameter
-        marker.scale.z = footprint.z_max - footprint.z_min
-        marker.pose.orientation.w = 1.0
-        return marker
-
     # -- messages -----------------------------------------------------------------------------
 
     def _send(self, publisher, topic, data, record):
@@ -529,7 +445,7 @@ class BridgeNode(Node):
         if self.world.obstacle_version != self._obstacle_version:
             self._obstacle_version = self.world.obstacle_version
             full = True
-        markers = self._current_markers(time_msg, full) if self.params['obstacle_markers'] else []
+        markers = self._markers.current(time_msg, full) if self.params['obstacle_markers'] else []
         transforms = []
         for robot in self.robots:
             position, quaternion = self.world.robot_pose(robot.name)
@@ -547,24 +463,6 @@ class BridgeNode(Node):
             self._send(self._tf_pub, '/tf', tf_message_cdr(transforms), record)
         if self._unrecorded:
             self._record_sent()
-
-    def _current_markers(self, time_msg, full):
-        """Return [(robot name or None, Marker)] to send: dynamic ones moved, all if ``full``.
-
-        Moving obstacles and robots are dynamic (marker pose = footprint centre);
-        static obstacles go out only in full sets.  Every marker is stamped.
-        """
-        markers = []
-        for footprint in self.world.obstacle_footprints(moving_only=not full):
-            marker, dynamic = self._marker(footprint)
-            if dynamic:
-                position = marker.pose.position
-                position.x, position.y = footprint.polygon.mean(axis=0).tolist()
-                if footprint.robot:
-                    position.z = 0.5 * (footprint.z_min + footprint.z_max)
-            marker.header.stamp = time_msg
-            markers.append((footprint.name if footprint.robot else None, marker))
-        return markers
 
     def _send_odometry(self, robot, time_msg, position, quaternion, record):
         """Send ``<ns>/odom``: world pose, body-frame twist (hand-written CDR)."""

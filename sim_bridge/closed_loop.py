@@ -25,10 +25,11 @@ end there.
 ``obstacle_source`` says where a filter's obstacles come from: ``markers``
 (default), what the bridge publishes as markers, or ``scan``, a simulated lidar
 (``lidar``, a ``sim_bridge.lidar.LidarSettings``; default its defaults) on every
-filtered robot, converted as the node converts its ``scan_topics`` (``_ScanView``):
-no ground-truth polygon reaches the filter then.  With ``marker_pipeline`` (markers
-only) the markers the bridge would publish go through the node's own obstacle pipeline
-(``_MarkerView``), so the filter gets the node's velocity estimates, not the true ones.
+filtered robot, converted as the node converts its ``scan_topics``
+(``obstacle_views.ScanView``): no ground-truth polygon reaches the filter then.  With
+``marker_pipeline`` (markers only) the markers the bridge would publish go through the
+node's own obstacle pipeline (``obstacle_views.MarkerView``), so the filter gets the
+node's velocity estimates, not the true ones.
 
 Marker obstacles (without ``marker_pipeline``) are what the bridge publishes, built as
 the node builds them: static and moving prisms from their footprint polygons and z
@@ -63,17 +64,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point
-from rclpy.serialization import serialize_message
-from visualization_msgs.msg import Marker, MarkerArray
 
-from polyc2bf_ros import marker_obstacles
-from polyc2bf_ros.core.decision import ControlDecision, ObstacleSnapshot
+from polyc2bf_ros.core.decision import ControlDecision
 from polyc2bf_ros.core.models import crazyflie
-from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
-from polyc2bf_ros.filter_parameters import build_filter, load_parameters, NODE_PARAMETERS
-from polyc2bf_ros.obstacle_pipeline import ObstacleJob, ObstaclePipeline
+from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge.actuation import Actuation, CommandPipe, Odometry
 from sim_bridge.launcher import (
     body_parameters,
@@ -83,27 +77,15 @@ from sim_bridge.launcher import (
     params_file,
     scan_parameters,
 )
-from sim_bridge.lidar import laser_scan, LidarSettings, RobotLidars, SCAN_TOPIC
+from sim_bridge.lidar import LidarSettings
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.nominal import ReferencePath, UnicyclePathController
+from sim_bridge.obstacle_views import MarkerView, ObstacleView, ScanView
 from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.scenario import load_scenario
 from sim_bridge.world import SimWorld
 
 NOMINALS = ('goal', 'path')
-MARKER_FRAME = 'world'       # the bridge's default frame_id
-BRIDGE_LINE_WIDTH = 0.02     # m: scale.x of the bridge's outline markers (bridge_node.LINE_WIDTH)
-
-
-def _cylinder_polygon(radius):
-    """Return the polygon (k, 2) the node's defaults make of a robot CYLINDER marker, at 0."""
-    marker = Marker(type=Marker.CYLINDER)
-    marker.scale.x = marker.scale.y = 2.0 * radius
-    marker.scale.z = 1.0
-    marker.pose.orientation.w = 1.0
-    polygons, *_ = marker_obstacles.marker_geometry(
-        marker, NODE_PARAMETERS['wall_thickness'][0], NODE_PARAMETERS['cylinder_sides'][0])
-    return polygons[0]
 
 
 @dataclasses.dataclass
@@ -269,240 +251,6 @@ class _Robot:
                           self.latency, self.deadlocked, self.min_h)
 
 
-@dataclasses.dataclass
-class _Layout:
-    """A robot's obstacle set as built at one obstacle version, and how to move it.
-
-    ``index`` (N,): per part, its footprint's row in ``_ObstacleView._rows``;
-    ``anchors`` (N, 3): that row's (x, y) of the first vertex and z_min at build time;
-    ``current`` the set translated to physics step ``step`` (one object per step, so the
-    filter's per-set cache holds within a step).
-    """
-
-    version: int
-    base: ObstacleSet
-    moves: bool
-    index: np.ndarray
-    anchors: np.ndarray
-    step: int = -1
-    current: ObstacleSet = None
-
-
-class _ObstacleView:
-    """Per robot, the ObstacleSet the node would hold: built once, then translated.
-
-    Per obstacle version (pop-ups) and robot the set is built from the
-    footprints (``ObstacleSet.from_obstacles``).  While something moves, each
-    period translates it by each footprint's displacement since (of its first
-    vertex and z_min) and gives it the current velocities, as the node's
-    ``ObstacleTracker`` does for pose-only marker updates; the filter then
-    moves the geometry it prepared for the built set.
-    """
-
-    def __init__(self, world):
-        """Prepare the robot-marker polygons of every robot."""
-        self.world = world
-        self._robot_polygons = {name: _cylinder_polygon(world.robot_spec(name).radius)
-                                for name in world.robot_names}
-        self._layouts = {}
-        self._rows_key = None
-        self._rows = None
-
-    def _now(self):
-        """Return every footprint (obstacles, then all robots) and their rows, once per step.
-
-        Row: first vertex x, y, z_min, velocity (3).
-        """
-        key = (self.world.obstacle_version, self.world.steps)
-        if key != self._rows_key:
-            footprints = self.world.obstacle_footprints()
-            self._rows_key = key
-            self._rows = footprints, np.array(
-                [(*f.polygon[0].tolist(), f.z_min, *f.velocity.tolist()) for f in footprints],
-                dtype=float).reshape(-1, 6)
-        return self._rows
-
-    def _layout(self, robot):
-        """Build ``robot``'s set at the current obstacle version (every footprint but its own)."""
-        footprints, rows = self._now()
-        select = [i for i, f in enumerate(footprints) if not (f.robot and f.name == robot)]
-        items = []
-        for i in select:
-            f = footprints[i]
-            polygon = f.polygon
-            if f.robot:
-                polygon = self._robot_polygons[f.name] + np.mean(f.polygon, axis=0)
-            items.append(Obstacle(polygon=polygon, velocity=np.asarray(f.velocity, dtype=float),
-                                  z_min=f.z_min, z_max=f.z_max, key=f.name))
-        base = ObstacleSet.from_obstacles(items)
-        index = np.asarray(select, dtype=np.intp)[base.owner]
-        moves = any(footprints[i].robot or np.any(footprints[i].velocity) for i in select)
-        return _Layout(self.world.obstacle_version, base, moves, index, rows[index, :3])
-
-    def snapshot(self, robot, state, yaw, now):
-        """Return ``robot``'s obstacles as a snapshot received and stamped at ``now``."""
-        return ObstacleSnapshot(obstacles=self.obstacles(robot), t_ref=now, received=now)
-
-    def obstacles(self, robot):
-        """Return ``robot``'s ObstacleSet at the world's current time."""
-        layout = self._layouts.get(robot)
-        if layout is None or layout.version != self.world.obstacle_version:
-            layout = self._layouts[robot] = self._layout(robot)
-        if not layout.moves:
-            return layout.base
-        step = self.world.steps
-        if layout.step != step:
-            rows = self._now()[1][layout.index]
-            layout.step = step
-            layout.current = layout.base.translated(rows[:, :3] - layout.anchors, rows[:, 3:])
-        return layout.current
-
-
-class _ScanView:
-    """Per filtered robot, the obstacles the node makes of its lidar's scans.
-
-    ``RobotLidars`` scans the world's ray scene every physics_rate / rate physics steps
-    (``sense``, after each step and once at the start).  A scan is serialized as the
-    bridge publishes it and, at the start of the next control period, goes with the
-    pose (x, y, yaw) of that period's odometry as the only odometry sample (the node takes
-    the odometry stamped nearest the scan: in lockstep, that one) to the node's own
-    obstacle pipeline (``obstacle_pipeline.ObstaclePipeline``:
-    ``scan_obstacles``, then the ``ObstacleSet``, prepared for the filter), which has had
-    the empty marker set the bridge sends in scan mode.  The snapshot holds until the next
-    scan; its obstacles have velocity 0.
-    """
-
-    def __init__(self, world, robots, settings):
-        """Mount a lidar on every filtered robot and take the scans of step 0."""
-        self.world = world
-        self._robots = {name: robot for name, robot in robots.items() if robot.filter is not None}
-        self.lidars = RobotLidars(world, settings, list(self._robots), world.scenario.seed)
-        self._pipelines = {name: ObstaclePipeline() for name in self._robots}
-        self._snapshots = {name: self._run(name, [(MarkerArray(), 0.0)], ())
-                           for name in self._robots}
-        self._pending = {}  # robot: (serialized LaserScan, sim time taken)
-        self.sense()
-
-    def _run(self, name, messages, scans):
-        """Run one pass of ``name``'s pipeline; return its ObstacleSnapshot."""
-        robot = self._robots[name]
-        return self._pipelines[name].run(ObstacleJob(messages, 'world', robot.intake,
-                                                     robot.geometry, self.world.time, scans))
-
-    def sense(self):
-        """Keep the scans due at the world's current physics step for the next period."""
-        for name, scan in self.lidars.scans():
-            sec, nanosec = divmod(round(self.world.time * 1e9), 1_000_000_000)
-            message = laser_scan(scan, Time(sec=sec, nanosec=nanosec))
-            self._pending[name] = (serialize_message(message), self.world.time)
-
-    def snapshot(self, robot, state, yaw, now):
-        """Return ``robot``'s snapshot, after converting its pending scan with pose ``state``."""
-        pending = self._pending.pop(robot, None)
-        if pending is not None:
-            data, taken = pending
-            odometry = ((taken, float(state[0]), float(state[1]), float(yaw)),)
-            self._snapshots[robot] = self._run(robot, [], (
-                (SCAN_TOPIC, data, taken, odometry, f'{robot}/base_link'),))
-        return self._snapshots[robot]
-
-
-class _MarkerView:
-    """Per filtered robot, the obstacles the node makes of the bridge's obstacle markers.
-
-    Each control period the MarkerArray the bridge would publish to the robot
-    (``bridge_node``: a static prism as its LINE_STRIP outline at z_min with ``scale.z`` its
-    height; a moving one as the same outline about a pose at its vertex mean; every other
-    robot as a CYLINDER of its radius; frame ``world``, stamped with the period's time) runs
-    through the robot's own ``obstacle_pipeline.ObstaclePipeline``, as the node's obstacle
-    worker runs it: conflation, the ``ObstacleTracker`` (shapes kept while only poses
-    change, the set translated, not rebuilt) and the prepared ``ObstacleSet``.  It goes as
-    the message, not serialized (the pipeline's offline-replay input; the marker functions
-    read a message and the node's CDR view alike): rclpy's serialization alone cost about
-    1 ms per period for 20 outlines, more than the rest of the pass.
-    The full set goes out at the start and whenever an obstacle pops up; in between a
-    period carries the moving markers only, and a period without any runs no pass (the
-    snapshot holds).  The filter thus gets the tracker's velocity estimates from successive
-    marker poses (``core.obstacles.marker_tracker``: zero at first sight), never the true ones.
-    Over DDS the node may still hold the previous period's markers when it answers; here a
-    period's markers always serve it.
-    """
-
-    def __init__(self, world, robots):
-        """Prepare a pipeline per filtered robot; the full set goes out with the first period."""
-        self.world = world
-        self._robots = {name: robot for name, robot in robots.items() if robot.filter is not None}
-        self._pipelines = {name: ObstaclePipeline() for name in self._robots}
-        self._markers = {}  # (footprint.robot, footprint.index) -> (Marker, dynamic)
-        self._version = None  # the obstacle version of the last full set
-        self._step = None  # the physics step the pending messages were built at
-        self._pending = {}  # robot: serialized MarkerArray not yet run through its pipeline
-        self._snapshots = {name: ObstacleSnapshot() for name in self._robots}
-
-    def _marker(self, footprint):
-        """Return (Marker, dynamic) of a footprint as the bridge makes it, then reused."""
-        key = (footprint.robot, footprint.index)
-        entry = self._markers.get(key)
-        if entry is not None:
-            return entry
-        marker = Marker(action=Marker.ADD)
-        marker.header.frame_id = MARKER_FRAME
-        marker.pose.orientation.w = 1.0
-        marker.scale.z = footprint.z_max - footprint.z_min
-        if footprint.robot:
-            diameter = 2.0 * self.world.robot_spec(footprint.name).radius
-            marker.ns, marker.id, marker.type = 'robots', footprint.index, Marker.CYLINDER
-            marker.scale.x = marker.scale.y = diameter
-            dynamic = True
-        else:
-            dynamic = bool(np.any(footprint.velocity))
-            centre = footprint.polygon.mean(axis=0) if dynamic else np.zeros(2)
-            ring = np.vstack([footprint.polygon, footprint.polygon[:1]]) - centre
-            marker.ns, marker.id, marker.type = 'obstacles', footprint.index, Marker.LINE_STRIP
-            marker.points = [Point(x=x, y=y) for x, y in ring.tolist()]
-            marker.scale.x = BRIDGE_LINE_WIDTH
-            marker.pose.position = Point(x=float(centre[0]), y=float(centre[1]),
-                                         z=float(footprint.z_min))
-        entry = self._markers[key] = (marker, dynamic)
-        return entry
-
-    def _publish(self):
-        """Build this step's serialized MarkerArray per filtered robot (module docstring)."""
-        world = self.world
-        self._step = world.steps
-        full = self._version != world.obstacle_version
-        self._version = world.obstacle_version
-        sec, nanosec = divmod(round(world.time * 1e9), 1_000_000_000)
-        stamp = Time(sec=sec, nanosec=nanosec)
-        markers = []
-        for footprint in world.obstacle_footprints(moving_only=not full):
-            marker, dynamic = self._marker(footprint)
-            if dynamic:
-                position = marker.pose.position
-                position.x, position.y = footprint.polygon.mean(axis=0).tolist()
-                if footprint.robot:
-                    position.z = 0.5 * (footprint.z_min + footprint.z_max)
-            marker.header.stamp = stamp
-            markers.append((footprint.name if footprint.robot else None, marker))
-        self._pending = {}
-        for name in self._robots:
-            own = [marker for owner, marker in markers if owner != name]
-            if own or full:
-                self._pending[name] = MarkerArray(markers=own)
-
-    def snapshot(self, robot, state, yaw, now):
-        """Return ``robot``'s snapshot after this period's markers ran through its pipeline."""
-        if self._step != self.world.steps:
-            self._publish()
-        data = self._pending.pop(robot, None)
-        if data is not None:
-            spec = self._robots[robot]
-            self._snapshots[robot] = self._pipelines[robot].run(ObstacleJob(
-                [(data, self.world.time)], MARKER_FRAME, spec.intake, spec.geometry,
-                self.world.time))
-        return self._snapshots[robot]
-
-
 def obstacle_free(scenario):
     """Return ``scenario`` without its obstacles (listed and random): the nominal reference."""
     return dataclasses.replace(scenario, obstacles=(), random_obstacles=None)
@@ -519,7 +267,7 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
     ``parameters``: node parameters that override the parameter file's;
     ``obstacle_source``: 'markers' or 'scan' (by ``lidar``, default ``LidarSettings()``);
     ``marker_pipeline`` (markers only): the markers go through the node's obstacle
-    pipeline (``_MarkerView``: estimated velocities), not straight to the filter;
+    pipeline (``MarkerView``: estimated velocities), not straight to the filter;
     ``actuation`` (``sim_bridge.actuation.Actuation``, default exact): command latency,
     the plants' first-order response and odometry noise.
     """
@@ -558,9 +306,9 @@ def run_in_process(scenario, barrier='polyc2bf_inflated', duration=None, seed=No
             world.set_actuator_tau(name, actuation.actuator_tau)
         applied = {}  # the command each plant holds
         if scanning:
-            view = _ScanView(world, robots, lidar)
+            view = ScanView(world, robots, lidar)
         else:
-            view = _MarkerView(world, robots) if marker_pipeline else _ObstacleView(world)
+            view = MarkerView(world, robots) if marker_pipeline else ObstacleView(world)
         report_every = max(1, round(1.0 / period))
         start, ended = time.perf_counter(), None
         for k in range(steps):

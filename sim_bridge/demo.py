@@ -48,7 +48,8 @@ from sim_bridge.launcher import (
     params_file,
     run_closed_loop,
 )
-from sim_bridge.scenario import load_scenario, scenario_names, ScenarioError
+from sim_bridge.scenario import load_scenario, scenario_names
+from sim_bridge.scenario_specs import ScenarioError
 from sim_bridge.world import CLEARANCE_RANGE
 
 MCAP_LINK = 'run.mcap'

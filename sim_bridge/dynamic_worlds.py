@@ -56,7 +56,8 @@ import numpy as np
 
 from sim_bridge.barn import CYLINDER_HEIGHT, GOAL_RADIUS, ROBOT_NAME
 from sim_bridge.robots import DIFF_DRIVE_RADIUS
-from sim_bridge.scenario import cylinder_polygon, ObstacleSpec, scenario_from_dict, ScenarioError
+from sim_bridge.scenario import scenario_from_dict
+from sim_bridge.scenario_specs import cylinder_polygon, ObstacleSpec, ScenarioError
 
 COURSE_LENGTH = 20.0         # m, start to goal
 COURSE_WIDTH = 12.0          # m

@@ -49,7 +49,7 @@ contacts and clearances never see.
 
 ``RobotLidars(world, settings)`` puts a Lidar on robots of a SimWorld (frame
 ``<robot>/laser``) and scans every ``physics_rate / rate`` physics steps, a
-whole number or refused (``scenario.rate_steps``, as for the control rate);
+whole number or refused (``scenario_specs.rate_steps``, as for the control rate);
 the bridge publishes the scans, the in-process loop converts them as the node
 does.
 
@@ -73,7 +73,7 @@ import numpy as np
 import pybullet as pb
 import yaml
 
-from sim_bridge.scenario import rate_steps
+from sim_bridge.scenario_specs import rate_steps
 
 MAX_BEAMS = 4096
 # Re-casting a beam past a hit on the robot's own body starts this far beyond the hit [m].

@@ -2,7 +2,7 @@
 
 The scenario loader, launcher, bridge, world, in-process loop and nominal
 controller read their per-type facts here; a new type is one entry plus its
-plant in ``sim_bridge.world.PLANTS``.
+plant in ``sim_bridge.plants.PLANTS``.
 """
 import dataclasses
 from types import MappingProxyType

@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 from scipy.interpolate import CubicSpline
 
-from sim_bridge.closed_loop import _MarkerView, _Robot, run_in_process
+from sim_bridge.closed_loop import _Robot, run_in_process
 from sim_bridge.dynamic_worlds import (
     AT_FAULT_SPEED,
     classify_contact,
@@ -32,7 +32,9 @@ from sim_bridge.evaluation.cli import main
 from sim_bridge.evaluation.dynamic_suite import DYNAMIC_KEYS, parse_world_ids, run_world
 from sim_bridge.launcher import default_barrier
 from sim_bridge.lidar import LidarSettings, RobotLidars
-from sim_bridge.scenario import cylinder_polygon, ObstacleSpec, scenario_from_dict, ScenarioError
+from sim_bridge.obstacle_views import MarkerView
+from sim_bridge.scenario import scenario_from_dict
+from sim_bridge.scenario_specs import cylinder_polygon, ObstacleSpec, ScenarioError
 from sim_bridge.world import SimWorld
 
 DT = 1.0 / 240.0  # s, the physics step
@@ -221,7 +223,7 @@ def test_marker_pipeline_estimates_velocities_from_marker_poses():
     with SimWorld(scenario) as world:
         robot = _Robot(scenario.robots[0], default_barrier('diff_drive'), 'goal', 1.0 / 120.0,
                        10, world)
-        view = _MarkerView(world, {'base': robot})
+        view = MarkerView(world, {'base': robot})
         errors = []
         for _ in range(60):
             state = world.robot_state('base')

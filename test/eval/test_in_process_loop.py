@@ -4,10 +4,11 @@ import pytest
 
 from polyc2bf_ros.core.obstacles.scan_conversion import ScanSettings
 from polyc2bf_ros.filter_parameters import load_parameters
-from sim_bridge.closed_loop import _ObstacleView, _Robot, _ScanView, obstacle_free, run_in_process
+from sim_bridge.closed_loop import _Robot, obstacle_free, run_in_process
 from sim_bridge.evaluation.records import summarise
 from sim_bridge.launcher import params_file, scan_parameters
 from sim_bridge.lidar import LidarSettings
+from sim_bridge.obstacle_views import ObstacleView, ScanView
 from sim_bridge.scenario import load_scenario, scenario_from_dict
 from sim_bridge.world import SimWorld
 
@@ -37,7 +38,7 @@ def test_runs_are_deterministic():
 def test_obstacles_are_what_the_node_builds_from_the_bridge():
     """Other robots: the node's 12-gon around their centre; moving boxes: their velocity."""
     with SimWorld(load_scenario('multi_robot_swap')) as world:
-        obstacles = _ObstacleView(world).obstacles('a1_0')
+        obstacles = ObstacleView(world).obstacles('a1_0')
         assert obstacles.keys == ('a1_1', 'a1_2', 'a1_3')
         counts = obstacles.footprints.counts
         assert counts.tolist() == [12, 12, 12]
@@ -46,7 +47,7 @@ def test_obstacles_are_what_the_node_builds_from_the_bridge():
         radii = np.linalg.norm(obstacles.footprints.vertices[0, :12] - centre, axis=1)
         np.testing.assert_allclose(radii, 0.4 / np.cos(np.pi / 12))
     with SimWorld(load_scenario('moving_obstacles')) as world:
-        view = _ObstacleView(world)
+        view = ObstacleView(world)
         before = view.obstacles('a1')
         np.testing.assert_allclose(before.velocities[:, 1], [0.6, -0.5, 0.5])
         assert view.obstacles('a1') is before  # same physics step: the same set
@@ -184,7 +185,7 @@ def test_scan_mode_filter_holds_only_what_the_node_makes_of_the_lidar_scan():
     with SimWorld(scenario) as world:
         robot = _Robot(scenario.robots[0], 'polyc2bf_inflated', 'goal', 1.0 / 120.0, 10, world,
                        scan_parameters(lidar))
-        view = _ScanView(world, {'base': robot}, lidar)
+        view = ScanView(world, {'base': robot}, lidar)
         state = world.robot_state('base')
         snapshot = view.snapshot('base', state, state[2], 0.0)
         obstacles = snapshot.obstacles

@@ -30,7 +30,7 @@ import numpy as np
 
 from polyc2bf_ros.core.geometry.polygons import decompose_convex
 from sim_bridge.bag_reader import BagReader
-from sim_bridge.world import (
+from sim_bridge.plants import (
     QUADRUPED_MAX_ACCEL,
     QUADRUPED_MAX_ANGULAR_ACCEL,
     QUADRUPED_MAX_SPEED,

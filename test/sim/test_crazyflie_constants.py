@@ -12,9 +12,10 @@ import pybullet as pb
 import pytest
 
 from polyc2bf_ros.core.models import crazyflie as cf
+from sim_bridge.plants import CRAZYFLIE_HALF_HEIGHT, CRAZYFLIE_URDF
 from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.scenario import scenario_from_dict
-from sim_bridge.world import CRAZYFLIE_HALF_HEIGHT, CRAZYFLIE_URDF, SimWorld
+from sim_bridge.world import SimWorld
 
 REL = 1e-9  # numbers written in full in the URDF
 POSITION_ATOL = 1e-7  # m: rotor coordinates are written to 10 nm (arm / sqrt 2 is irrational)

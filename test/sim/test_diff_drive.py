@@ -9,14 +9,10 @@ from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.launcher import body_parameters, closed_loop_plan, params_file
 from sim_bridge.metrics import RunMetrics
-from sim_bridge.scenario import cylinder_polygon, scenario_from_dict
-from sim_bridge.world import (
-    COLLISION_TOLERANCE,
-    DIFF_DRIVE_HEIGHT,
-    QUADRUPED_MAX_ACCEL,
-    QUADRUPED_MAX_ANGULAR_ACCEL,
-    SimWorld,
-)
+from sim_bridge.plants import DIFF_DRIVE_HEIGHT, QUADRUPED_MAX_ACCEL, QUADRUPED_MAX_ANGULAR_ACCEL
+from sim_bridge.scenario import scenario_from_dict
+from sim_bridge.scenario_specs import cylinder_polygon
+from sim_bridge.world import COLLISION_TOLERANCE, SimWorld
 
 CYLINDER = {'cylinder': [3.0, 0.0], 'radius': 0.075, 'name': 'post'}
 

@@ -14,7 +14,7 @@ from rosbags.typesys import get_typestore, Stores
 
 from sim_bridge.cdr import tf_message_cdr, TF_MESSAGE_TYPE
 from sim_bridge.lidar import laser_scan, Lidar, LidarSettings, mount_transform
-from sim_bridge.world import A1_STANDING_POSE, A1_URDF
+from sim_bridge.plants import A1_STANDING_POSE, A1_URDF
 
 REPO = Path(__file__).resolve().parents[2]
 WALL_X = 2.0        # m, the near face of the test wall (normal -x)

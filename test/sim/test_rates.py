@@ -11,14 +11,13 @@ from polyc2bf_ros.filter_parameters import load_parameters
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.launcher import closed_loop_plan, control_rate
 from sim_bridge.scenario import (
-    control_substeps,
     DEFAULT_CONTROL_RATE,
     DEFAULT_PHYSICS_RATE,
     load_scenario,
     scenario_from_dict,
     scenario_names,
-    ScenarioError,
 )
+from sim_bridge.scenario_specs import control_substeps, ScenarioError
 
 REPO = Path(__file__).resolve().parents[2]
 

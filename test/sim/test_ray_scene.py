@@ -9,7 +9,8 @@ from polyc2bf_ros.core.geometry.polygons import signed_distance
 from sim_bridge.barn import load_worlds, WORLDS_FILE
 from sim_bridge.lidar import LidarSettings, RobotLidars
 from sim_bridge.metrics import RunMetrics
-from sim_bridge.scenario import scenario_from_dict, ScenarioError
+from sim_bridge.scenario import scenario_from_dict
+from sim_bridge.scenario_specs import ScenarioError
 from sim_bridge.world import SimWorld
 
 DIRECTIONS = 8     # rays per obstacle, from all round

@@ -2,10 +2,11 @@
 import pytest
 import yaml
 
-from sim_bridge import launcher, world
+from sim_bridge import launcher, plants
 from sim_bridge.bag_reader import message_class
 from sim_bridge.robots import robot_type, ROBOT_TYPES
-from sim_bridge.scenario import scenario_from_dict, ScenarioError
+from sim_bridge.scenario import scenario_from_dict
+from sim_bridge.scenario_specs import ScenarioError
 
 
 def _scenario(types):
@@ -26,7 +27,7 @@ def test_every_type_has_config_plant_message_and_controller(name):
     assert robot.name == name
     config = yaml.safe_load(launcher.params_file(name).read_text())
     assert config['/**/safety_filter']['ros__parameters']['model'] == robot.model
-    assert robot.command_kind in world.PLANTS[name].COMMAND_KINDS
+    assert robot.command_kind in plants.PLANTS[name].COMMAND_KINDS
     assert message_class(robot.command_type).__name__.endswith('Stamped')
     method = 'velocity_command' if robot.command_kind == 'velocity' else 'wrench'
     assert callable(getattr(robot.goal_controller(), method))
@@ -34,7 +35,7 @@ def test_every_type_has_config_plant_message_and_controller(name):
 
 def test_world_has_exactly_the_registry_plants():
     """The world builds a plant for every registered type and for no other."""
-    assert set(world.PLANTS) == set(ROBOT_TYPES)
+    assert set(plants.PLANTS) == set(ROBOT_TYPES)
 
 
 def test_loader_and_launcher_accept_exactly_the_registry_types(tmp_path):

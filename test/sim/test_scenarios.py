@@ -6,13 +6,8 @@ import yaml
 from polyc2bf_ros.core.geometry.polygons import minimum_enclosing_circle, signed_distance
 from polyc2bf_ros.core.models import crazyflie as cf
 from sim_bridge.robots import ROBOT_TYPES
-from sim_bridge.scenario import (
-    load_scenario,
-    SCENARIO_DIR,
-    scenario_from_dict,
-    scenario_names,
-    ScenarioError,
-)
+from sim_bridge.scenario import load_scenario, SCENARIO_DIR, scenario_from_dict, scenario_names
+from sim_bridge.scenario_specs import ScenarioError
 from sim_bridge.world import SimWorld
 
 SHIPPED = ('long_wall', 'semi_infinite_wall', 'cluttered', 'tight_gap', 'moving_obstacles',

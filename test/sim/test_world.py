@@ -9,15 +9,10 @@ from polyc2bf_ros.core.geometry.polygons import signed_distance
 from polyc2bf_ros.core.models import crazyflie as cf, make_model
 from sim_bridge.metrics import RunMetrics
 from sim_bridge.nominal import QuadrotorGoalController, UnicycleGoalController
+from sim_bridge.plants import A1_STANDING_POSE, CRAZYFLIE_HALF_HEIGHT, QUADRUPED_MAX_ACCEL
 from sim_bridge.rollout import rk4_step
 from sim_bridge.scenario import load_scenario, scenario_from_dict
-from sim_bridge.world import (
-    A1_STANDING_POSE,
-    COLLISION_TOLERANCE,
-    CRAZYFLIE_HALF_HEIGHT,
-    QUADRUPED_MAX_ACCEL,
-    SimWorld,
-)
+from sim_bridge.world import COLLISION_TOLERANCE, SimWorld
 
 WALL = [[2.0, -2.0], [2.2, -2.0], [2.2, 2.0], [2.0, 2.0]]
 
