@@ -1,5 +1,8 @@
 """The PolyC2BF safety filter: (state, obstacles, nominal input) -> (safe input, info).
 
+Over 500 lines on purpose: one step over one prepared state (rows, QP, fallbacks, the
+braking check and evasion hooks) and the kernels that assemble its rows.
+
 Per control step, for every convex obstacle part i (paper eq. 5)::
 
     minimise   sum_j W_j (u_j - u_nom_j)^2
