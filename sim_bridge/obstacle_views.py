@@ -9,7 +9,6 @@ import dataclasses
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point
 from rclpy.serialization import serialize_message
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -18,7 +17,7 @@ from polyc2bf_ros.core.decision import ObstacleSnapshot
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.filter_parameters import NODE_PARAMETERS
 from polyc2bf_ros.obstacle_pipeline import ObstacleJob, ObstaclePipeline
-from sim_bridge.bridge_markers import LINE_WIDTH
+from sim_bridge.bridge_markers import ObstacleMarkers
 from sim_bridge.lidar import laser_scan, RobotLidars, SCAN_TOPIC
 
 MARKER_FRAME = 'world'       # the bridge's default frame_id
@@ -199,38 +198,11 @@ class MarkerView:
         self.world = world
         self._robots = {name: robot for name, robot in robots.items() if robot.filter is not None}
         self._pipelines = {name: ObstaclePipeline() for name in self._robots}
-        self._markers = {}  # (footprint.robot, footprint.index) -> (Marker, dynamic)
+        self._bridge = ObstacleMarkers(world, MARKER_FRAME)  # the bridge's own markers
         self._version = None  # the obstacle version of the last full set
         self._step = None  # the physics step the pending messages were built at
         self._pending = {}  # robot: serialized MarkerArray not yet run through its pipeline
         self._snapshots = {name: ObstacleSnapshot() for name in self._robots}
-
-    def _marker(self, footprint):
-        """Return (Marker, dynamic) of a footprint as the bridge makes it, then reused."""
-        key = (footprint.robot, footprint.index)
-        entry = self._markers.get(key)
-        if entry is not None:
-            return entry
-        marker = Marker(action=Marker.ADD)
-        marker.header.frame_id = MARKER_FRAME
-        marker.pose.orientation.w = 1.0
-        marker.scale.z = footprint.z_max - footprint.z_min
-        if footprint.robot:
-            diameter = 2.0 * self.world.robot_spec(footprint.name).radius
-            marker.ns, marker.id, marker.type = 'robots', footprint.index, Marker.CYLINDER
-            marker.scale.x = marker.scale.y = diameter
-            dynamic = True
-        else:
-            dynamic = bool(np.any(footprint.velocity))
-            centre = footprint.polygon.mean(axis=0) if dynamic else np.zeros(2)
-            ring = np.vstack([footprint.polygon, footprint.polygon[:1]]) - centre
-            marker.ns, marker.id, marker.type = 'obstacles', footprint.index, Marker.LINE_STRIP
-            marker.points = [Point(x=x, y=y) for x, y in ring.tolist()]
-            marker.scale.x = LINE_WIDTH
-            marker.pose.position = Point(x=float(centre[0]), y=float(centre[1]),
-                                         z=float(footprint.z_min))
-        entry = self._markers[key] = (marker, dynamic)
-        return entry
 
     def _publish(self):
         """Build this step's serialized MarkerArray per filtered robot (module docstring)."""
@@ -240,16 +212,7 @@ class MarkerView:
         self._version = world.obstacle_version
         sec, nanosec = divmod(round(world.time * 1e9), 1_000_000_000)
         stamp = Time(sec=sec, nanosec=nanosec)
-        markers = []
-        for footprint in world.obstacle_footprints(moving_only=not full):
-            marker, dynamic = self._marker(footprint)
-            if dynamic:
-                position = marker.pose.position
-                position.x, position.y = footprint.polygon.mean(axis=0).tolist()
-                if footprint.robot:
-                    position.z = 0.5 * (footprint.z_min + footprint.z_max)
-            marker.header.stamp = stamp
-            markers.append((footprint.name if footprint.robot else None, marker))
+        markers = self._bridge.current(stamp, full)
         self._pending = {}
         for name in self._robots:
             own = [marker for owner, marker in markers if owner != name]
