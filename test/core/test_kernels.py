@@ -15,16 +15,12 @@ from oracles import barrier_terms, ReferenceSolver
 from polyc2bf_ros.core.barrier.cones import CircleCone, InflatedCone, PaperCone
 from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance_batch
 from polyc2bf_ros.core.geometry.views import choose_planes, prepare_views
+from polyc2bf_ros.core.kernels.filter_rows import _active_parts, _assemble_rows
+from polyc2bf_ros.core.kernels.quadrotor import rotation_matrix
 from polyc2bf_ros.core.models import crazyflie as cf, make_model, ReferenceKinematics
-from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp import solver as qp
-from polyc2bf_ros.core.safety_filter import (
-    _active_parts,
-    _assemble_rows,
-    FilterConfig,
-    SafetyFilter,
-)
+from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from strategies import convex_polygons, examples, random_state
 
 SETTINGS = settings(max_examples=examples(150), deadline=None,
