@@ -1,7 +1,8 @@
 """The PolyC2BF safety filter: (state, obstacles, nominal input) -> (safe input, info).
 
 Over 500 lines on purpose: one step over one prepared state (rows, QP, fallbacks, the
-braking check and evasion hooks) and the kernels that assemble its rows.
+braking check and evasion hooks); the kernels that assemble its rows are
+``kernels.filter_rows``.
 
 Per control step, for every convex obstacle part i (paper eq. 5)::
 

@@ -1,8 +1,5 @@
 """Collision cones seen from the robot's reference point, behind one interface.
 
-Over 500 lines on purpose: the cone models behind that one interface and their compiled
-plane kernels.
-
 Every cone model maps convex polygons (in a plane, relative to a viewpoint q)
 to a cone with apex q, axis vector p and a shape term::
 

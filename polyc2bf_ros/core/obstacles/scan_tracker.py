@@ -1,8 +1,5 @@
 """Track laser-scan clusters over time and give moving ones a velocity (numpy, no ROS).
 
-Over 500 lines on purpose: its compiled kernels (registration, gating, assignment, the
-Kalman step) share one settings vector and one array layout of the tracks.
-
 Input per scan: its stamp and its clusters (``scan_obstacles(..., with_clusters=True)``: the
 endpoints of each cluster in chain order, odometry frame).  Output: one ``TrackEstimate`` per
 cluster, in the same order.  One tracker serves every scan source; a stamp earlier than the
