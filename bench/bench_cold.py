@@ -114,7 +114,8 @@ def filter_subjects(command_filter, state, obstacles):
     The kernel calls mirror ``SafetyFilter.step``'s common path for a single-view
     (2-D) model (private names of ``core.safety_filter``: a bench may reach in).
     """
-    from polyc2bf_ros.core.safety_filter import _rows_and_answer, PLANE_ROWS
+    from polyc2bf_ros.core.kernels.filter_rows import _rows_and_answer
+    from polyc2bf_ros.core.safety_filter import PLANE_ROWS
     safety_filter, model = command_filter.safety_filter, command_filter.model
     state = np.asarray(state, dtype=np.float64)
     u_nom = np.ascontiguousarray(

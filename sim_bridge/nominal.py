@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from polyc2bf_ros.core.kernels.jit import JIT_OPTIONS
+from polyc2bf_ros.core.kernels.quadrotor import rotation_matrix
 from polyc2bf_ros.core.models import crazyflie as cf
-from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 
 _INERTIA = np.ascontiguousarray(cf.INERTIA, dtype=np.float64)
 

@@ -8,8 +8,10 @@
 import numpy as np
 
 from polyc2bf_ros.conversions import rotation
-from polyc2bf_ros.core.barrier.cone_barrier import barrier_column, BarrierTerms
-from polyc2bf_ros.core.geometry import batch as batch_geometry, polygons as geometry
+from polyc2bf_ros.core.barrier.cone_barrier import BarrierTerms
+from polyc2bf_ros.core.geometry import polygons as geometry
+from polyc2bf_ros.core.kernels import geometry_batch as batch_geometry
+from polyc2bf_ros.core.kernels.barrier import barrier_column
 from polyc2bf_ros.core.qp import proxsuite_backend as qp_proxsuite, solver as qp
 
 # Exact up to rounding: far tighter than a solver's certificate (``qp_proxsuite._MULTIPLIER_TOL``).

@@ -3,8 +3,9 @@
 Nothing below this package imports rclpy.  Its folders, each one concept, from the
 bottom up (a folder imports only those above it in this list):
 
-- ``kernels``: the compiled hot path's machinery (``kernels.jit``) and its build;
-- ``geometry``: planar polygons, batched outlines, views and size limits;
+- ``kernels``: the compiled hot path: its machinery (``kernels.jit``), its build and
+  every kernel, one module per concept;
+- ``geometry``: planar polygons, views and size limits;
 - ``obstacles``: obstacle sets, marker and scan tracking, scan -> polygons, the ground;
 - ``barrier``: collision cones, the barrier h and its derivatives, the horizon cone,
   the braking check and the geometry prepared per obstacle set;

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.barrier.braking_check import clear_around, path_clearance
 from polyc2bf_ros.core.barrier.cones import PlanarPolygons
 from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance
+from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from polyc2bf_ros.core.kernels import tracking
 from polyc2bf_ros.core.obstacles import constant_velocity as cv
 from strategies import examples
 
@@ -117,12 +118,12 @@ def test_compiled_helpers_match_numpy(seed):
     x, P = rng.normal(size=4), _spd(rng, 4)
     dt, accel = rng.uniform(0.0, 0.3), rng.uniform(0.0, 2.0)
     states, covariances = x[None].copy(), P[None].copy()
-    cv.predict_all(states, covariances, dt, accel)
+    tracking.predict_all(states, covariances, dt, accel)
     expected_x, expected_P = cv.predict(x, P, dt, accel)
     np.testing.assert_allclose(states[0], expected_x, atol=1e-12)
     np.testing.assert_allclose(covariances[0], expected_P, rtol=1e-12, atol=1e-12)
     z, R = rng.normal(size=2), _spd(rng, 2, 10.0 ** rng.uniform(-2, 2))
-    cv.update_rows(states, covariances, np.array([0]), z[None].copy(), R[None].copy())
+    tracking.update_rows(states, covariances, np.array([0]), z[None].copy(), R[None].copy())
     expected_x, expected_P = cv.update(expected_x, expected_P, z, R)
     np.testing.assert_allclose(states[0], expected_x, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(covariances[0], expected_P, rtol=1e-9, atol=1e-9)
@@ -134,9 +135,9 @@ def test_compiled_helpers_match_numpy(seed):
     expected_x, expected_P = cv.reclone(*cv.update_relative(x6, P6, d, R, free))
     state, covariance = x6.copy(), P6.copy()
     y = d - RELATIVE @ state
-    cv.update_one(state, covariance, RELATIVE, y[0], y[1], R[0, 0], R[0, 1], R[1, 1],
+    tracking.update_one(state, covariance, RELATIVE, y[0], y[1], R[0, 0], R[0, 1], R[1, 1],
                   *((0.0, 0.0) if free is None else free), np.empty((18, 6)))
-    cv.reclone_one(state, covariance)
+    tracking.reclone_one(state, covariance)
     np.testing.assert_allclose(state, expected_x, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(covariance, expected_P, rtol=1e-8, atol=1e-9)
 

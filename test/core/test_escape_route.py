@@ -8,8 +8,8 @@ from hypothesis import given, strategies as st
 
 from polyc2bf_ros.core.barrier.cones import PlanarPolygons
 from polyc2bf_ros.core.geometry.polygons import signed_distance
+from polyc2bf_ros.core.kernels.route import grid_clearance
 from polyc2bf_ros.core.liveness.escape_route import (
-    grid_clearance,
     MAX_WIDEN,
     PATIENCE,
     plan_route,

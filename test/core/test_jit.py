@@ -11,8 +11,8 @@ import pytest
 
 from polyc2bf_ros.core.barrier.cone_models import CONE_MODELS
 from polyc2bf_ros.core.geometry.polygons import convex_hull
-from polyc2bf_ros.core.geometry.views import _viewpoints
 from polyc2bf_ros.core.kernels import jit
+from polyc2bf_ros.core.kernels.views import _viewpoints
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
@@ -29,7 +29,7 @@ def test_the_built_kernels_are_in_use():
     assert os.environ.get(jit.MODE_VARIABLE, 'auto') != 'jit'
     assert jit.AHEAD_OF_TIME is not None, \
         'run: python -m polyc2bf_ros.core.kernels.build (make does)'
-    assert _viewpoints.__name__ == 'core_geometry_views__viewpoints'
+    assert _viewpoints.__name__ == 'core_kernels_views__viewpoints'
     assert hasattr(_viewpoints, 'unchecked')
 
 
@@ -43,7 +43,7 @@ def test_the_built_kernels_are_in_use():
 def test_guard_refuses_arrays_compiled_code_would_misread(bad, what):
     """Wrong dtype, layout, rank or type: TypeError naming the kernel and argument."""
     projections = np.zeros((3, 2, 2))
-    with pytest.raises(TypeError, match=r'core_geometry_views__viewpoints: argument 2 must be'):
+    with pytest.raises(TypeError, match=r'core_kernels_views__viewpoints: argument 2 must be'):
         _viewpoints(projections, np.zeros(2), bad, np.zeros((3, 2)), 0.0, np.empty((2, 3)))
 
 
@@ -133,3 +133,14 @@ def test_ahead_of_time_and_numba_give_the_same_answers(tmp_path):
         assert status_numba == status_built
         np.testing.assert_allclose(u_built, u_numba, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(h_built, h_numba, rtol=1e-12, atol=1e-12)
+
+
+def test_every_kernel_lives_in_the_kernels_folder():
+    """No file of the package outside ``core/kernels`` defines a kernel: the digest covers all."""
+    package = REPO / 'polyc2bf_ros'
+    outside = [f'{path.relative_to(REPO)}:{number}'
+               for path in sorted(package.rglob('*.py')) if jit.KERNELS not in path.parents
+               for number, line in enumerate(path.read_text().splitlines(), 1)
+               if line.startswith('@kernel')]
+    assert outside == []
+    assert all(path.parent == jit.KERNELS for path in jit.kernel_sources())

@@ -15,16 +15,13 @@ from oracles import barrier_terms, ReferenceSolver
 from polyc2bf_ros.core.barrier.cones import CircleCone, InflatedCone, PaperCone
 from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance_batch
 from polyc2bf_ros.core.geometry.views import choose_planes, prepare_views
+from polyc2bf_ros.core.kernels import qp as qpk
+from polyc2bf_ros.core.kernels.filter_rows import _active_parts, _assemble_rows
+from polyc2bf_ros.core.kernels.quadrotor import rotation_matrix
 from polyc2bf_ros.core.models import crazyflie as cf, make_model, ReferenceKinematics
-from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp import solver as qp
-from polyc2bf_ros.core.safety_filter import (
-    _active_parts,
-    _assemble_rows,
-    FilterConfig,
-    SafetyFilter,
-)
+from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
 from strategies import convex_polygons, examples, random_state
 
 SETTINGS = settings(max_examples=examples(150), deadline=None,
@@ -230,12 +227,12 @@ def test_row_residuals_match_numpy(seed, m, n):
     rng = np.random.default_rng(seed)
     A, x, b = rng.normal(size=(m, n)), rng.normal(size=n), rng.normal(size=m)
     out = np.empty(m)
-    smallest = qp.row_residuals(A, x, b, out)
+    smallest = qpk.row_residuals(A, x, b, out)
     np.testing.assert_allclose(out, A @ x - b, **CLOSE)
     assert smallest == (out.min() if m else np.inf)
     if m:
         b[rng.integers(m)] = np.nan
-        assert np.isnan(qp.row_residuals(A, x, b, out))
+        assert np.isnan(qpk.row_residuals(A, x, b, out))
 
 
 @settings(max_examples=examples(100), deadline=None)
@@ -400,7 +397,7 @@ def test_single_active_shortcut_is_the_optimum_when_it_answers(seed, n, m, outsi
     lower, upper = feasible - rng.uniform(0.5, 2, n), feasible + rng.uniform(0.5, 2, n)
     x_ref = feasible + rng.normal(size=n) * (2.0 if outside else 0.7)
     x = np.empty(n)
-    if qp._single_active(x_ref, weights, A, b, lower, upper, x):
+    if qpk._single_active(x_ref, weights, A, b, lower, upper, x):
         expected = ReferenceSolver().solve(x_ref, weights, A, b, lower, upper)
         assert expected.status is qp.QPStatus.OPTIMAL
         np.testing.assert_allclose(x, expected.x, rtol=0.0, atol=1e-9)
@@ -417,8 +414,8 @@ def test_single_active_shortcut_tries_every_pair_of_violated_rows():
     b = np.array([0.0, 0.0, -10.0])
     lower, upper, weights = np.array([-2.0, -4.0]), np.array([2.0, 4.0]), np.ones(2)
     x_ref, x = np.array([50.0, 0.0]), np.empty(2)
-    assert not qp._two_row_candidate(x_ref, weights, A, b, lower, upper, x)
-    assert qp._single_active(x_ref, weights, A, b, lower, upper, x)
+    assert not qpk._two_row_candidate(x_ref, weights, A, b, lower, upper, x)
+    assert qpk._single_active(x_ref, weights, A, b, lower, upper, x)
     expected = ReferenceSolver().solve(x_ref, weights, A, b, lower, upper)
     np.testing.assert_allclose(x, expected.x, rtol=0.0, atol=1e-12)
     np.testing.assert_allclose(x, [0.0, 0.0], atol=1e-12)
@@ -429,10 +426,10 @@ def test_single_active_shortcut_answers_one_or_two_rows_and_refuses_three():
     lower, upper, weights = np.full(3, -5.0), np.full(3, 5.0), np.ones(3)
     x = np.empty(3)
     rows = -np.eye(3), -np.ones(3)  # x <= 1
-    assert qp._single_active(np.array([2.0, 0.5, 0.0]), weights, *rows, lower, upper, x)
+    assert qpk._single_active(np.array([2.0, 0.5, 0.0]), weights, *rows, lower, upper, x)
     np.testing.assert_allclose(x, [1.0, 0.5, 0.0])
-    assert qp._single_active(np.array([2.0, 3.0, 0.0]), weights, *rows, lower, upper, x)
+    assert qpk._single_active(np.array([2.0, 3.0, 0.0]), weights, *rows, lower, upper, x)
     np.testing.assert_allclose(x, [1.0, 1.0, 0.0])
-    assert not qp._single_active(np.array([2.0, 2.0, 2.0]), weights, *rows, lower, upper, x)
-    assert not qp._single_active(np.array([np.nan, 0.0, 0.0]), weights, *rows, lower, upper,
-                                 x)
+    assert not qpk._single_active(np.array([2.0, 2.0, 2.0]), weights, *rows, lower, upper, x)
+    assert not qpk._single_active(np.array([np.nan, 0.0, 0.0]), weights, *rows, lower, upper,
+                                  x)

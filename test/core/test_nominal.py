@@ -4,8 +4,8 @@ import math
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
+from polyc2bf_ros.core.kernels.quadrotor import rotation_matrix
 from polyc2bf_ros.core.models import crazyflie as cf
-from polyc2bf_ros.core.models.quadrotor import rotation_matrix
 from sim_bridge.nominal import QuadrotorGoalController
 from strategies import examples
 

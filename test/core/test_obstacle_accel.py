@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, HealthCheck, settings, strategies as st
 
-from polyc2bf_ros.core.barrier.cones import PLANE_ROWS
+from polyc2bf_ros.core.kernels.cones import PLANE_ROWS
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter

@@ -3,17 +3,13 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, HealthCheck, settings, strategies as st
 
-from polyc2bf_ros.core.barrier.cones import PLANE_ROWS
+from polyc2bf_ros.core.kernels.cones import PLANE_ROWS
+from polyc2bf_ros.core.kernels.filter_rows import _assemble_rows, ACTIVE_TOLERANCE
+from polyc2bf_ros.core.kernels.qp import row_residuals
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
-from polyc2bf_ros.core.qp.solver import QPSolver, QPStatus, row_residuals
-from polyc2bf_ros.core.safety_filter import (
-    _assemble_rows,
-    ACTIVE_TOLERANCE,
-    FilterConfig,
-    FilterStatus,
-    SafetyFilter,
-)
+from polyc2bf_ros.core.qp.solver import QPSolver, QPStatus
+from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
 from strategies import convex_polygons, examples, random_state
 
 SETTINGS = settings(max_examples=examples(40), deadline=None,

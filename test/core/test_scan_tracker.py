@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from polyc2bf_ros.core.kernels.tracking import register_outline
 from polyc2bf_ros.core.obstacles.scan_conversion import (
     beam_endpoints,
     scan_obstacles,
@@ -18,7 +19,6 @@ from polyc2bf_ros.core.obstacles.scan_conversion import (
     ScanSettings,
 )
 from polyc2bf_ros.core.obstacles.scan_tracker import (
-    register_outline,
     ScanTracker,
     TrackerSettings,
     TrackEstimate,

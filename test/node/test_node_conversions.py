@@ -14,7 +14,7 @@ from node_harness import odometry, wall
 from oracles import quaternion_matrix
 from polyc2bf_ros import cdr_reader, conversions, diagnostics, marker_obstacles, rviz_markers
 from polyc2bf_ros.core.geometry.polygons import point_in_polygon, signed_area, signed_distance
-from polyc2bf_ros.core.models.quadrotor import rotation_matrix
+from polyc2bf_ros.core.kernels.quadrotor import rotation_matrix
 from polyc2bf_ros.core.obstacles.marker_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 

@@ -15,8 +15,8 @@ from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from polyc2bf_ros.core.geometry import batch as batch_geometry
-from polyc2bf_ros.core.geometry.batch import REL_TOL as _REL_TOL
+from polyc2bf_ros.core.kernels import geometry_batch as batch_geometry
+from polyc2bf_ros.core.kernels.geometry_batch import REL_TOL as _REL_TOL
 
 
 class InvalidPolygonError(ValueError):

@@ -35,15 +35,14 @@ P_n (r - age c_dot_n - o_n) and compared with its band at
 <l_n, r - age c_dot_n - o_n>; a set built from scratch has o = 0 (subtracting
 0.0 changes no bit).
 """
-import math
 from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
 
-from polyc2bf_ros.core.geometry import batch as batch_geometry
 from polyc2bf_ros.core.geometry.polygons import PolygonBatch
-from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, kernel, signature
+from polyc2bf_ros.core.kernels import geometry_batch as batch_geometry
+from polyc2bf_ros.core.kernels.views import _choose_planes, _viewpoints
 
 
 @dataclass(frozen=True)
@@ -70,24 +69,6 @@ class View:
         out = np.empty((2, self.projections.shape[0]))
         _viewpoints(self.projections, position, velocities, offsets, float(age), out)
         return out
-
-
-@kernel
-def viewpoint(projections, position, velocities, offsets, age, n):
-    """Return (x, y) = P_n (r - age c_dot_n - o_n): the robot seen from obstacle n's frame."""
-    x = y = 0.0
-    for d in range(position.shape[0]):
-        offset = position[d] - age * velocities[n, d] - offsets[n, d]
-        x += projections[n, 0, d] * offset
-        y += projections[n, 1, d] * offset
-    return x, y
-
-
-@kernel(signature('void', F3, F1, F2, F2, 'f8', F2))
-def _viewpoints(projections, position, velocities, offsets, age, out):
-    """Write every obstacle's ``viewpoint`` into the columns of ``out`` (2, N)."""
-    for n in range(projections.shape[0]):
-        out[0, n], out[1, n] = viewpoint(projections, position, velocities, offsets, age, n)
 
 
 def prepare_views(obstacles, cone_model, dim, band_margin):
@@ -119,21 +100,6 @@ def _vertical_view(obstacles, cone_model, band_margin):
                                     enabled)
     return _view(cone_model, PolygonBatch(shadows, np.full(count, 4)), projections, enabled,
                  long_axes=long_axes, band=band)
-
-
-@kernel(signature('void', B1, F2, B1, F2, B1, F2, F2, F1, F2, F2, 'f8', B1, B1))
-def _choose_planes(valid_h, k_h, valid_v, k_v, enabled_v, long_axes, band, position,
-                   velocities, offsets, age, vertical, usable):
-    """Per obstacle: is the vertical plane used, and is any cone usable (module docstring)."""
-    for n in range(valid_h.shape[0]):
-        along = (long_axes[n, 0] * (position[0] - age * velocities[n, 0] - offsets[n, 0])
-                 + long_axes[n, 1] * (position[1] - age * velocities[n, 1] - offsets[n, 1]))
-        candidate = valid_v[n] and enabled_v[n] and (
-            not valid_h[n] or band[n, 0] <= along <= band[n, 1])
-        rank_h = math.hypot(k_h[0, n], k_h[1, n]) if valid_h[n] else math.inf
-        rank_v = math.hypot(k_v[0, n], k_v[1, n]) if candidate else math.inf
-        vertical[n] = rank_v < rank_h
-        usable[n] = valid_h[n] or candidate
 
 
 def choose_planes(valid_h, k_h, valid_v, k_v, view, position, velocities, offsets, age):

@@ -1,4 +1,9 @@
-"""Compiled kernels: ``jit`` (ahead of time or numba ``njit``) and ``build`` (the AOT build).
+"""Compiled kernels: ``jit`` (ahead of time or numba ``njit``), ``build`` and the kernels.
 
-Imports nothing else of the core; every other core folder imports ``kernels.jit``.
+Every kernel of the core lives here, one module per concept (``cones``, ``barrier``,
+``horizon``, ``braking``, ``geometry_batch``, ``views``, ``tracking``, ``obstacle_set``,
+``filter_rows``, ``qp``, ``route`` and one per robot model), and the ahead-of-time
+build's digest covers this folder only.  Imports nothing else of the core: a kernels
+module imports ``kernels.jit``, numpy, math and other kernels modules; every other
+core folder imports the kernels it calls.
 """

@@ -2,15 +2,17 @@
 
 One small numpy call costs about a microsecond, so a filter step written as ~100
 vectorised numpy calls spends most of its time in call overhead.  The hot path
-therefore runs as a few compiled loops over the obstacles (``kernel``), each
-with the math of its module's docstring.
+therefore runs as a few compiled loops over the obstacles (``kernel``).  They all live
+in this folder, one module per concept (``kernels.cones`` holds the kernels of
+``barrier.cones``, whose docstring has the math), and import only each other and
+this module; the concept modules import the kernels they call.
 
 Two ways to run the same source:
 
 * **Ahead of time** (the default once built): ``make`` runs
   ``python -m polyc2bf_ros.core.kernels.build``, which compiles every kernel
   that Python calls into one extension module, ``core/kernels/_kernels*.so``,
-  beside a digest of the sources that define kernels (``kernel_sources``).  A
+  beside a digest of this folder's sources (``kernel_sources``).  A
   process then loads the kernels without numba or LLVM and compiles nothing at
   start-up.  Each one sits behind its guard (``guard_source``,
   written out by the build), which checks dtype, rank and contiguity of every
@@ -87,15 +89,13 @@ def signature(result, *arguments):
 
 
 def kernel_sources():
-    """Return the core's Python files that define kernels (what the extension is built from).
+    """Return the Python files of this folder, ``core/kernels`` (what the extension is built from).
 
-    A file counts when a line starts with ``@kernel``, plus this one; editing any other
-    file (the filter's Python around the kernels, the node) keeps the built kernels.
+    Every kernel lives here, one module per concept beside the machinery; the generated
+    ``_guards.py`` does not count.  Editing any other file (the filter's Python around the
+    kernels, the node) keeps the built kernels.
     """
-    core = KERNELS.parent
-    return sorted(path for path in core.rglob('*.py')
-                  if path == Path(__file__).resolve()
-                  or re.search(r'^@kernel\b', path.read_text(), re.M))
+    return sorted(path for path in KERNELS.glob('*.py') if path.name != '_guards.py')
 
 
 def source_digest():
@@ -111,7 +111,7 @@ def source_digest():
 def export_name(module, name):
     """Return the extension's symbol for kernel ``name`` of ``module``.
 
-    ``polyc2bf_ros.core.geometry.views`` and ``_viewpoints``: ``core_geometry_views__viewpoints``.
+    ``polyc2bf_ros.core.kernels.views`` and ``_viewpoints``: ``core_kernels_views__viewpoints``.
     """
     return module.replace('polyc2bf_ros.', '').replace('.', '_') + '__' + name.lstrip('_')
 

@@ -21,82 +21,13 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core.kernels.jit import F1, F2, kernel, signature
+from polyc2bf_ros.core.kernels.unicycle import _braking_path, _held_path, _offset_point
 from polyc2bf_ros.core.models.base import (
     damped_brake,
     ReferenceKinematics,
     register_model,
     RobotModel,
 )
-
-
-@kernel(signature('void', F1, 'f8', F1, F1, F1, F2))
-def _offset_point(x, offset, position, velocity, drift, input_matrix):
-    """Write r, r_dot, drift and B of the point ``offset`` ahead of the axle (module docstring)."""
-    px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
-    c, s = math.cos(theta), math.sin(theta)
-    position[0], position[1] = px + offset * c, py + offset * s
-    velocity[0] = v * c - offset * omega * s
-    velocity[1] = v * s + offset * omega * c
-    drift[0] = -v * omega * s - offset * omega ** 2 * c
-    drift[1] = v * omega * c - offset * omega ** 2 * s
-    input_matrix[0, 0], input_matrix[0, 1] = c, -offset * s
-    input_matrix[1, 0], input_matrix[1, 1] = s, offset * c
-
-
-@kernel(signature('i8', F1, 'f8', F1, 'f8', 'f8', F2))
-def _braking_path(x, offset, limits, time_constant, period, out):
-    """Write the reference point's [x, y, vx, vy] along the brake into ``out``; return the rows.
-
-    One midpoint step of the dynamics per period, the damped brake held over it
-    (``damped_brake``; exact for a straight stop); ends at rest (|v|, |omega| < 1e-4)
-    or when ``out`` is full.
-    """
-    px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
-    rows = 0
-    for k in range(out.shape[0]):
-        a = min(max(-v / time_constant, -limits[0]), limits[0])
-        alpha = min(max(-omega / time_constant, -limits[1]), limits[1])
-        px, py, theta, v, omega = _held_step(px, py, theta, v, omega, a, alpha, period)
-        _point_row(px, py, theta, v, omega, offset, out[k])
-        rows = k + 1
-        if abs(v) < 1e-4 and abs(omega) < 1e-4:
-            break  # the rest of the damped stop moves the point by < 1e-4 time_constant
-    return rows
-
-
-@kernel
-def _held_step(px, py, theta, v, omega, a, alpha, period):
-    """Return the state one ``period`` on with (a, alpha) held.
-
-    The midpoint rule, second order in T (exact for a straight stop).
-    """
-    heading = theta + 0.5 * period * (omega + 0.25 * period * alpha)
-    travel = period * (v + 0.5 * period * a)
-    return (px + travel * math.cos(heading), py + travel * math.sin(heading),
-            theta + period * (omega + 0.5 * period * alpha), v + period * a,
-            omega + period * alpha)
-
-
-@kernel
-def _point_row(px, py, theta, v, omega, offset, row):
-    """Write the reference point's [x, y, vx, vy] at state (px, py, theta, v, omega) to ``row``."""
-    c, s = math.cos(theta), math.sin(theta)
-    row[0], row[1] = px + offset * c, py + offset * s
-    row[2], row[3] = v * c - offset * omega * s, v * s + offset * omega * c
-
-
-@kernel(signature('void', F1, 'f8', F1, 'f8', F2, F1))
-def _held_path(x, offset, u, step, out, end):
-    """Write the reference point's [x, y, vx, vy] with ``u`` held, one row per ``step``.
-
-    And the state after the last row to ``end``.
-    """
-    px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
-    for k in range(out.shape[0]):
-        px, py, theta, v, omega = _held_step(px, py, theta, v, omega, u[0], u[1], step)
-        _point_row(px, py, theta, v, omega, offset, out[k])
-    end[0], end[1], end[2], end[3], end[4] = px, py, theta, v, omega
 
 
 @register_model

@@ -17,7 +17,6 @@ Non-convex footprints above ``max_parts`` convex parts are replaced by their con
 filter's per-set cache of prepared views (``SafetyFilter.prepare``), so a set prepared off
 the control path arrives ready.
 """
-import math
 from dataclasses import dataclass, field
 from typing import Optional
 
@@ -25,7 +24,7 @@ import numpy as np
 
 from polyc2bf_ros.core.geometry.polygon_limits import bounded_convex_parts, MAX_PARTS
 from polyc2bf_ros.core.geometry.polygons import is_convex, PolygonBatch
-from polyc2bf_ros.core.kernels.jit import F2, F3, kernel, signature
+from polyc2bf_ros.core.kernels.obstacle_set import _finite
 
 
 @dataclass(frozen=True)
@@ -126,21 +125,6 @@ class ObstacleSet:
     def is_finite(self):
         """Return True when vertices and velocities are finite (z bounds may be infinite)."""
         return _finite(self.footprints.vertices, self.velocities, self.z_ranges)
-
-
-@kernel(signature('b1', F3, 'f8[:, :]', F2))
-def _finite(vertices, velocities, z_ranges):
-    """Return True when vertices and velocities are finite and no z bound is NaN."""
-    for value in vertices.ravel():
-        if not math.isfinite(value):
-            return False
-    for value in velocities.ravel():
-        if not math.isfinite(value):
-            return False
-    for value in z_ranges.ravel():
-        if math.isnan(value):
-            return False
-    return True
 
 
 def _convex_parts(polygon, convex_ccw, max_parts):

@@ -1,0 +1,245 @@
+"""Kernels of ``barrier.horizon_cone``, whose docstring has the math.
+
+Moved there verbatim: every compiled kernel lives in ``core/kernels`` (``jit.kernel_sources``).
+"""
+import math
+
+from polyc2bf_ros.core.kernels.barrier import barrier_column, plane_motion, store_input_column
+from polyc2bf_ros.core.kernels.cones import (
+    midpoint_cone,
+    nearest_edge,
+    PLANE_ROWS,
+    polygon_box,
+    silhouette,
+)
+from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, kernel, signature
+from polyc2bf_ros.core.kernels.views import viewpoint
+
+_TINY = 1e-12
+
+
+@kernel
+def _boundary_distance(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy):
+    """Return (d, grad_x d): the distance from q to polygon n and its gradient in x."""
+    square, _, ox, oy, _ = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)
+    distance = math.sqrt(square)
+    if distance == 0.0:
+        return 0.0, 0.0, 0.0
+    return distance, -ox / distance, -oy / distance
+
+
+
+@kernel
+def _bisector_frame(x, y, count, n, qx, qy, ax, ay, bx, by):
+    """Return (L, g_hat, u, c, |m|, M) of the bisector cone of rays a, b (module docstring)."""
+    gx = gy = 0.0
+    for k in range(count):
+        gx += x[n, k]
+        gy += y[n, k]
+    gx, gy = gx / count - qx, gy / count - qy
+    length = max(math.sqrt(gx * gx + gy * gy), _TINY)
+    a_norm = max(math.sqrt(ax * ax + ay * ay), _TINY)
+    b_norm = max(math.sqrt(bx * bx + by * by), _TINY)
+    ahx, ahy, bhx, bhy = ax / a_norm, ay / a_norm, bx / b_norm, by / b_norm
+    mx, my = ahx + bhx, ahy + bhy
+    m_norm = max(math.sqrt(mx * mx + my * my), _TINY)
+    m00 = (1.0 - ahx * ahx) / a_norm + (1.0 - bhx * bhx) / b_norm
+    m01 = -ahx * ahy / a_norm - bhx * bhy / b_norm
+    m11 = (1.0 - ahy * ahy) / a_norm + (1.0 - bhy * bhy) / b_norm
+    return (length, gx / length, gy / length, mx / m_norm, my / m_norm, 0.5 * m_norm, m_norm,
+            m00, m01, m11)
+
+
+
+@kernel
+def _bisector_cone(x, y, count, n, qx, qy, a, b):
+    """Return (px, py, kx, ky, s, ds_dx, ds_dy, frame): the bisector cone of vertices a, b."""
+    ax, ay, bx, by = x[n, a] - qx, y[n, a] - qy, x[n, b] - qx, y[n, b] - qy
+    frame = _bisector_frame(x, y, count, n, qx, qy, ax, ay, bx, by)
+    length, gx, gy, ux, uy, c, _, m00, m01, m11 = frame
+    mux, muy = m00 * ux + m01 * uy, m01 * ux + m11 * uy
+    if ax * ax + ay * ay > bx * bx + by * by:
+        ax, ay = bx, by
+    return (length * ux, length * uy, ax, ay, length * c, c * gx + 0.5 * length * mux,
+            c * gy + 0.5 * length * muy, frame)
+
+
+
+@kernel
+def _bisector_terms(frame, distance, ddx, ddy, inv_horizon, projections, velocities,
+                    position_rate, drift, input_matrix, eps_sq, out, first, n):
+    """Write h_tau, Lf h_tau, Lg h_tau of the bisector cone (module docstring)."""
+    length, gx, gy, ux, uy, c, m_norm, m00, m01, m11 = frame
+    vx, vy, ax, ay = plane_motion(projections, velocities, position_rate, drift, n)
+    speed = math.sqrt(vx * vx + vy * vy + eps_sq)
+    along = ux * vx + uy * vy
+    value = along + speed * c + inv_horizon * distance * (1.0 - c)
+    wx, wy = vx - along * ux, vy - along * uy  # (I - u u^T) v
+    mux, muy = m00 * ux + m01 * uy, m01 * ux + m11 * uy
+    mwx, mwy = m00 * wx + m01 * wy, m01 * wx + m11 * wy
+    grad_x = mwx / m_norm + 0.5 * speed * mux + inv_horizon * (
+        (1.0 - c) * ddx - 0.5 * distance * mux)
+    grad_y = mwy / m_norm + 0.5 * speed * muy + inv_horizon * (
+        (1.0 - c) * ddy - 0.5 * distance * muy)
+    dh_dx, dh_dy = gx * value + length * grad_x, gy * value + length * grad_y
+    dh_dvx, dh_dvy = length * (ux + c * vx / speed), length * (uy + c * vy / speed)
+    out[first, n] = length * value
+    out[first + 1, n] = dh_dx * vx + dh_dy * vy + dh_dvx * ax + dh_dvy * ay
+    store_input_column(projections, input_matrix, dh_dvx, dh_dvy, out, first + 2, n)
+
+
+
+@kernel
+def _store_midpoint(out, first, n, ax, ay, bx, by):
+    """Write the ``midpoint_cone`` of rays a, b (no extension) into rows ``first``..."""
+    px, py, kx, ky, s, ds_dpx, ds_dpy = midpoint_cone(ax, ay, bx, by, 0.0)
+    out[first, n], out[first + 1, n], out[first + 2, n], out[first + 3, n] = px, py, kx, ky
+    out[first + 4, n], out[first + 5, n], out[first + 6, n] = s, ds_dpx, ds_dpy
+
+
+
+@kernel
+def _add_horizon_term(block, column, distance, ddx, ddy, inv_horizon, vx, vy):
+    """Add (d / tau)(|p| - s) to h and its rate to Lf h of a midpoint cone (rows 2-8, 9-10)."""
+    px, py, s = block[2, column], block[3, column], block[6, column]
+    p_norm = max(math.sqrt(px * px + py * py), _TINY)
+    gap = p_norm - s
+    grad_x = gap * ddx + distance * (px / p_norm - block[7, column])
+    grad_y = gap * ddy + distance * (py / p_norm - block[8, column])
+    block[PLANE_ROWS, column] += inv_horizon * distance * gap
+    block[PLANE_ROWS + 1, column] += inv_horizon * (grad_x * vx + grad_y * vy)
+
+
+
+@kernel(signature('void', F2, F2, F2, F2, F2, I1, F2, 'b1', F2, B1))
+def _horizon_cones(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, bisector, out, valid):
+    """Write the cone (midpoint or bisector axis) of every polygon seen from ``viewpoints``."""
+    shared = viewpoints.shape[1] == 1
+    for n in range(counts.shape[0]):
+        j = 0 if shared else n
+        qx, qy = viewpoints[0, j], viewpoints[1, j]
+        a, b, seen = silhouette(x, y, counts[n], n, qx, qy)
+        if bisector:
+            cone = _bisector_cone(x, y, counts[n], n, qx, qy, a, b)
+            out[0, n], out[1, n], out[2, n], out[3, n] = cone[0], cone[1], cone[2], cone[3]
+            out[4, n], out[5, n], out[6, n] = cone[4], cone[5], cone[6]
+            valid[n] = seen and cone[7][6] > _TINY
+        else:
+            _store_midpoint(out, 0, n, x[n, a] - qx, y[n, a] - qy, x[n, b] - qx, y[n, b] - qy)
+            valid[n] = seen
+
+
+
+@kernel(signature('void', F2, F2, F2, F2, F2, I1, 'f8', 'b1', F3, F1, F2, F2, 'f8', F1, F1, F2,
+                  'f8', F2, B1))
+def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, projections,
+                   position, velocities, offsets, age, position_rate, drift, input_matrix,
+                   velocity_epsilon, block, valid):
+    """Per polygon: viewpoint, cone, distance and h_tau terms (``ConeModel.fill_plane``)."""
+    eps_sq = velocity_epsilon * velocity_epsilon
+    for n in range(counts.shape[0]):
+        qx, qy = viewpoint(projections, position, velocities, offsets, age, n)
+        block[0, n], block[1, n] = qx, qy
+        a, b, seen = silhouette(x, y, counts[n], n, qx, qy)
+        distance, ddx, ddy = _boundary_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
+                                                qx, qy)
+        if bisector:
+            cone = _bisector_cone(x, y, counts[n], n, qx, qy, a, b)
+            block[2, n], block[3, n], block[4, n], block[5, n] = cone[0], cone[1], cone[2], cone[3]
+            block[6, n], block[7, n], block[8, n] = cone[4], cone[5], cone[6]
+            valid[n] = seen and cone[7][6] > _TINY
+            _bisector_terms(cone[7], distance, ddx, ddy, inv_horizon, projections, velocities,
+                            position_rate, drift, input_matrix, eps_sq, block, PLANE_ROWS, n)
+        else:
+            _store_midpoint(block, 2, n, x[n, a] - qx, y[n, a] - qy, x[n, b] - qx,
+                            y[n, b] - qy)
+            valid[n] = seen
+            vx, vy = barrier_column(block[2, n], block[3, n], block[6, n], block[7, n],
+                                    block[8, n], projections, velocities, position_rate, drift,
+                                    input_matrix, eps_sq, block, PLANE_ROWS, n)
+            _add_horizon_term(block, n, distance, ddx, ddy, inv_horizon, vx, vy)
+
+
+
+@kernel
+def _box_gap(low_x, high_x, low_y, high_y, box):
+    """Return the distance between the box [low, high] and ``box`` (``polygon_box``)."""
+    gap_x = max(0.0, box[0] - high_x, low_x - box[1])
+    gap_y = max(0.0, box[2] - high_y, low_y - box[3])
+    return math.sqrt(gap_x * gap_x + gap_y * gap_y)
+
+
+
+@kernel
+def _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon, bisector,
+           eps_sq):
+    """Return h_tau of polygon n seen from q with relative velocity v; inf where no cone."""
+    a, b, seen = silhouette(x, y, count, n, qx, qy)
+    if not seen:
+        return math.inf
+    distance = math.sqrt(nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)[0])
+    ax, ay, bx, by = x[n, a] - qx, y[n, a] - qy, x[n, b] - qx, y[n, b] - qy
+    speed = math.sqrt(vx * vx + vy * vy + eps_sq)
+    if bisector:
+        length, _, _, ux, uy, c, m_norm, _, _, _ = _bisector_frame(x, y, count, n, qx, qy,
+                                                                   ax, ay, bx, by)
+        if not m_norm > _TINY:
+            return math.inf
+        return length * (ux * vx + uy * vy + speed * c + inv_horizon * distance * (1.0 - c))
+    px, py, _, _, shape, _, _ = midpoint_cone(ax, ay, bx, by, 0.0)
+    gap = max(math.sqrt(px * px + py * py), _TINY) - shape
+    return px * vx + py * vy + speed * shape + inv_horizon * distance * gap
+
+
+
+@kernel(signature('f8', F2, F2, F2, F2, F2, I1, 'f8', 'b1', F2, F2, 'f8', F1, F2, 'f8',
+                  'f8'))
+def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, velocities,
+                offsets, age, start, path, period, eps_sq):
+    """Return the smallest h_tau of any polygon at ``start`` and every ``path`` row.
+
+    ``start`` and the rows are the reference point's [x, y, vx, vy], ``start`` at ``age``
+    and row k at age + (k + 1) period; polygon n has moved by ``offsets[n]`` and moves at
+    ``velocities[n]``.  Points inside a polygon (no cone) are left out, as the filter
+    leaves such a part out of its rows.  Pruning (bisector axis) is exact: with w the
+    relative velocity, h_tau = L [<u, w> + |w|_e c + (d / tau)(1 - c)] >=
+    L (1 - c)(d / tau - |w|), as c = cos(half-angle) >= 0 and |w|_e >= |w|; so a point whose
+    distance to the polygon's bounding box is at least tau |w| has h_tau >= 0 and is not
+    evaluated, nor is a polygon for which that holds along the whole path.  The midpoint
+    axis's s can be negative close to a polygon, so there every point is evaluated.
+    +inf when nothing is evaluated.
+    """
+    rows = path.shape[0]
+    low_x = high_x = start[0]
+    low_y = high_y = start[1]
+    fastest = math.sqrt(start[2] * start[2] + start[3] * start[3])
+    for k in range(rows):
+        low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
+        low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
+        fastest = max(fastest, math.sqrt(path[k, 2] * path[k, 2] + path[k, 3] * path[k, 3]))
+    moved = max(abs(age), abs(age + rows * period))
+    best = math.inf
+    for n in range(counts.shape[0]):
+        ovx, ovy = velocities[n, 0], velocities[n, 1]
+        obstacle_speed = math.sqrt(ovx * ovx + ovy * ovy)
+        reach = moved * obstacle_speed
+        ox, oy = offsets[n, 0], offsets[n, 1]
+        box = polygon_box(x, y, counts[n], n)
+        gap = _box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
+                       high_y - oy + reach, box)
+        if bisector and inv_horizon * gap >= fastest + obstacle_speed:
+            continue
+        for k in range(-1, rows):
+            if k < 0:
+                px, py, pvx, pvy = start[0], start[1], start[2], start[3]
+            else:
+                px, py, pvx, pvy = path[k, 0], path[k, 1], path[k, 2], path[k, 3]
+            t = age + (k + 1) * period
+            qx, qy = px - t * ovx - ox, py - t * ovy - oy
+            vx, vy = ovx - pvx, ovy - pvy
+            if bisector and inv_horizon * _box_gap(qx, qx, qy, qy, box) >= math.sqrt(
+                    vx * vx + vy * vy):
+                continue
+            best = min(best, _value(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx, qy, vx,
+                                    vy, inv_horizon, bisector, eps_sq))
+    return best
