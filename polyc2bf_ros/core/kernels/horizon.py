@@ -1,6 +1,6 @@
 """Kernels of ``barrier.horizon_cone``, whose docstring has the math.
 
-Moved there verbatim: every compiled kernel lives in ``core/kernels`` (``jit.kernel_sources``).
+The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_sources``).
 """
 import math
 

@@ -1,6 +1,6 @@
 """Kernels of ``models.point_mass``, whose docstring has the math.
 
-Moved there verbatim: every compiled kernel lives in ``core/kernels`` (``jit.kernel_sources``).
+The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_sources``).
 """
 from polyc2bf_ros.core.kernels.jit import F1, F2, kernel, signature
 

@@ -1,6 +1,6 @@
 """Kernels of ``obstacles.scan_tracker`` and ``obstacles.constant_velocity`` (their math).
 
-Moved there verbatim: every compiled kernel lives in ``core/kernels`` (``jit.kernel_sources``).
+The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_sources``).
 Over 500 lines on purpose: the kernels (registration, gating, assignment, the Kalman step)
 share one settings vector and one array layout of the tracks.
 """
