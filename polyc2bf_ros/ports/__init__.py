@@ -6,5 +6,6 @@
 releases its configuration), reads what the control path needs and feeds its watchdog;
 obstacle sources hand their bytes to the obstacle worker (``obstacle_intake``), whose
 snapshots ``obstacle_feed`` hands to the decision.  Messages that cannot be used are counted
-and logged by ``invalid_messages``.
+and logged by ``invalid_messages``.  Ports import the core and the shell's message
+readers (``conversions``, ``obstacle_intake``), never the node.
 """
