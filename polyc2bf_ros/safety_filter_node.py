@@ -1,14 +1,11 @@
 """``safety_filter``: PolyC2BF safety filter between a planner and a robot.
 
-Subscribes ``odom`` (nav_msgs/Odometry, best effort), ``obstacles``
-(visualization_msgs/MarkerArray, reliable + transient local; not with ``use_markers:=false``,
-which takes obstacles from ``scan_topics`` only) and the nominal
-command: ``cmd_vel_in`` (Twist, or TwistStamped with ``stamped:=true``) for the
-velocity-interface models, ``wrench_in`` (WrenchStamped) for ``quadrotor``.
-Publishes the safe command on ``cmd_vel_out`` / ``wrench_out`` (same type,
-header copied from the input), ``/diagnostics`` at 1 Hz and ``~/markers`` at
-10 Hz while someone subscribes.  ``~/enable`` (std_srvs/SetBool) switches
-filtering off (pass-through, reported as WARN) and on.
+Topics, QoS, parameters and diagnostics: doc/safety_filter.md.  In short: ``odom``,
+``obstacles`` (markers; not with ``use_markers:=false``), ``scan_topics`` and the nominal
+``cmd_vel_in`` (Twist, TwistStamped with ``stamped:=true``) or ``wrench_in`` (quadrotor) in;
+the safe command on ``cmd_vel_out`` / ``wrench_out`` (the input's type and header),
+``/diagnostics``, ``~/markers``, ``~/state`` and ``~/deadlock`` out; ``~/enable`` switches
+filtering off (pass-through, WARN) and on.
 
 Each step (every ``1/rate`` s with ``trigger:=timer``, or per nominal command
 with ``trigger:=command``)::
@@ -18,34 +15,22 @@ with ``trigger:=command``)::
     rejected obstacles, block_if_invalid, timeout 0  -> stop
     otherwise  safe command = CommandFilter.filter(state, yaw, nominal command, obstacles, age)
 
-``core.decision.ControlDecision`` takes that decision, the same for bag replay
-and the evaluation; the node only turns messages into its inputs and its answer
-into a message.  ``CommandFilter`` (``core.command_filter``): velocity models
-``u_nom = (Rz(yaw) v_cmd - v) / tau``, ``v_safe = Rz(yaw)^T (v + u_safe T)`` with
-``T = 1/rate``; the quadrotor mixes the wrench into rotor thrusts and back.  A
-stop is a zero twist, or the model's braking (hover) wrench.  Nothing is
-published before the first nominal command; after it, every step publishes.
-
-Obstacles are processed in a worker process (``obstacle_intake``), so no obstacle message
-delays a control step; an unreadable one brakes until a readable one arrives.  With
-``block_if_invalid`` (default, as Nav2's collision monitor) rejected obstacles (wrong frame,
-unusable) are not fresh data: they go stale after ``obstacles_timeout`` and the node stops
-(at once with timeout 0).  Each scan topic has its own ``scan_timeout`` watchdog.  If no
-step or tick has run for ``stall_timeout`` (steady clock), a separate thread publishes the
-stop and an ERROR status (``stall_guard``).  ``~/deadlock`` and ``~/state`` say when the
-filter holds the robot in place and what the last step did (``reporter``).
+``core.decision.ControlDecision`` takes that decision, the same for bag replay and the
+evaluation; the node only turns messages into its inputs and its answer into a message.  A
+stop is a zero twist, or the model's braking (hover) wrench.  Nothing is published before
+the first nominal command; after it, every step publishes.  Obstacles are processed in a
+worker process (``obstacle_intake``), so no obstacle message delays a step.  If no step or
+tick has run for ``stall_timeout`` (steady clock), a separate thread publishes the stop and
+an ERROR status (``stall_guard``).
 
 ``SafetyFilterMixin`` is the composition root: ``_configure`` creates and wires the parts,
 ``_step`` runs a step.  The parts: ``node_parameters``, ``ports`` (one input port per
 source: ``odometry_port``, ``command_port``, ``marker_port``, ``scan_port``,
 ``transform_port``; ``obstacle_feed``), ``lockstep_gate`` (``match_stamps``) and
 ``reporter``.  ``SafetyFilterNode`` (this executable) sets it up and starts it at once, the
-managed ``safety_filter_lifecycle`` from its lifecycle transitions.
-
-Hot path: odometry and commands are taken serialized and only the fields used
-are read (``conversions``, CDR section); the answer is a copy of the command's
-bytes with its six numbers replaced, so its header is the input's.
-Diagnostics and markers are built on their own slow timers.
+managed ``safety_filter_lifecycle`` from its lifecycle transitions.  Hot path: inputs are
+taken serialized and only the fields used are read (``conversions``); the answer is a copy
+of the command's bytes with its six numbers replaced.
 """
 import sys
 import time
