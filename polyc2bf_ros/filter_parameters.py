@@ -18,6 +18,7 @@ from pathlib import Path
 
 import yaml
 
+from polyc2bf_ros.core.actuation.input_delay import braking_plan
 from polyc2bf_ros.core.command_filter import CommandFilter
 from polyc2bf_ros.core.decision import DEADLOCK_DEFAULTS, RESOLUTIONS, ROUTE_DEFAULTS
 from polyc2bf_ros.core.geometry.polygon_limits import MAX_PARTS, MAX_VERTICES
@@ -52,6 +53,13 @@ NODE_PARAMETERS = {
                      "(core/actuation/input_delay.py); quadrotor: its rotors' time constant, "
                      "thrust commands are scaled so the rotors reach the filter's thrusts "
                      '(core/actuation/rotor_lag.py)', False),
+    'command_latency_error': (0.0, (0.0, 1.0), 'velocity models: how much longer [s] the '
+                              "base's true latency may be than command_latency; the braking "
+                              'check starts each stop that much later (design.md 3.13)', True),
+    'actuator_tau_error': (0.0, (0.0, 2.0), "velocity models: how much slower [s] the base's "
+                           'time constant may be than actuator_tau; the braking check plans '
+                           'stops at the deceleration such a base realises (design.md 3.13)',
+                           True),
     'velocity_tau': (0.0, (0.0, 10.0), 'tau [s] in u_nom = (v_cmd - v) / tau; 0 = one '
                      'control period (transparent when nothing constrains)', False),
     'odom_timeout': (0.25, (0.002, 10.0), 'odometry older than this [s] -> stop', False),
@@ -304,24 +312,27 @@ def build_settings(values, model=None, reuse=None):
     if values['trigger'] not in ('timer', 'command'):
         raise ParameterError("parameter 'trigger' must be 'timer' or 'command', "
                              f"got {values['trigger']!r}")
-    for name in ('command_latency', 'actuator_tau'):
+    for name in ('command_latency', 'actuator_tau', 'command_latency_error',
+                 'actuator_tau_error'):
         value = values[name]
         if (isinstance(value, bool) or not isinstance(value, numbers.Real)
                 or not math.isfinite(value) or value < 0.0):
             raise ParameterError(f'invalid filter parameters: {name} must be a finite '
                                  f'number >= 0, got {value!r}')
     try:
-        if model is None:
-            arguments = {name: values.get(f'model_params.{name}', default)
-                         for name, default in model_parameters(model_name).items()}
-            if 'brake_time_constant' in arguments:  # a lagging base brakes as slowly
-                arguments['brake_time_constant'] = max(arguments['brake_time_constant'],
-                                                       float(values['actuator_tau']))
-            model = make_model(model_name, **arguments)
         rate = float(values['rate'])
         if not rate > 0.0:
             raise ValueError(f'rate must be positive, got {rate}')
         period = 1.0 / rate
+        if model is None:
+            arguments = {name: values.get(f'model_params.{name}', default)
+                         for name, default in model_parameters(model_name).items()}
+            tau, tau_error = float(values['actuator_tau']), float(values['actuator_tau_error'])
+            if 'brake_time_constant' in arguments:  # a lagging base brakes as slowly
+                arguments['brake_time_constant'] = max(arguments['brake_time_constant'],
+                                                       tau + tau_error)
+            model = make_model(model_name, **arguments).plan_braking(*braking_plan(
+                period, tau, tau_error, float(values['command_latency_error'])))
         config = FilterConfig(control_period=period, **{
             name: values[f'filter.{name}'] for name in FILTER_FIELDS}).validate()
         if reuse is not None and _filter_values(reuse.parameters) == _filter_values(values):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.actuation.input_delay import InputDelay
+from polyc2bf_ros.core.actuation.input_delay import braking_plan, InputDelay
 from polyc2bf_ros.core.command_filter import CommandFilter
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
@@ -114,3 +114,48 @@ def test_latency_and_lag_are_for_velocity_models_and_must_be_non_negative():
         InputDelay(make_model('unicycle'), -0.01, 0.0, PERIOD)
     with pytest.raises(ValueError, match='actuator_tau'):
         InputDelay(make_model('unicycle'), 0.0, math.inf, PERIOD)
+
+
+@settings(max_examples=examples(40), deadline=None)
+@given(speed=st.floats(0.1, 2.0), told=st.sampled_from([0.0, 0.05, 0.07, 0.1]),
+       tau_error=st.sampled_from([0.0, 0.01, 0.03, 0.05]),
+       latency_error=st.sampled_from([0.0, 0.01, 0.02]))
+def test_the_planned_stop_is_no_shorter_than_a_slower_later_base_makes(speed, told, tau_error,
+                                                                       latency_error):
+    """``braking_plan``: a base up to dtau slower and dL later than told still stops in time.
+
+    The filter brakes with the model's brake, measured each period and scaled for the
+    time constant it was told (``InputDelay.gain``); the base lags with tau + dtau and acts
+    dL late.  Where it comes to rest lies no farther along than the braking check's
+    planned path ends (``RobotModel.plan_braking``).
+    """
+    model = make_model('unicycle', offset_l=0.0, brake_time_constant=max(0.05,
+                                                                         told + tau_error))
+    model.plan_braking(*braking_plan(PERIOD, told, tau_error, latency_error))
+    state = np.array([0.0, 0.0, 0.0, speed, 0.0])
+    planned = model.braking_path(state, PERIOD)[-1, 0]
+    gain = 1.0 / -math.expm1(-PERIOD / told) if told else 1.0
+    # No limits on the base: a compensated command asks for about (1 + T / (2 tau)) of u
+    # at the start of the period, which a base held to max_accel clips (not this bound).
+    base = Base(state, latency_error, told + tau_error, limits=(1e9, 1e9))
+    now = 0.0
+    while base.state[3] > 1e-4 and now < 10.0:
+        brake = model.braking_input(base.state)
+        base.send(now, base.state[3:5] + brake * PERIOD * gain)
+        base.run(now, PERIOD)
+        now += PERIOD
+    assert base.state[0] <= planned + 1e-3
+
+
+def test_the_braking_plan_is_exact_without_mismatch_and_refuses_bad_bounds():
+    """No error bound: the full limits and no coast; a negative or NaN bound: one clear line."""
+    assert braking_plan(PERIOD, 0.07, 0.0, 0.0) == (1.0, 0.0)
+    share, coast = braking_plan(PERIOD, 0.07, 0.03, 0.01)
+    assert 0.6 < share < 0.7 and coast == pytest.approx(0.08)
+    for bad in (-0.01, math.nan):
+        with pytest.raises(ValueError, match='actuator_tau_error must be a finite number'):
+            braking_plan(PERIOD, 0.07, bad, 0.0)
+        with pytest.raises(ValueError, match='command_latency_error must be a finite number'):
+            braking_plan(PERIOD, 0.07, 0.0, bad)
+    with pytest.raises(ValueError, match='braking share'):
+        make_model('unicycle').plan_braking(1.5)

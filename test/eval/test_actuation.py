@@ -12,6 +12,7 @@ from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluation.barn_suite import run_world
 from sim_bridge.evaluation.cli import main
 from sim_bridge.evaluation.records import summarise
+from sim_bridge.lidar import LidarSettings
 
 DURATION = 1.5
 
@@ -117,6 +118,32 @@ def test_a_late_lagging_base_touches_unless_the_filter_is_told(told, margin):
     assert record['success'] and not record['collision']
     assert record['min_clearance_m'] > 0.0
     assert record['actuation']['latency_s'] == 0.03
+
+
+def test_from_the_laser_a_base_later_and_slower_than_told_needs_the_error_bounds():
+    """BARN world 212, go-to-goal, from a 270-degree laser with 1 cm noise.
+
+    The base is 30 ms late with tau 0.1 s and 1 cm odometry noise; the filter is told
+    20 ms and 0.07 s with a 2 cm braking margin.  Planning its stops at the full
+    ``max_accel``, the braking check lets the robot close on a cylinder it sees; told
+    that the base may be 10 ms later and 0.03 s slower (``braking_plan``), it reaches the
+    goal without contact.
+    """
+    world, = [w for w in load_worlds(WORLDS_FILE) if w.world == 212]
+    plant = Actuation(latency=0.03, actuator_tau=0.1, odom_noise=0.01)
+    lidar = LidarSettings(field_of_view=4.71238898, noise_std=0.01)  # as bench/README.md
+    told = {'command_latency': 0.02, 'actuator_tau': 0.07, 'odom_position_std': 0.01,
+            'odom_heading_std': 0.01, 'filter.braking_margin': 0.02}
+    records = {}
+    for name, bounds in (('unbounded', {}), ('bounded', {'command_latency_error': 0.01,
+                                                         'actuator_tau_error': 0.03})):
+        (records[name], _), = run_world(world, [('polyc2bf_horizon', 'goal')],
+                                        parameters={**told, **bounds},
+                                        obstacle_source='scan', lidar=lidar,
+                                        actuation=plant)
+    assert records['unbounded']['collision']
+    assert records['bounded']['success'] and not records['bounded']['collision']
+    assert records['bounded']['min_clearance_m'] > 0.0
 
 
 def test_lagging_rotors_put_a_crazyflie_into_the_pillars_unless_the_filter_is_told():

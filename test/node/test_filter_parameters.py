@@ -1,4 +1,5 @@
 """The node's parameter files read without ROS (offline replay, in-process evaluation)."""
+import numpy as np
 import pytest
 
 from polyc2bf_ros.core.decision import ControlDecision
@@ -57,6 +58,9 @@ def test_route_parameters_reach_the_resolution_and_must_fit_the_window():
     ({'command_latency': -0.01}, 'command_latency must be a finite number >= 0'),
     ({'command_latency': float('nan')}, 'command_latency must be a finite number >= 0'),
     ({'actuator_tau': float('inf')}, 'actuator_tau must be a finite number >= 0'),
+    ({'actuator_tau_error': -0.01}, 'actuator_tau_error must be a finite number >= 0'),
+    ({'command_latency_error': float('nan')},
+     'command_latency_error must be a finite number >= 0'),
     ({'command_latency': 0.5, 'cmd_timeout': 0.5}, r'command_latency \(0.5 s\) must be '
      r'below cmd_timeout \(0.5 s\)'),
 ])
@@ -95,3 +99,17 @@ def test_a_change_that_keeps_the_filter_values_is_checked_without_building_a_fil
     rebuilt = build_settings(dict(setup.parameters, **{'filter.gamma': 2.0}), model, setup)
     assert rebuilt.command_filter is not setup.command_filter
     assert rebuilt.command_filter.safety_filter.config.gamma == 2.0
+
+
+def test_error_bounds_slow_and_delay_the_braking_checks_stops_only():
+    """Bounds on the latency and lag error plan slower stops; the brake asked stays full."""
+    told = {'command_latency': 0.02, 'actuator_tau': 0.07}
+    exact = build_filter(told).command_filter.model
+    model = build_filter({**told, 'command_latency_error': 0.01,
+                          'actuator_tau_error': 0.03}).command_filter.model
+    assert (exact.braking_share, exact.braking_coast) == (1.0, 0.0)
+    assert model.braking_share < 1.0 and model.braking_coast == pytest.approx(0.08)
+    assert model.brake_time_constant == pytest.approx(0.1)
+    state = [0.0, 0.0, 0.0, 1.0, 0.0]
+    np.testing.assert_array_equal(model.braking_input(state), exact.braking_input(state))
+    assert model.braking_path(state, 0.01)[-1, 0] > exact.braking_path(state, 0.01)[-1, 0] + 0.1

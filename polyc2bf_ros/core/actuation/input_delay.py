@@ -25,6 +25,14 @@ make the two agree (design.md 3.13):
    and the braking check's stop follows the base's own (``brake_time_constant`` at least
    tau: a base told to stop decelerates as ``-v / tau``).
 
+3. **A base that lags more, or acts later, than told** (``braking_plan``).  With the true
+   time constant up to tau + dtau, a command scaled for tau realises only
+   ``(1 - exp(-T / (tau + dtau))) / (1 - exp(-T / tau))`` of the velocity change asked;
+   with the true latency up to L + dL the base is, when a command acts, slower than
+   predicted by what it braked over dL, and each braking command asks less than meant.
+   The braking check plans its stops at the deceleration such a base realises, after a
+   coast for the predicted state's error (``RobotModel.plan_braking``).
+
 Velocity models only (the quadrotor's rotors lag in ``rotor_lag``).  The predicted heading of a
 point mass is the measured one (its yaw is not in the state; over a few tens of
 milliseconds of latency the difference is the yaw rate times L).
@@ -35,6 +43,36 @@ import math
 import numpy as np
 
 from polyc2bf_ros.core.actuation.command_interface import VelocityCommandInterface
+
+
+def braking_plan(period, actuator_tau, tau_error, latency_error):
+    """Return (share, coast) of ``RobotModel.plan_braking`` under bounded mismatch.
+
+    The base's time constant may be up to ``tau_error`` dtau [s] above ``actuator_tau`` tau
+    and its latency up to ``latency_error`` dL [s] above the one told.  Braking, the filter
+    asks each period for a change c = a T g of the velocity it predicts for when the
+    command acts (``InputDelay.gain`` g = 1 / rho^, rho(tau) = 1 - e^{-T / tau}, 1 for
+    tau = 0).  A base with rho = rho(tau + dtau) realises rho of what it is sent, and acting
+    dL later it is a_eff dL slower than predicted by then, so per period
+    a_eff T = (a T g - a_eff dL) rho:
+
+        share = a_eff / a = (rho / rho^) T / (T + rho dL)
+
+    And the stop starts from a state off by v (dL + dtau) in position and a (dL + dtau) in
+    speed, which lengthens it by about v (dL + dtau) more: coast = 2 (dL + dtau), design.md
+    3.13's eps less the odometry's s (module docstring, item 3).
+    """
+    def realised(tau):
+        """Return rho: the share of a velocity step a base of time constant tau makes in T."""
+        return -math.expm1(-period / tau) if tau > 0.0 else 1.0
+
+    for name, value in (('actuator_tau_error', tau_error),
+                        ('command_latency_error', latency_error)):
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f'{name} must be a finite number >= 0, got {value!r}')
+    rho = realised(actuator_tau + tau_error)
+    share = rho / realised(actuator_tau) * period / (period + rho * latency_error)
+    return share, 2.0 * (latency_error + tau_error)
 
 
 class InputDelay:

@@ -123,6 +123,28 @@ class RobotModel(abc.ABC):
         """
         return None
 
+    #: The braking check's stops (``braking_path``, ``braking_reach``) decelerate at this
+    #: share of the input limits after coasting ``braking_coast`` s (``plan_braking``).
+    braking_share = 1.0
+    braking_coast = 0.0
+
+    def plan_braking(self, share=1.0, coast=0.0):
+        """Plan the braking check's stops for a base that may brake slower and act later.
+
+        Each stop decelerates at ``share`` (0 < share <= 1) of the input limits, its damped
+        tail with ``brake_time_constant / share``, after coasting ``coast`` [s] at the
+        velocity it starts with (design.md 3.13, robust margin); ``braking_input`` still
+        asks for the full brake.  Return self.
+        """
+        if not (math.isfinite(share) and 0.0 < share <= 1.0):
+            raise ValueError(f'braking share must be in (0, 1], got {share!r}')
+        if not (math.isfinite(coast) and coast >= 0.0):
+            raise ValueError(f'braking coast must be a finite number >= 0, got {coast!r}')
+        self.braking_share, self.braking_coast = float(share), float(coast)
+        self.braking_limits = np.ascontiguousarray(self.input_upper * self.braking_share,
+                                                   dtype=np.float64)
+        return self
+
     def braking_reach(self, x, period):
         """Return (rho, t): a bound on the braking check's path from one period after x.
 

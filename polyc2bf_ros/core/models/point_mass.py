@@ -28,6 +28,7 @@ class PointMass(RobotModel):
         self.brake_time_constant = float(brake_time_constant)
         self._g = np.vstack([np.zeros((d, d)), np.eye(d)])
         self._drift, self._input_matrix = np.zeros(d), np.eye(d)  # shared: never written
+        self.plan_braking()
 
     def f(self, x):
         """Return [v, 0]."""
@@ -55,12 +56,15 @@ class PointMass(RobotModel):
         """Return the point's path under the brake (``RobotModel.braking_path``)."""
         x = self.as_state(x)
         d = self.position_dim
-        stop = float(np.max(np.abs(x[d:]))) / self.input_upper[0]
-        out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2,
+        if self.braking_coast:  # at constant velocity (``plan_braking``)
+            x = np.concatenate([x[:d] + self.braking_coast * x[d:], x[d:]])
+        limit = float(self.braking_limits[0])
+        stop = float(np.max(np.abs(x[d:]))) / limit
+        time_constant = self.brake_time_constant / self.braking_share
+        out = np.empty((int(stop / period) + int(8 * time_constant / period) + 2,
                         2 * d))
-        # Unchecked: as_state and out are C-contiguous float64.
-        rows = _braking_path.unchecked(x, float(self.input_upper[0]), self.brake_time_constant,
-                                       float(period), out)
+        # Unchecked: as_state, the coasted state and out are C-contiguous float64.
+        rows = _braking_path.unchecked(x, limit, time_constant, float(period), out)
         return out[:rows]
 
     def held_path(self, x, u, step, rows):
@@ -78,16 +82,17 @@ class PointMass(RobotModel):
         """Return (rho, t) of ``RobotModel.braking_reach``; (inf, inf) when T > tau.
 
         Over the period each |v_i| <= |v_i0| + a_max T = v'_i; the brake then lowers each
-        (T <= tau: no overshoot), through the path's K rows (``braking_path``: K <=
-        max v'_i / (a_max T) + 8 tau / T + 2): rho = |v'| (K + 1) T, t = (K + 1) T.
+        (T <= tau: no overshoot), through the coast c (``plan_braking``) and the path's K
+        rows (``braking_path``: K <= max v'_i / (s a_max T) + 8 tau / (s T) + 2, s the braking
+        share): rho = |v'| ((K + 1) T + c), t = (K + 1) T + c.
         """
         if period > self.brake_time_constant:
             return math.inf, math.inf
         limit = float(self.input_upper[0])
         speeds = np.abs(np.asarray(x, dtype=float)[self.position_dim:]) + limit * period
-        rows = int(float(speeds.max()) / limit / period) \
-            + int(8 * self.brake_time_constant / period) + 2
-        duration = (rows + 1) * period
+        rows = int(float(speeds.max()) / float(self.braking_limits[0]) / period) \
+            + int(8 * self.brake_time_constant / self.braking_share / period) + 2
+        duration = (rows + 1) * period + self.braking_coast
         return float(np.sqrt(speeds @ speeds)) * duration, duration
 
 

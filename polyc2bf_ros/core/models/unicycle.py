@@ -59,6 +59,7 @@ class Unicycle(RobotModel):
         self.input_lower = -self.input_upper
         self._limits = (float(max_accel), float(max_angular_accel))  # plain floats: per step
         self.brake_time_constant = float(brake_time_constant)
+        self.plan_braking()
 
     @property
     def input_weights(self):
@@ -97,12 +98,25 @@ class Unicycle(RobotModel):
     def braking_path(self, x, period):
         """Return the reference point's path under the brake (``RobotModel.braking_path``)."""
         x = self.as_state(x)
-        stop = abs(x[3]) / self.input_upper[0] + abs(x[4]) / self.input_upper[1]
-        out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 2, 4))
-        # Unchecked: as_state, input_upper and out are C-contiguous float64.
-        rows = _braking_path.unchecked(x, self.offset_l, self.input_upper,
-                                       self.brake_time_constant, float(period), out)
+        if self.braking_coast:
+            x = self._coasted(x, self.braking_coast)
+        limits = self.braking_limits
+        stop = abs(x[3]) / limits[0] + abs(x[4]) / limits[1]
+        time_constant = self.brake_time_constant / self.braking_share
+        out = np.empty((int(stop / period) + int(8 * time_constant / period) + 2, 4))
+        # Unchecked: as_state, braking_limits and out are C-contiguous float64.
+        rows = _braking_path.unchecked(x, self.offset_l, limits, time_constant, float(period),
+                                       out)
         return out[:rows]
+
+    @staticmethod
+    def _coasted(x, duration):
+        """Return the state ``duration`` s on at constant v and omega (``plan_braking``)."""
+        px, py, theta, v, omega = x
+        heading = theta + 0.5 * duration * omega
+        return np.array([px + duration * v * math.cos(heading),
+                         py + duration * v * math.sin(heading), theta + duration * omega,
+                         v, omega])
 
     def held_path(self, x, u, step, rows):
         """Return the reference point's path with ``u`` held (``RobotModel.held_path``)."""
@@ -117,16 +131,18 @@ class Unicycle(RobotModel):
 
         Over the period |v| <= |v_0| + a_max T = v' and |omega| <= |omega_0| + alpha_max T =
         w'; the brake then lowers both (T <= tau: no overshoot), so the reference point moves
-        at most v' + |l| w' through the period and the path's K rows (``braking_path``: K <=
-        (v' / a_max + w' / alpha_max + 8 tau) / T + 2), and starts |l| from the body:
-        rho = |l| + (v' + |l| w') (K + 1) T, t = (K + 1) T.
+        at most v' + |l| w' through the period, the coast c (``plan_braking``) and the
+        path's K rows (``braking_path``: K <= (v' / a_max + w' / alpha_max + 8 tau) / (s T) + 2,
+        s the braking share), and starts |l| from the body:
+        rho = |l| + (v' + |l| w') ((K + 1) T + c), t = (K + 1) T + c.
         """
         if period > self.brake_time_constant:
             return math.inf, math.inf
         accel, angular = self._limits
         speed = abs(float(x[3])) + accel * period
         turn = abs(float(x[4])) + angular * period
-        rows = int((speed / accel + turn / angular) / period) \
-            + int(8 * self.brake_time_constant / period) + 2
-        duration = (rows + 1) * period
+        share = self.braking_share
+        rows = int((speed / accel + turn / angular) / share / period) \
+            + int(8 * self.brake_time_constant / share / period) + 2
+        duration = (rows + 1) * period + self.braking_coast
         return self.guard_offset + (speed + self.guard_offset * turn) * duration, duration
