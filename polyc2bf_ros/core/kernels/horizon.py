@@ -171,6 +171,24 @@ def _box_gap(low_x, high_x, low_y, high_y, box):
 
 
 @kernel
+def _misses_box(box, qx, qy, dx, dy):
+    """Return True when the ray from q along d meets no point of ``box`` (``polygon_box``).
+
+    So when the four corners lie strictly on one side of the line through q along d
+    (cross(d, corner - q) of one strict sign), or none ahead of q (<d, corner - q> <= 0
+    at all four; always when d = 0): the box is convex, so what holds at its corners
+    holds at every point of it.
+    """
+    left = right = ahead = False
+    for cx, cy in ((box[0], box[2]), (box[1], box[2]), (box[0], box[3]), (box[1], box[3])):
+        cross = dx * (cy - qy) - dy * (cx - qx)
+        left, right = left or cross >= 0.0, right or cross <= 0.0
+        ahead = ahead or dx * (cx - qx) + dy * (cy - qy) > 0.0
+    return not (left and right) or not ahead
+
+
+
+@kernel
 def _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon, bisector,
            eps_sq):
     """Return h_tau of polygon n seen from q with relative velocity v; inf where no cone."""
@@ -201,13 +219,18 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, vel
     ``start`` and the rows are the reference point's [x, y, vx, vy], ``start`` at ``age``
     and row k at age + (k + 1) period; polygon n has moved by ``offsets[n]`` and moves at
     ``velocities[n]``.  Points inside a polygon (no cone) are left out, as the filter
-    leaves such a part out of its rows.  Pruning (bisector axis) is exact: with w the
-    relative velocity, h_tau = L [<u, w> + |w|_e c + (d / tau)(1 - c)] >=
-    L (1 - c)(d / tau - |w|), as c = cos(half-angle) >= 0 and |w|_e >= |w|; so a point whose
-    distance to the polygon's bounding box is at least tau |w| has h_tau >= 0 and is not
-    evaluated, nor is a polygon for which that holds along the whole path.  The midpoint
-    axis's s can be negative close to a polygon, so there every point is evaluated.
-    +inf when nothing is evaluated.
+    leaves such a part out of its rows.  Pruning (bisector axis) is exact, it skips only
+    points with h_tau >= 0; w is the relative velocity and
+    h_tau = L [<u, w> + |w|_e c + (d / tau)(1 - c)], c = cos(half-angle) >= 0,
+    |w|_e >= |w|.  First, h_tau >= L (1 - c)(d / tau - |w|): a point whose distance to the
+    polygon's bounding box is at least tau |w| is not evaluated, nor is a polygon for which
+    that holds along the whole path.  Second, the robot's velocity relative to the polygon,
+    -w: where the ray from q along -w misses the bounding box (``_misses_box``), -w lies
+    outside the cone of the polygon's silhouette rays (that cone is spanned by points of
+    the polygon, inside the box), so its angle to the axis u exceeds the half-angle:
+    <u, -w> < |w| c, and h_tau > 0 (or w = 0, and h_tau >= 0).  The midpoint axis's s can
+    be negative close to a polygon, so there every point is evaluated.  +inf when nothing
+    is evaluated; so the value is exact where it is negative, and otherwise only >= 0.
     """
     rows = path.shape[0]
     low_x = high_x = start[0]
@@ -237,8 +260,8 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, vel
             t = age + (k + 1) * period
             qx, qy = px - t * ovx - ox, py - t * ovy - oy
             vx, vy = ovx - pvx, ovy - pvy
-            if bisector and inv_horizon * _box_gap(qx, qx, qy, qy, box) >= math.sqrt(
-                    vx * vx + vy * vy):
+            if bisector and (_misses_box(box, qx, qy, -vx, -vy) or inv_horizon * _box_gap(
+                    qx, qx, qy, qy, box) >= math.sqrt(vx * vx + vy * vy)):
                 continue
             best = min(best, _value(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx, qy, vx,
                                     vy, inv_horizon, bisector, eps_sq))
