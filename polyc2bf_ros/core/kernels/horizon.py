@@ -174,17 +174,19 @@ def _box_gap(low_x, high_x, low_y, high_y, box):
 def _misses_box(box, qx, qy, dx, dy):
     """Return True when the ray from q along d meets no point of ``box`` (``polygon_box``).
 
-    So when the four corners lie strictly on one side of the line through q along d
-    (cross(d, corner - q) of one strict sign), or none ahead of q (<d, corner - q> <= 0
-    at all four; always when d = 0): the box is convex, so what holds at its corners
-    holds at every point of it.
+    So when the box lies strictly on one side of the line through q along d (cross(d,
+    c - q) of one strict sign at every corner c), or none of it ahead of q (<d, c - q> <= 0
+    at every corner; always when d = 0): the box is convex, so what holds at its corners
+    holds at every point of it.  Both are linear in c, so the signs of dx, dy pick the
+    corner where each is smallest or largest, and three corners decide.
     """
-    left = right = ahead = False
-    for cx, cy in ((box[0], box[2]), (box[1], box[2]), (box[0], box[3]), (box[1], box[3])):
-        cross = dx * (cy - qy) - dy * (cx - qx)
-        left, right = left or cross >= 0.0, right or cross <= 0.0
-        ahead = ahead or dx * (cx - qx) + dy * (cy - qy) > 0.0
-    return not (left and right) or not ahead
+    low_x, high_x, low_y, high_y = box
+    right_x, right_y = (high_x if dy > 0.0 else low_x), (low_y if dx > 0.0 else high_y)
+    left_x, left_y = (low_x if dy > 0.0 else high_x), (high_y if dx > 0.0 else low_y)
+    front_x, front_y = (high_x if dx > 0.0 else low_x), (high_y if dy > 0.0 else low_y)
+    return (dx * (right_y - qy) - dy * (right_x - qx) > 0.0
+            or dx * (left_y - qy) - dy * (left_x - qx) < 0.0
+            or dx * (front_x - qx) + dy * (front_y - qy) <= 0.0)
 
 
 
