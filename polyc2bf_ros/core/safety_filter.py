@@ -328,7 +328,8 @@ class _BrakingNow:
     @functools.cached_property
     def min_h(self):
         """Return H(x), the smallest h at x and along B(x)."""
-        return self._filter._min_h_along(self._state, self.path, self._prepared, self._age)
+        return self._filter._min_h_along(self._filter._point(self._state), self.path,
+                                         self._prepared, self._age)
 
 
 class SafetyFilter:
@@ -495,37 +496,42 @@ class SafetyFilter:
         braked only while c(B(x)) > 0 (distances to the footprints less the guard radius);
         moving parts, where the path closes on them, apart and without that exception.
         With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept
-        when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+: ``_one_period``.
+        when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+ and B(x+):
+        ``RobotModel.braking_after``.
         ``now`` (``_BrakingNow``) holds what braking at x gives, computed
         once per step however many inputs are tested.  ``moving`` False: the static test
         alone (a committed evasion, ``_evade``).
         """
         period = self.config.control_period
-        after_state = self._one_period(state, u)
-        after_path = self.model.braking_path(after_state, period)
+        rows = self.model.braking_after(state, u, period)  # the point at x+, then B(x+)
+        after_path = rows[1:]
         after, after_moving = self._path_clearance(after_path, prepared, age + period)
-        before, before_moving = now.clearance
-        if after < self._clearance and after < before and before > self.guard_radius:
+        # c(B(x)) is computed only where c(B(x+)) falls under the margin.
+        if (after < self._clearance and after < now.clearance[0]
+                and now.clearance[0] > self.guard_radius):
             return True
         if not moving:
             return False
-        if after_moving < self._clearance and after_moving < before_moving:
+        if after_moving < self._clearance and after_moving < now.clearance[1]:
             return True
         if not self._barrier_check:
             return False
-        after = self._min_h_along(after_state, after_path, prepared, age + period)
+        after = self._min_h_along(rows[0], after_path, prepared, age + period)
         return after < 0.0 and after < now.min_h and now.min_h >= 0.0
 
-    def _min_h_along(self, state, path, prepared, age):
-        """Return H(state): the smallest h at ``state`` and along its braking ``path``.
+    def _min_h_along(self, start, path, prepared, age):
+        """Return H: the smallest h at the point's ``start`` row and along its braking ``path``.
 
         ``ConeModel.min_h_along`` (inf for a cone model without it); planar models only.
         """
-        ref = self.model.reference(state)
         return self.cone_model.min_h_along(
-            prepared.views[0].prepared, prepared.velocities, prepared.offsets, age,
-            np.concatenate((ref.position, ref.velocity)), path, self.config.control_period,
-            self._epsilon)
+            prepared.views[0].prepared, prepared.velocities, prepared.offsets, age, start,
+            path, self.config.control_period, self._epsilon)
+
+    def _point(self, state):
+        """Return the reference point's [position, velocity] at ``state`` (a path's row)."""
+        ref = self.model.reference(state)
+        return np.concatenate((ref.position, ref.velocity))
 
     def _far_from_all(self, state, prepared, age):
         """Return True when no obstacle part comes near any path ``_must_brake`` would check.
@@ -594,7 +600,9 @@ class SafetyFilter:
         across a moving part's braking path, never across a standing one's).
         """
         static, moving = self._look_ahead(
-            self._then_brake(np.zeros((0, 4)), self._one_period(state, u), 1), prepared, age)
+            self._then_brake(np.zeros((0, 4)),
+                             self.model.one_period(state, u, self.config.control_period), 1),
+            prepared, age)
         if moving >= self._clearance:
             return None
         held = min(static, moving)
@@ -626,15 +634,6 @@ class SafetyFilter:
                                                                 rows - half)[0]]))
         return paths
 
-    def _one_period(self, state, u):
-        """Return x+, the state one control period after ``state`` with ``u`` held.
-
-        The midpoint rule (exact for the point mass; an Euler step misplaced it by T^2 a / 2).
-        """
-        period = self.config.control_period
-        middle = state + 0.5 * period * self.model.state_derivative(state, u)
-        return state + period * self.model.state_derivative(middle, u)
-
     def _then_brake(self, rows, after, periods):
         """Return a look ahead's rows, ``step`` s apart up to the horizon.
 
@@ -645,8 +644,7 @@ class SafetyFilter:
         brake = self.model.braking_path(after, self.config.control_period)
         first = ratio - 1 - periods
         if first < 0:  # a step of one period: ``after`` itself is the next row
-            ref = self.model.reference(after)
-            rows, first = np.vstack([rows, np.concatenate((ref.position, ref.velocity))]), 0
+            rows, first = np.vstack([rows, self._point(after)]), 0
         ahead = np.vstack([rows, brake[first::ratio]])[:self._evasion_rows]
         rest = np.tile(np.concatenate((brake[-1, :2], np.zeros(2))),
                        (self._evasion_rows - len(ahead), 1))

@@ -7,6 +7,7 @@ from polyc2bf_ros.core.barrier.cones import PlanarPolygons
 from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance
 from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance
 from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.core.models.base import RobotModel
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
 from strategies import convex_polygons, examples
@@ -129,10 +130,24 @@ def test_a_moving_part_may_stray_from_its_velocity_by_the_bounds():
     assert robust == pytest.approx(plain - 0.5 * (0.2 + 0.5 * 2.0 * 0.5))
 
 
-def _held_step(model, state, u, period):
-    """Return the state one period after ``state`` with ``u`` held (the filter's midpoint rule)."""
-    middle = state + 0.5 * period * model.state_derivative(state, u)
-    return state + period * model.state_derivative(middle, u)
+@settings(max_examples=examples(200), deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), period=st.sampled_from([0.001, 0.01, 0.02, 0.05]),
+       settling=st.sampled_from([0.05, 0.5]), beyond=st.sampled_from([1.0, 1.5]))
+def test_unicycle_braking_after_is_the_generic_form_bit_for_bit(seed, period, settling, beyond):
+    """The one-kernel x+ and path equal ``RobotModel.braking_after``'s numpy steps exactly.
+
+    Also where the path ends full rather than at rest (a slow brake, tau = 0.5 s) and for
+    inputs beyond the bounds (a QP's tolerance): the row count is ``braking_path``'s.
+    """
+    rng = np.random.default_rng(seed)
+    model = make_model('unicycle', brake_time_constant=settling)
+    state = np.array([*rng.uniform(-5, 5, 2), rng.uniform(-np.pi, np.pi),
+                      rng.uniform(-2.5, 2.5), rng.uniform(-3.0, 3.0)])
+    u = beyond * rng.uniform(model.input_lower, model.input_upper)
+    rows = model.braking_after(state, u, period)
+    generic = RobotModel.braking_after(model, state, u, period)
+    assert rows.shape == generic.shape and np.array_equal(rows, generic)
+    assert rows.flags.c_contiguous and rows[1:].flags.c_contiguous
 
 
 @settings(max_examples=examples(200), deadline=None)
@@ -155,7 +170,7 @@ def test_braking_reach_bounds_every_path_the_check_could_compute(name, seed, per
     u[rng.random(len(u)) < 0.3] = model.input_upper[0] * rng.choice([-1.0, 1.0])
     u = np.clip(u, model.input_lower, model.input_upper)
     reach, duration = model.braking_reach(state, period)
-    path = model.braking_path(_held_step(model, state, u, period), period)
+    path = model.braking_after(state, u, period)[1:]
     distances = np.linalg.norm(path[:, :2] - state[:2], axis=1)
     assert distances.max() <= reach + 1e-9
     assert (len(path) + 1) * period <= duration + 1e-12

@@ -21,7 +21,12 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core.kernels.unicycle import _braking_path, _held_path, _offset_point
+from polyc2bf_ros.core.kernels.unicycle import (
+    _braking_after,
+    _braking_path,
+    _held_path,
+    _offset_point,
+)
 from polyc2bf_ros.core.models.base import (
     damped_brake,
     ReferenceKinematics,
@@ -102,6 +107,23 @@ class Unicycle(RobotModel):
         # Unchecked: as_state, input_upper and out are C-contiguous float64.
         rows = _braking_path.unchecked(x, self.offset_l, self.input_upper,
                                        self.brake_time_constant, float(period), out)
+        return out[:rows]
+
+    def braking_after(self, x, u, period):
+        """Return the point at x+, then its path under the brake (``RobotModel.braking_after``).
+
+        One kernel call.  ``out`` holds the rows of any x+ the input reaches: |v+| <=
+        |v| + |a| T and |omega+| <= |omega| + |alpha| T bound ``braking_path``'s row count
+        from x+; one more for row 0, three for rounding.
+        """
+        x, u = self.as_state(x), np.ascontiguousarray(u, dtype=np.float64)
+        accel, angular = self._limits
+        stop = ((abs(float(x[3])) + period * abs(float(u[0]))) / accel
+                + (abs(float(x[4])) + period * abs(float(u[1]))) / angular)
+        out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 6, 4))
+        # Unchecked: as_state, the input, input_upper and out are C-contiguous float64.
+        rows = _braking_after.unchecked(x, u, self.offset_l, self.input_upper,
+                                        self.brake_time_constant, float(period), out)
         return out[:rows]
 
     def held_path(self, x, u, step, rows):
