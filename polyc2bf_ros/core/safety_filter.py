@@ -283,6 +283,11 @@ class _Prepared:
     index: np.ndarray
     footprints: Optional[object] = None
 
+    @functools.cached_property
+    def moving(self):
+        """Return True when some part moves in the plane (``velocities``' first two columns)."""
+        return bool(self.velocities[:, :2].any())
+
     def translated(self, offsets, velocities):
         """Return the same views and buffers with obstacles moved by ``offsets`` (N, d)."""
         return _Prepared(count=self.count, views=self.views, velocities=velocities,
@@ -523,10 +528,12 @@ class SafetyFilter:
         """Return H: the smallest h at the point's ``start`` row and along its braking ``path``.
 
         ``ConeModel.min_h_along`` (inf for a cone model without it); planar models only.
+        Unchecked kernel: the filter's own arrays, and rows of ``RobotModel.braking_after``
+        or ``_point`` and ``braking_path`` (C-contiguous float64).
         """
         return self.cone_model.min_h_along(
             prepared.views[0].prepared, prepared.velocities, prepared.offsets, age, start,
-            path, self.config.control_period, self._epsilon)
+            path, self.config.control_period, self._epsilon, False)
 
     def _point(self, state):
         """Return the reference point's [position, velocity] at ``state`` (a path's row)."""
@@ -573,9 +580,9 @@ class SafetyFilter:
         the reference point over the horizon H, |r_dot| H + a H^2 / 2 (a the largest input
         bound, the model's input matrix at most 1 per unit), plus the look ahead's cutoff.
         """
-        velocities = prepared.velocities
-        if not velocities[:, :2].any():
+        if not prepared.moving:
             return False
+        velocities = prepared.velocities
         horizon = self._evasion_rows * self._evasion_step
         ref = self.model.reference(state)
         reach = (float(np.linalg.norm(ref.velocity)) * horizon

@@ -197,13 +197,15 @@ class ConeModel(abc.ABC):
         """Write ``exits`` of ``viewpoints`` (2, 1 or N) into ``out`` (3, N)."""
 
     def min_h_along(self, prepared, velocities, offsets, age, start, path, period,
-                    velocity_epsilon):
+                    velocity_epsilon, checked=True):
         """Return the smallest h of any planar obstacle along a braking path; inf: unsupported.
 
         ``start`` is the reference point's [x, y, vx, vy] at ``age``, ``path`` (K, 4) rows
         the same (k + 1) periods on (``RobotModel.braking_path``).  The braking check's
         barrier test (``SafetyFilter``, ``braking_check_barrier``) uses it; a cone model
-        without it (the default here) is checked for clearance alone.
+        without it (the default here) is checked for clearance alone.  Exact where it is
+        negative; where it is not, it may be any value >= 0 (pruning; the test asks only
+        for the sign, and for the value where negative).  ``checked=False`` as ``plane``.
         """
         return math.inf
 
