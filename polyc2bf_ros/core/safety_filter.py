@@ -552,9 +552,9 @@ class SafetyFilter:
             return False
         footprints = prepared.footprints
         return clear_around.unchecked(
-            footprints.x, footprints.y, footprints.counts, prepared.velocities,
-            prepared.offsets, max(abs(age), abs(age + duration)), float(state[0]),
-            float(state[1]), reach + self._clearance, False)
+            footprints.boxes, prepared.velocities, prepared.offsets,
+            max(abs(age), abs(age + duration)), float(state[0]), float(state[1]),
+            reach + self._clearance, False)
 
     def _backup_input(self, state, u, prepared, age, now):
         """Return (input, message) once the braking check refused ``u``.
@@ -590,8 +590,8 @@ class SafetyFilter:
                  + self._clearance + EVASION_REACH)
         footprints = prepared.footprints
         return not clear_around.unchecked(
-            footprints.x, footprints.y, footprints.counts, velocities, prepared.offsets,
-            abs(age) + horizon, float(ref.position[0]), float(ref.position[1]), reach, True)
+            footprints.boxes, velocities, prepared.offsets, abs(age) + horizon,
+            float(ref.position[0]), float(ref.position[1]), reach, True)
 
     def _evade(self, state, u, prepared, age, now):
         """Return (input, message) of an evasion when ``u`` runs into a moving part, or None.
@@ -666,9 +666,10 @@ class SafetyFilter:
         footprints = prepared.footprints
         return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
-            footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
-            float(age), np.ascontiguousarray(path, dtype=np.float64), self._evasion_step,
-            self._clearance + EVASION_REACH, 0.0, self._velocity_error, False)
+            footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
+            prepared.offsets, float(age), np.ascontiguousarray(path, dtype=np.float64),
+            self._evasion_step, self._clearance + EVASION_REACH, 0.0, self._velocity_error,
+            False)
 
     def _path_clearance(self, path, prepared, age):
         """Return c(B), capped at the margin, of a braking ``path``: (static, moving parts).
@@ -681,8 +682,8 @@ class SafetyFilter:
         footprints = prepared.footprints
         return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
-            footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
-            float(age), path, self.config.control_period, self._clearance,
+            footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
+            prepared.offsets, float(age), path, self.config.control_period, self._clearance,
             self._braking_accel, self._velocity_error, True)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):

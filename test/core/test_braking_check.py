@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.barrier.cones import PlanarPolygons
+from polyc2bf_ros.core.barrier.cones import InflatedCone, PlanarPolygons
 from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance
 from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance
 from polyc2bf_ros.core.models import make_model
@@ -91,12 +91,24 @@ def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     age = float(rng.uniform(0.0, 0.2))
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
     answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
-                            prepared.inv_sq, prepared.counts, velocities,
+                            prepared.inv_sq, prepared.counts, prepared.boxes, velocities,
                             np.zeros_like(velocities), age, path, PERIOD, cutoff, 0.0, 0.0,
                             True)
     expected = _clearance_by_brute_force(polygons, velocities, path, age, cutoff)
     assert answer == pytest.approx(expected, abs=1e-9)
     assert not velocities.any() or answer[0] == cutoff
+
+
+@settings(max_examples=examples(100), deadline=None)
+@given(polygons=st.lists(convex_polygons(), min_size=0, max_size=5),
+       radius=st.sampled_from([0.0, 0.3]))
+def test_planar_polygons_hold_each_polygons_bounding_box(polygons, radius):
+    """``boxes`` are the extremes of each polygon's own vertices, padded rows or not."""
+    prepared = InflatedCone(radius).prepare(PolygonBatch.from_polygons(polygons))
+    assert prepared.boxes.shape == (len(polygons), 4) and prepared.boxes.flags.c_contiguous
+    for n, count in enumerate(prepared.counts):
+        x, y = prepared.x[n, :count], prepared.y[n, :count]
+        assert prepared.boxes[n].tolist() == [x.min(), x.max(), y.min(), y.max()]
 
 
 def test_a_part_coming_at_a_robot_that_backs_away_does_not_count():
@@ -106,13 +118,13 @@ def test_a_part_coming_at_a_robot_that_backs_away_does_not_count():
     backing = np.array([[-0.01 * (k + 1), 0.0, -0.5, 0.0] for k in range(50)])
     closing = backing * [-1.0, 1.0, -1.0, 1.0]
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-            prepared.counts, np.array([[-1.4, 0.0]]), np.zeros((1, 2)), 0.0)
+            prepared.counts, prepared.boxes, np.array([[-1.4, 0.0]]), np.zeros((1, 2)), 0.0)
     assert path_clearance(*args, backing, PERIOD, 0.5, 2.0, 0.5, True) == (0.5, 0.5)
     assert path_clearance(*args, closing, PERIOD, 0.5, 0.0, 0.0, True)[1] < 0.0
     # An evasion's look ahead counts every row: the box gains on the slower robot.
     assert path_clearance(*args, backing, PERIOD, 0.5, 0.0, 0.0, False)[1] < 0.5
     near = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box - [0.3, 0.0]]))
-    static = (near.x, near.y, near.edge_x, near.edge_y, near.inv_sq, near.counts,
+    static = (near.x, near.y, near.edge_x, near.edge_y, near.inv_sq, near.counts, near.boxes,
               np.zeros((1, 2)), np.zeros((1, 2)), 0.0)
     assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, 0.5, True) == pytest.approx(
         (0.31, 0.5))
@@ -124,7 +136,8 @@ def test_a_moving_part_may_stray_from_its_velocity_by_the_bounds():
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box]))
     path = np.array([[0.1, 0.0, 1.0, 0.2]])
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-            prepared.counts, np.array([[1.0, 0.0]]), np.zeros((1, 2)), 0.0, path, 0.5, 5.0)
+            prepared.counts, prepared.boxes, np.array([[1.0, 0.0]]), np.zeros((1, 2)), 0.0,
+            path, 0.5, 5.0)
     _, plain = path_clearance(*args, 0.0, 0.0, True)
     _, robust = path_clearance(*args, 2.0, 0.2, True)
     assert robust == pytest.approx(plain - 0.5 * (0.2 + 0.5 * 2.0 * 0.5))
@@ -198,18 +211,18 @@ def test_clear_around_promises_what_path_clearance_returns(polygons, seed, cutof
     offsets = rng.uniform(-0.3, 0.3, (len(polygons), 3)) * rng.integers(0, 2)
     age = float(rng.uniform(0.0, 0.2))
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
-    around = (prepared.x, prepared.y, prepared.counts, velocities, offsets,
-              age + len(path) * PERIOD, float(centre[0]), float(centre[1]), rho + cutoff)
+    around = (prepared.boxes, velocities, offsets, age + len(path) * PERIOD,
+              float(centre[0]), float(centre[1]), rho + cutoff)
     clearance = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-                 prepared.counts, velocities, offsets, age, path, PERIOD, cutoff, 0.0, 0.0)
+                 prepared.counts, prepared.boxes, velocities, offsets, age, path, PERIOD,
+                 cutoff, 0.0, 0.0)
     if clear_around(*around, False):
         assert path_clearance(*clearance, True) == (cutoff, cutoff)
     if clear_around(*around, True):  # moving parts only: an evasion's look ahead
         assert path_clearance(*clearance, False)[1] == cutoff
     far = PlanarPolygons.from_batch(PolygonBatch.from_polygons([p + 100.0 for p in polygons]))
-    assert clear_around(far.x, far.y, far.counts, np.zeros_like(velocities),
-                        np.zeros_like(offsets), age, float(centre[0]), float(centre[1]),
-                        rho + cutoff, False)
+    assert clear_around(far.boxes, np.zeros_like(velocities), np.zeros_like(offsets), age,
+                        float(centre[0]), float(centre[1]), rho + cutoff, False)
 
 
 @pytest.mark.parametrize('wall_x, checked', [(1.0, True), (30.0, False)])

@@ -99,7 +99,9 @@ class PlanarPolygons:
 
     Vertex coordinates ``x``, ``y``, edges ``edge_x``, ``edge_y`` (from each vertex to
     the next) and their ``inv_sq`` = 1 / |e|^2, each polygon's first ``counts[n]`` slots
-    (``batch_geometry.edge_rows`` pads the rest).
+    (``batch_geometry.edge_rows`` pads the rest); ``boxes`` (N, 4) each polygon's bounding
+    box [low x, high x, low y, high y] (``kernels.cones.polygon_box``), for the braking
+    check's kernels to skip far polygons without reading their vertices.
     """
 
     x: np.ndarray
@@ -108,13 +110,19 @@ class PlanarPolygons:
     edge_y: np.ndarray
     inv_sq: np.ndarray
     counts: np.ndarray
+    boxes: np.ndarray
 
     @classmethod
     def from_rows(cls, x, y, counts):
         """Lay out (N, W) vertex rows (filled up to ``counts``) once per obstacle update."""
         edge_x, edge_y, inv_sq = np.empty_like(x), np.empty_like(x), np.empty_like(x)
         batch_geometry.edge_rows(x, y, counts, edge_x, edge_y, inv_sq)
-        return cls(x, y, edge_x, edge_y, inv_sq, counts)
+        # The padding repeats the last vertex, so whole rows have the polygons' extremes.
+        boxes = np.column_stack([x.min(axis=1, initial=math.inf),
+                                 x.max(axis=1, initial=-math.inf),
+                                 y.min(axis=1, initial=math.inf),
+                                 y.max(axis=1, initial=-math.inf)])
+        return cls(x, y, edge_x, edge_y, inv_sq, counts, boxes)
 
     @classmethod
     def from_batch(cls, batch):

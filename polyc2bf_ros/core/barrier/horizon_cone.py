@@ -92,7 +92,7 @@ class HorizonCone(InflatedCone):
         """Return h_tau's minimum along a braking path (``min_h_along``, the kernel)."""
         kernel = min_h_along if checked else min_h_along.unchecked
         return kernel(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
-                      prepared.inv_sq, prepared.counts, 1.0 / self.horizon,
+                      prepared.inv_sq, prepared.counts, prepared.boxes, 1.0 / self.horizon,
                       self.axis == 'bisector', velocities, offsets, float(age), start, path,
                       float(period), velocity_epsilon * velocity_epsilon)
 

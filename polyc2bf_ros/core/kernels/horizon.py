@@ -9,7 +9,6 @@ from polyc2bf_ros.core.kernels.cones import (
     midpoint_cone,
     nearest_edge,
     PLANE_ROWS,
-    polygon_box,
     silhouette,
 )
 from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, kernel, signature
@@ -163,7 +162,10 @@ def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, 
 
 @kernel
 def _box_gap(low_x, high_x, low_y, high_y, box):
-    """Return the distance between the box [low, high] and ``box`` (``polygon_box``)."""
+    """Return the distance between the box [low, high] and ``box``.
+
+    Both as [low x, high x, low y, high y] (``cones.PlanarPolygons.boxes``).
+    """
     gap_x = max(0.0, box[0] - high_x, low_x - box[1])
     gap_y = max(0.0, box[2] - high_y, low_y - box[3])
     return math.sqrt(gap_x * gap_x + gap_y * gap_y)
@@ -172,7 +174,7 @@ def _box_gap(low_x, high_x, low_y, high_y, box):
 
 @kernel
 def _misses_box(box, qx, qy, dx, dy):
-    """Return True when the ray from q along d meets no point of ``box`` (``polygon_box``).
+    """Return True when the ray from q along d meets no point of ``box`` (as ``_box_gap``).
 
     So when the box lies strictly on one side of the line through q along d (cross(d,
     c - q) of one strict sign at every corner c), or none of it ahead of q (<d, c - q> <= 0
@@ -212,16 +214,17 @@ def _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon, 
 
 
 
-@kernel(signature('f8', F2, F2, F2, F2, F2, I1, 'f8', 'b1', F2, F2, 'f8', F1, F2, 'f8',
+@kernel(signature('f8', F2, F2, F2, F2, F2, I1, F2, 'f8', 'b1', F2, F2, 'f8', F1, F2, 'f8',
                   'f8'))
-def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, velocities,
+def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon, bisector, velocities,
                 offsets, age, start, path, period, eps_sq):
     """Return the smallest h_tau of any polygon at ``start`` and every ``path`` row.
 
     ``start`` and the rows are the reference point's [x, y, vx, vy], ``start`` at ``age``
-    and row k at age + (k + 1) period; polygon n has moved by ``offsets[n]`` and moves at
-    ``velocities[n]``.  Points inside a polygon (no cone) are left out, as the filter
-    leaves such a part out of its rows.  Pruning (bisector axis) is exact, it skips only
+    and row k at age + (k + 1) period; polygon n (bounding box ``boxes[n]``, as
+    ``cones.PlanarPolygons``) has moved by ``offsets[n]`` and moves at ``velocities[n]``.
+    Points inside a polygon (no cone) are left out, as the filter leaves such a part out
+    of its rows.  Pruning (bisector axis) is exact, it skips only
     points with h_tau >= 0; w is the relative velocity and
     h_tau = L [<u, w> + |w|_e c + (d / tau)(1 - c)], c = cos(half-angle) >= 0,
     |w|_e >= |w|.  First, h_tau >= L (1 - c)(d / tau - |w|): a point whose distance to the
@@ -249,7 +252,7 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, vel
         obstacle_speed = math.sqrt(ovx * ovx + ovy * ovy)
         reach = moved * obstacle_speed
         ox, oy = offsets[n, 0], offsets[n, 1]
-        box = polygon_box(x, y, counts[n], n)
+        box = boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3]
         gap = _box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
                        high_y - oy + reach, box)
         if bisector and inv_horizon * gap >= fastest + obstacle_speed:
