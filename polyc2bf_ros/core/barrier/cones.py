@@ -116,12 +116,8 @@ class PlanarPolygons:
     def from_rows(cls, x, y, counts):
         """Lay out (N, W) vertex rows (filled up to ``counts``) once per obstacle update."""
         edge_x, edge_y, inv_sq = np.empty_like(x), np.empty_like(x), np.empty_like(x)
-        batch_geometry.edge_rows(x, y, counts, edge_x, edge_y, inv_sq)
-        # The padding repeats the last vertex, so whole rows have the polygons' extremes.
-        boxes = np.column_stack([x.min(axis=1, initial=math.inf),
-                                 x.max(axis=1, initial=-math.inf),
-                                 y.min(axis=1, initial=math.inf),
-                                 y.max(axis=1, initial=-math.inf)])
+        boxes = np.empty((len(counts), 4))
+        batch_geometry.edge_rows(x, y, counts, edge_x, edge_y, inv_sq, boxes)
         return cls(x, y, edge_x, edge_y, inv_sq, counts, boxes)
 
     @classmethod
