@@ -333,8 +333,8 @@ class _BrakingNow:
     @functools.cached_property
     def min_h(self):
         """Return H(x), the smallest h at x and along B(x)."""
-        return self._filter._min_h_along(self._filter._point(self._state), self.path,
-                                         self._prepared, self._age)
+        return self._filter._min_h_along(self._filter.model.point_row(self._state),
+                                         self.path, self._prepared, self._age)
 
 
 class SafetyFilter:
@@ -529,16 +529,11 @@ class SafetyFilter:
 
         ``ConeModel.min_h_along`` (inf for a cone model without it); planar models only.
         Unchecked kernel: the filter's own arrays, and rows of ``RobotModel.braking_after``
-        or ``_point`` and ``braking_path`` (C-contiguous float64).
+        or ``point_row`` and ``braking_path`` (C-contiguous float64).
         """
         return self.cone_model.min_h_along(
             prepared.views[0].prepared, prepared.velocities, prepared.offsets, age, start,
             path, self.config.control_period, self._epsilon, False)
-
-    def _point(self, state):
-        """Return the reference point's [position, velocity] at ``state`` (a path's row)."""
-        ref = self.model.reference(state)
-        return np.concatenate((ref.position, ref.velocity))
 
     def _far_from_all(self, state, prepared, age):
         """Return True when no obstacle part comes near any path ``_must_brake`` would check.
@@ -651,7 +646,7 @@ class SafetyFilter:
         brake = self.model.braking_path(after, self.config.control_period)
         first = ratio - 1 - periods
         if first < 0:  # a step of one period: ``after`` itself is the next row
-            rows, first = np.vstack([rows, self._point(after)]), 0
+            rows, first = np.vstack([rows, self.model.point_row(after)]), 0
         ahead = np.vstack([rows, brake[first::ratio]])[:self._evasion_rows]
         rest = np.tile(np.concatenate((brake[-1, :2], np.zeros(2))),
                        (self._evasion_rows - len(ahead), 1))

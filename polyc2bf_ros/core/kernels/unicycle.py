@@ -40,7 +40,7 @@ def _braking_after(x, u, offset, limits, time_constant, period, out):
     x+ is x after holding ``u`` for ``period`` by the midpoint rule on x_dot (module
     docstring), as ``RobotModel.one_period`` computes it, operation for operation:
     middle = x + (T / 2) x_dot(x, u), x+ = x + T x_dot(middle, u).  Row 0 is the point at x+
-    (``Unicycle.reference``), rows 1.. ``_brake`` from x+ with as many rows as
+    (``RobotModel.point_row``), rows 1.. ``_brake`` from x+ with as many rows as
     ``Unicycle.braking_path`` gives x+ (``out`` has room for more).
     """
     px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
