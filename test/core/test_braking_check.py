@@ -6,6 +6,7 @@ from hypothesis import given, settings, strategies as st
 from polyc2bf_ros.core.barrier.cones import InflatedCone, PlanarPolygons
 from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance
 from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance
+from polyc2bf_ros.core.kernels.unicycle import _braking_after
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.models.base import RobotModel
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
@@ -161,6 +162,12 @@ def test_unicycle_braking_after_is_the_generic_form_bit_for_bit(seed, period, se
     generic = RobotModel.braking_after(model, state, u, period)
     assert rows.shape == generic.shape and np.array_equal(rows, generic)
     assert rows.flags.c_contiguous and rows[1:].flags.c_contiguous
+    # Too short a buffer: the kernel asks for the rows it needs instead of cutting the path.
+    kernel = (np.ascontiguousarray(u), model.offset_l, model.input_upper, settling, period)
+    needed = -_braking_after(state, *kernel, np.empty((1, 4)))
+    assert needed >= len(rows)
+    out = np.empty((needed, 4))
+    assert np.array_equal(out[:_braking_after(state, *kernel, out)], rows)
 
 
 @settings(max_examples=examples(200), deadline=None)

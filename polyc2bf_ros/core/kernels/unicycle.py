@@ -37,11 +37,13 @@ def _braking_path(x, offset, limits, time_constant, period, out):
 def _braking_after(x, u, offset, limits, time_constant, period, out):
     """Write the point at x+ and then along the brake from x+ into ``out``; return the rows.
 
+    Or minus the rows needed, writing nothing past row 0, when ``out`` is shorter.
+
     x+ is x after holding ``u`` for ``period`` by the midpoint rule on x_dot (module
     docstring), as ``RobotModel.one_period`` computes it, operation for operation:
     middle = x + (T / 2) x_dot(x, u), x+ = x + T x_dot(middle, u).  Row 0 is the point at x+
     (``RobotModel.point_row``), rows 1.. ``_brake`` from x+ with as many rows as
-    ``Unicycle.braking_path`` gives x+ (``out`` has room for more).
+    ``Unicycle.braking_path`` gives x+.
     """
     px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
     half = 0.5 * period
@@ -53,8 +55,10 @@ def _braking_after(x, u, offset, limits, time_constant, period, out):
     _point_row(px, py, theta, v, omega, offset, out[0])
     stop = abs(v) / limits[0] + abs(omega) / limits[1]
     capacity = int(stop / period) + int(8 * time_constant / period) + 2
+    if capacity + 1 > out.shape[0]:
+        return -(capacity + 1)
     return 1 + _brake(px, py, theta, v, omega, offset, limits, time_constant, period, out, 1,
-                      min(capacity, out.shape[0] - 1))
+                      capacity)
 
 
 

@@ -114,17 +114,21 @@ class Unicycle(RobotModel):
 
         One kernel call.  ``out`` holds the rows of any x+ the input reaches: |v+| <=
         |v| + |a| T and |omega+| <= |omega| + |alpha| T bound ``braking_path``'s row count
-        from x+; one more for row 0, three for rounding.
+        from x+; one more for row 0, three for rounding.  Should it not, the kernel says how
+        many rows it needs, and a second call writes them.
         """
         x, u = self.as_state(x), np.ascontiguousarray(u, dtype=np.float64)
         accel, angular = self._limits
         stop = ((abs(float(x[3])) + period * abs(float(u[0]))) / accel
                 + (abs(float(x[4])) + period * abs(float(u[1]))) / angular)
         out = np.empty((int(stop / period) + int(8 * self.brake_time_constant / period) + 6, 4))
-        # Unchecked: as_state, the input, input_upper and out are C-contiguous float64.
-        rows = _braking_after.unchecked(x, u, self.offset_l, self.input_upper,
-                                        self.brake_time_constant, float(period), out)
-        return out[:rows]
+        while True:
+            # Unchecked: as_state, the input, input_upper and out are C-contiguous float64.
+            rows = _braking_after.unchecked(x, u, self.offset_l, self.input_upper,
+                                            self.brake_time_constant, float(period), out)
+            if rows >= 0:
+                return out[:rows]
+            out = np.empty((-rows, 4))
 
     def held_path(self, x, u, step, rows):
         """Return the reference point's path with ``u`` held (``RobotModel.held_path``)."""
