@@ -283,6 +283,11 @@ class _Prepared:
     index: np.ndarray
     footprints: Optional[object] = None
 
+    @functools.cached_property
+    def moving(self):
+        """Return True when some part moves in the plane (``velocities``' first two columns)."""
+        return bool(self.velocities[:, :2].any())
+
     def translated(self, offsets, velocities):
         """Return the same views and buffers with obstacles moved by ``offsets`` (N, d)."""
         return _Prepared(count=self.count, views=self.views, velocities=velocities,
@@ -328,7 +333,8 @@ class _BrakingNow:
     @functools.cached_property
     def min_h(self):
         """Return H(x), the smallest h at x and along B(x)."""
-        return self._filter._min_h_along(self._state, self.path, self._prepared, self._age)
+        return self._filter._min_h_along(self._filter.model.point_row(self._state),
+                                         self.path, self._prepared, self._age)
 
 
 class SafetyFilter:
@@ -495,37 +501,39 @@ class SafetyFilter:
         braked only while c(B(x)) > 0 (distances to the footprints less the guard radius);
         moving parts, where the path closes on them, apart and without that exception.
         With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept
-        when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+: ``_one_period``.
+        when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+ and B(x+):
+        ``RobotModel.braking_after``.
         ``now`` (``_BrakingNow``) holds what braking at x gives, computed
         once per step however many inputs are tested.  ``moving`` False: the static test
         alone (a committed evasion, ``_evade``).
         """
         period = self.config.control_period
-        after_state = self._one_period(state, u)
-        after_path = self.model.braking_path(after_state, period)
+        rows = self.model.braking_after(state, u, period)  # the point at x+, then B(x+)
+        after_path = rows[1:]
         after, after_moving = self._path_clearance(after_path, prepared, age + period)
-        before, before_moving = now.clearance
-        if after < self._clearance and after < before and before > self.guard_radius:
+        # c(B(x)) is computed only where c(B(x+)) falls under the margin.
+        if (after < self._clearance and after < now.clearance[0]
+                and now.clearance[0] > self.guard_radius):
             return True
         if not moving:
             return False
-        if after_moving < self._clearance and after_moving < before_moving:
+        if after_moving < self._clearance and after_moving < now.clearance[1]:
             return True
         if not self._barrier_check:
             return False
-        after = self._min_h_along(after_state, after_path, prepared, age + period)
+        after = self._min_h_along(rows[0], after_path, prepared, age + period)
         return after < 0.0 and after < now.min_h and now.min_h >= 0.0
 
-    def _min_h_along(self, state, path, prepared, age):
-        """Return H(state): the smallest h at ``state`` and along its braking ``path``.
+    def _min_h_along(self, start, path, prepared, age):
+        """Return H: the smallest h at the point's ``start`` row and along its braking ``path``.
 
         ``ConeModel.min_h_along`` (inf for a cone model without it); planar models only.
+        Unchecked kernel: the filter's own arrays, and rows of ``RobotModel.braking_after``
+        or ``point_row`` and ``braking_path`` (C-contiguous float64).
         """
-        ref = self.model.reference(state)
         return self.cone_model.min_h_along(
-            prepared.views[0].prepared, prepared.velocities, prepared.offsets, age,
-            np.concatenate((ref.position, ref.velocity)), path, self.config.control_period,
-            self._epsilon)
+            prepared.views[0].prepared, prepared.velocities, prepared.offsets, age, start,
+            path, self.config.control_period, self._epsilon, False)
 
     def _far_from_all(self, state, prepared, age):
         """Return True when no obstacle part comes near any path ``_must_brake`` would check.
@@ -539,9 +547,9 @@ class SafetyFilter:
             return False
         footprints = prepared.footprints
         return clear_around.unchecked(
-            footprints.x, footprints.y, footprints.counts, prepared.velocities,
-            prepared.offsets, max(abs(age), abs(age + duration)), float(state[0]),
-            float(state[1]), reach + self._clearance, False)
+            footprints.boxes, prepared.velocities, prepared.offsets,
+            max(abs(age), abs(age + duration)), float(state[0]), float(state[1]),
+            reach + self._clearance, False)
 
     def _backup_input(self, state, u, prepared, age, now):
         """Return (input, message) once the braking check refused ``u``.
@@ -567,9 +575,9 @@ class SafetyFilter:
         the reference point over the horizon H, |r_dot| H + a H^2 / 2 (a the largest input
         bound, the model's input matrix at most 1 per unit), plus the look ahead's cutoff.
         """
-        velocities = prepared.velocities
-        if not velocities[:, :2].any():
+        if not prepared.moving:
             return False
+        velocities = prepared.velocities
         horizon = self._evasion_rows * self._evasion_step
         ref = self.model.reference(state)
         reach = (float(np.linalg.norm(ref.velocity)) * horizon
@@ -577,8 +585,8 @@ class SafetyFilter:
                  + self._clearance + EVASION_REACH)
         footprints = prepared.footprints
         return not clear_around.unchecked(
-            footprints.x, footprints.y, footprints.counts, velocities, prepared.offsets,
-            abs(age) + horizon, float(ref.position[0]), float(ref.position[1]), reach, True)
+            footprints.boxes, velocities, prepared.offsets, abs(age) + horizon,
+            float(ref.position[0]), float(ref.position[1]), reach, True)
 
     def _evade(self, state, u, prepared, age, now):
         """Return (input, message) of an evasion when ``u`` runs into a moving part, or None.
@@ -594,7 +602,9 @@ class SafetyFilter:
         across a moving part's braking path, never across a standing one's).
         """
         static, moving = self._look_ahead(
-            self._then_brake(np.zeros((0, 4)), self._one_period(state, u), 1), prepared, age)
+            self._then_brake(np.zeros((0, 4)),
+                             self.model.one_period(state, u, self.config.control_period), 1),
+            prepared, age)
         if moving >= self._clearance:
             return None
         held = min(static, moving)
@@ -626,15 +636,6 @@ class SafetyFilter:
                                                                 rows - half)[0]]))
         return paths
 
-    def _one_period(self, state, u):
-        """Return x+, the state one control period after ``state`` with ``u`` held.
-
-        The midpoint rule (exact for the point mass; an Euler step misplaced it by T^2 a / 2).
-        """
-        period = self.config.control_period
-        middle = state + 0.5 * period * self.model.state_derivative(state, u)
-        return state + period * self.model.state_derivative(middle, u)
-
     def _then_brake(self, rows, after, periods):
         """Return a look ahead's rows, ``step`` s apart up to the horizon.
 
@@ -645,8 +646,7 @@ class SafetyFilter:
         brake = self.model.braking_path(after, self.config.control_period)
         first = ratio - 1 - periods
         if first < 0:  # a step of one period: ``after`` itself is the next row
-            ref = self.model.reference(after)
-            rows, first = np.vstack([rows, np.concatenate((ref.position, ref.velocity))]), 0
+            rows, first = np.vstack([rows, self.model.point_row(after)]), 0
         ahead = np.vstack([rows, brake[first::ratio]])[:self._evasion_rows]
         rest = np.tile(np.concatenate((brake[-1, :2], np.zeros(2))),
                        (self._evasion_rows - len(ahead), 1))
@@ -661,9 +661,10 @@ class SafetyFilter:
         footprints = prepared.footprints
         return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
-            footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
-            float(age), np.ascontiguousarray(path, dtype=np.float64), self._evasion_step,
-            self._clearance + EVASION_REACH, 0.0, self._velocity_error, False)
+            footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
+            prepared.offsets, float(age), np.ascontiguousarray(path, dtype=np.float64),
+            self._evasion_step, self._clearance + EVASION_REACH, 0.0, self._velocity_error,
+            False)
 
     def _path_clearance(self, path, prepared, age):
         """Return c(B), capped at the margin, of a braking ``path``: (static, moving parts).
@@ -676,8 +677,8 @@ class SafetyFilter:
         footprints = prepared.footprints
         return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
-            footprints.inv_sq, footprints.counts, prepared.velocities, prepared.offsets,
-            float(age), path, self.config.control_period, self._clearance,
+            footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
+            prepared.offsets, float(age), path, self.config.control_period, self._clearance,
             self._braking_accel, self._velocity_error, True)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):

@@ -3,10 +3,12 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.barrier.cones import PlanarPolygons
+from polyc2bf_ros.core.barrier.cones import InflatedCone, PlanarPolygons
 from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance
 from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance
+from polyc2bf_ros.core.kernels.unicycle import _braking_after
 from polyc2bf_ros.core.models import make_model
+from polyc2bf_ros.core.models.base import RobotModel
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
 from strategies import convex_polygons, examples
@@ -90,12 +92,24 @@ def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     age = float(rng.uniform(0.0, 0.2))
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
     answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
-                            prepared.inv_sq, prepared.counts, velocities,
+                            prepared.inv_sq, prepared.counts, prepared.boxes, velocities,
                             np.zeros_like(velocities), age, path, PERIOD, cutoff, 0.0, 0.0,
                             True)
     expected = _clearance_by_brute_force(polygons, velocities, path, age, cutoff)
     assert answer == pytest.approx(expected, abs=1e-9)
     assert not velocities.any() or answer[0] == cutoff
+
+
+@settings(max_examples=examples(100), deadline=None)
+@given(polygons=st.lists(convex_polygons(), min_size=0, max_size=5),
+       radius=st.sampled_from([0.0, 0.3]))
+def test_planar_polygons_hold_each_polygons_bounding_box(polygons, radius):
+    """``boxes`` are the extremes of each polygon's own vertices, padded rows or not."""
+    prepared = InflatedCone(radius).prepare(PolygonBatch.from_polygons(polygons))
+    assert prepared.boxes.shape == (len(polygons), 4) and prepared.boxes.flags.c_contiguous
+    for n, count in enumerate(prepared.counts):
+        x, y = prepared.x[n, :count], prepared.y[n, :count]
+        assert prepared.boxes[n].tolist() == [x.min(), x.max(), y.min(), y.max()]
 
 
 def test_a_part_coming_at_a_robot_that_backs_away_does_not_count():
@@ -105,13 +119,13 @@ def test_a_part_coming_at_a_robot_that_backs_away_does_not_count():
     backing = np.array([[-0.01 * (k + 1), 0.0, -0.5, 0.0] for k in range(50)])
     closing = backing * [-1.0, 1.0, -1.0, 1.0]
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-            prepared.counts, np.array([[-1.4, 0.0]]), np.zeros((1, 2)), 0.0)
+            prepared.counts, prepared.boxes, np.array([[-1.4, 0.0]]), np.zeros((1, 2)), 0.0)
     assert path_clearance(*args, backing, PERIOD, 0.5, 2.0, 0.5, True) == (0.5, 0.5)
     assert path_clearance(*args, closing, PERIOD, 0.5, 0.0, 0.0, True)[1] < 0.0
     # An evasion's look ahead counts every row: the box gains on the slower robot.
     assert path_clearance(*args, backing, PERIOD, 0.5, 0.0, 0.0, False)[1] < 0.5
     near = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box - [0.3, 0.0]]))
-    static = (near.x, near.y, near.edge_x, near.edge_y, near.inv_sq, near.counts,
+    static = (near.x, near.y, near.edge_x, near.edge_y, near.inv_sq, near.counts, near.boxes,
               np.zeros((1, 2)), np.zeros((1, 2)), 0.0)
     assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, 0.5, True) == pytest.approx(
         (0.31, 0.5))
@@ -123,16 +137,41 @@ def test_a_moving_part_may_stray_from_its_velocity_by_the_bounds():
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box]))
     path = np.array([[0.1, 0.0, 1.0, 0.2]])
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-            prepared.counts, np.array([[1.0, 0.0]]), np.zeros((1, 2)), 0.0, path, 0.5, 5.0)
+            prepared.counts, prepared.boxes, np.array([[1.0, 0.0]]), np.zeros((1, 2)), 0.0,
+            path, 0.5, 5.0)
     _, plain = path_clearance(*args, 0.0, 0.0, True)
     _, robust = path_clearance(*args, 2.0, 0.2, True)
     assert robust == pytest.approx(plain - 0.5 * (0.2 + 0.5 * 2.0 * 0.5))
 
 
-def _held_step(model, state, u, period):
-    """Return the state one period after ``state`` with ``u`` held (the filter's midpoint rule)."""
-    middle = state + 0.5 * period * model.state_derivative(state, u)
-    return state + period * model.state_derivative(middle, u)
+@settings(max_examples=examples(200), deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), period=st.sampled_from([0.001, 0.01, 0.02, 0.05]),
+       settling=st.sampled_from([0.05, 0.5]), beyond=st.sampled_from([1.0, 1.5]),
+       plan=st.sampled_from([(1.0, 0.0), (0.65, 0.08)]))
+def test_unicycle_braking_after_is_the_generic_form_bit_for_bit(seed, period, settling, beyond,
+                                                                plan):
+    """The one-kernel x+ and path equal ``RobotModel.braking_after``'s numpy steps exactly.
+
+    Also where the path ends full rather than at rest (a slow brake, tau = 0.5 s), for
+    inputs beyond the bounds (a QP's tolerance): the row count is ``braking_path``'s, and
+    for stops planned slower and later (``plan_braking``: a share and a coast).
+    """
+    rng = np.random.default_rng(seed)
+    model = make_model('unicycle', brake_time_constant=settling).plan_braking(*plan)
+    state = np.array([*rng.uniform(-5, 5, 2), rng.uniform(-np.pi, np.pi),
+                      rng.uniform(-2.5, 2.5), rng.uniform(-3.0, 3.0)])
+    u = beyond * rng.uniform(model.input_lower, model.input_upper)
+    rows = model.braking_after(state, u, period)
+    generic = RobotModel.braking_after(model, state, u, period)
+    assert rows.shape == generic.shape and np.array_equal(rows, generic)
+    assert rows.flags.c_contiguous and rows[1:].flags.c_contiguous
+    # Too short a buffer: the kernel asks for the rows it needs instead of cutting the path.
+    kernel = (np.ascontiguousarray(u), model.offset_l, model.braking_limits,
+              settling / plan[0], plan[1], period)
+    needed = -_braking_after(state, *kernel, np.empty((1, 4)))
+    assert needed >= len(rows)
+    out = np.empty((needed, 4))
+    assert np.array_equal(out[:_braking_after(state, *kernel, out)], rows)
 
 
 @settings(max_examples=examples(200), deadline=None)
@@ -155,7 +194,7 @@ def test_braking_reach_bounds_every_path_the_check_could_compute(name, seed, per
     u[rng.random(len(u)) < 0.3] = model.input_upper[0] * rng.choice([-1.0, 1.0])
     u = np.clip(u, model.input_lower, model.input_upper)
     reach, duration = model.braking_reach(state, period)
-    path = model.braking_path(_held_step(model, state, u, period), period)
+    path = model.braking_after(state, u, period)[1:]
     distances = np.linalg.norm(path[:, :2] - state[:2], axis=1)
     assert distances.max() <= reach + 1e-9
     assert (len(path) + 1) * period <= duration + 1e-12
@@ -183,18 +222,18 @@ def test_clear_around_promises_what_path_clearance_returns(polygons, seed, cutof
     offsets = rng.uniform(-0.3, 0.3, (len(polygons), 3)) * rng.integers(0, 2)
     age = float(rng.uniform(0.0, 0.2))
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
-    around = (prepared.x, prepared.y, prepared.counts, velocities, offsets,
-              age + len(path) * PERIOD, float(centre[0]), float(centre[1]), rho + cutoff)
+    around = (prepared.boxes, velocities, offsets, age + len(path) * PERIOD,
+              float(centre[0]), float(centre[1]), rho + cutoff)
     clearance = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-                 prepared.counts, velocities, offsets, age, path, PERIOD, cutoff, 0.0, 0.0)
+                 prepared.counts, prepared.boxes, velocities, offsets, age, path, PERIOD,
+                 cutoff, 0.0, 0.0)
     if clear_around(*around, False):
         assert path_clearance(*clearance, True) == (cutoff, cutoff)
     if clear_around(*around, True):  # moving parts only: an evasion's look ahead
         assert path_clearance(*clearance, False)[1] == cutoff
     far = PlanarPolygons.from_batch(PolygonBatch.from_polygons([p + 100.0 for p in polygons]))
-    assert clear_around(far.x, far.y, far.counts, np.zeros_like(velocities),
-                        np.zeros_like(offsets), age, float(centre[0]), float(centre[1]),
-                        rho + cutoff, False)
+    assert clear_around(far.boxes, np.zeros_like(velocities), np.zeros_like(offsets), age,
+                        float(centre[0]), float(centre[1]), rho + cutoff, False)
 
 
 @pytest.mark.parametrize('wall_x, checked', [(1.0, True), (30.0, False)])

@@ -82,7 +82,7 @@ def test_bisector_cone_is_the_exact_silhouette(polygon, viewpoint, radius):
     cosines = vertices @ p / (np.linalg.norm(vertices, axis=1) * np.linalg.norm(p))
     assert np.all(cosines >= cos_half - 1e-9)
     # Tight: the extreme vertices on either side of the axis sit on the boundary rays.
-    side = np.cross(np.broadcast_to(p, vertices.shape), vertices)
+    side = p[0] * vertices[:, 1] - p[1] * vertices[:, 0]  # the 2-D cross product p x v
     assert np.isclose(cosines[side >= 0].min(), cos_half, atol=1e-9)
     assert np.isclose(cosines[side <= 0].min(), cos_half, atol=1e-9)
 
@@ -159,7 +159,7 @@ def test_min_h_along_a_path_is_the_smallest_h_the_filter_evaluates(axis, polygon
 
     Where some h along the path is negative the kernel finds that minimum; pruned points
     have h >= 0, so it never reports a negative h the filter would not, and without
-    pruning (midpoint axis, tau = inf) it is the minimum itself.
+    pruning (midpoint axis) it is the minimum itself.
     """
     rng = np.random.default_rng(seed)
     velocities = rng.uniform(-0.5, 0.5, (len(polygons), 3)) * rng.integers(0, 2)
@@ -179,8 +179,38 @@ def test_min_h_along_a_path_is_the_smallest_h_the_filter_evaluates(axis, polygon
                                filt.config.velocity_epsilon)
     expected = _min_h_by_evaluation(filt, obstacles, start, path, age, period)
     assert kernel >= expected - 1e-9
-    if expected < 0.0 or axis == 'midpoint' or horizon == math.inf:
+    if expected < 0.0 or axis == 'midpoint':
         assert kernel == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+@settings(max_examples=examples(300), deadline=None)
+@given(polygon=convex_polygons(centre_range=2.0), viewpoint=viewpoints,
+       heading=st.floats(-math.pi, math.pi), speed=st.floats(0.0, 3.0),
+       horizon=st.sampled_from([0.3, 1.0, math.inf]))
+def test_a_point_heading_past_the_bounding_box_has_h_of_at_least_zero(
+        polygon, viewpoint, heading, speed, horizon):
+    """The bisector axis's h >= 0 wherever ``min_h_along`` skips the point as heading past.
+
+    The robot's velocity relative to the part: its ray from the point misses the part's
+    bounding box.  The path is the point alone; a skipped point gives +inf.
+    """
+    radius = 0.2
+    velocity = speed * np.array([math.cos(heading), math.sin(heading)])
+    obstacles = ObstacleSet.from_obstacles([Obstacle(polygon=polygon)])
+    filt = SafetyFilter(make_model('point_mass_2d'), FilterConfig(
+        robot_radius=radius, horizon=horizon, cone_axis='bisector'))
+    evaluation = filt.evaluate(np.r_[viewpoint, velocity], obstacles)
+    model = HorizonCone(radius, horizon=horizon, axis='bisector')
+    kernel = model.min_h_along(model.prepare(PolygonBatch.from_polygons([polygon])),
+                               np.zeros((1, 2)), np.zeros((1, 2)), 0.0,
+                               np.r_[viewpoint, velocity], np.zeros((0, 4)), 0.01,
+                               filt.config.velocity_epsilon)
+    if evaluation.valid[0]:
+        assert kernel >= evaluation.terms.h[0] - 1e-9
+        if evaluation.terms.h[0] < 0.0:
+            assert kernel == pytest.approx(evaluation.terms.h[0], rel=1e-9, abs=1e-9)
+    if kernel == math.inf:
+        assert not evaluation.valid[0] or evaluation.terms.h[0] >= -1e-12
 
 
 def test_the_papers_cone_models_leave_the_barrier_test_out():

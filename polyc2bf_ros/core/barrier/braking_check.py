@@ -9,8 +9,9 @@ too late (BARN: h < 0 with the QP still ``ok``, then grazes of 1-6 mm).
 
 This is a backup-policy check (the gatekeeper of Agrawal & Panagou, 2024; backup CBFs,
 Gurriet et al., 2018).  With x+ the state after holding the filter's input u for one period
-T, and B(x) the reference point's path under the model's braking input from x
-(``RobotModel.braking_path``, one step per period), the clearance of a path is
+T (``RobotModel.one_period``, the midpoint rule), and B(x) the reference point's path under
+the model's braking input from x (``RobotModel.braking_path``, one step per period), the
+clearance of a path is
 
     c(B) = min over path points k and obstacle parts n of dist(B_k, O_n(t_k)) - R
 
@@ -54,12 +55,20 @@ kept when H(x+) >= 0 or H(x+) >= H(x), refused only while H(x) >= 0; by the same
 induction h stays >= 0 once it is, which the clearance alone does not give (a robot
 turning past a cylinder can leave the safe set while its disc stays clear).
 
-Cost: the path (|v| / a_max / T + 8 brake time constants / T rows) is computed in one
-kernel; an obstacle part is only measured against it when its bounding box comes within
-reach of the path's, so the cost grows with the obstacles near the robot, not with all.
-Before any of that, ``clear_around`` asks whether any bounding box comes within
-rho + margin of the robot, rho the model's bound on every path the check could compute
-(``RobotModel.braking_reach``); when none does, c(B(x+)) would be the margin and the input
-is kept without computing x+ or its path.  In open space that is most steps.
+Cost: per tested input three compiled calls.  ``RobotModel.braking_after`` gives x+ and the
+point's rows along B(x+) (|v| / a_max / T + 8 brake time constants / T of them) in one
+kernel (the unicycle's; other models the same arithmetic in numpy);
+``kernels.braking.path_clearance`` measures c(B(x+)) and ``kernels.horizon.min_h_along``
+H(x+).  The parts' bounding boxes are computed once per obstacle update
+(``PlanarPolygons.boxes``); a part is only measured against the path when its box comes
+within reach of the path's, so the cost grows with the obstacles near the robot, not with
+all, and h is evaluated only at path points that head at a part's box and lie within
+tau |w| of it (``min_h_along``; along a corridor, none).  What braking now gives is
+computed only when the comparison needs it: B(x) and c(B(x)) when c(B(x+)) is under the
+margin, H(x) when H(x+) < 0.  Before any of that, ``clear_around`` asks whether any
+bounding box comes within rho + margin of the robot, rho the model's bound on every path
+the check could compute (``RobotModel.braking_reach``); when none does, c(B(x+)) would be
+the margin and the input is kept without computing x+ or its path.  In open space that is
+most steps.
 """
 

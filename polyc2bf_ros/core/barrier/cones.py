@@ -99,7 +99,9 @@ class PlanarPolygons:
 
     Vertex coordinates ``x``, ``y``, edges ``edge_x``, ``edge_y`` (from each vertex to
     the next) and their ``inv_sq`` = 1 / |e|^2, each polygon's first ``counts[n]`` slots
-    (``batch_geometry.edge_rows`` pads the rest).
+    (``batch_geometry.edge_rows`` pads the rest); ``boxes`` (N, 4) each polygon's bounding
+    box [low x, high x, low y, high y] (``kernels.cones.polygon_box``), for the braking
+    check's kernels to skip far polygons without reading their vertices.
     """
 
     x: np.ndarray
@@ -108,13 +110,15 @@ class PlanarPolygons:
     edge_y: np.ndarray
     inv_sq: np.ndarray
     counts: np.ndarray
+    boxes: np.ndarray
 
     @classmethod
     def from_rows(cls, x, y, counts):
         """Lay out (N, W) vertex rows (filled up to ``counts``) once per obstacle update."""
         edge_x, edge_y, inv_sq = np.empty_like(x), np.empty_like(x), np.empty_like(x)
-        batch_geometry.edge_rows(x, y, counts, edge_x, edge_y, inv_sq)
-        return cls(x, y, edge_x, edge_y, inv_sq, counts)
+        boxes = np.empty((len(counts), 4))
+        batch_geometry.edge_rows(x, y, counts, edge_x, edge_y, inv_sq, boxes)
+        return cls(x, y, edge_x, edge_y, inv_sq, counts, boxes)
 
     @classmethod
     def from_batch(cls, batch):
@@ -197,13 +201,15 @@ class ConeModel(abc.ABC):
         """Write ``exits`` of ``viewpoints`` (2, 1 or N) into ``out`` (3, N)."""
 
     def min_h_along(self, prepared, velocities, offsets, age, start, path, period,
-                    velocity_epsilon):
+                    velocity_epsilon, checked=True):
         """Return the smallest h of any planar obstacle along a braking path; inf: unsupported.
 
         ``start`` is the reference point's [x, y, vx, vy] at ``age``, ``path`` (K, 4) rows
         the same (k + 1) periods on (``RobotModel.braking_path``).  The braking check's
         barrier test (``SafetyFilter``, ``braking_check_barrier``) uses it; a cone model
-        without it (the default here) is checked for clearance alone.
+        without it (the default here) is checked for clearance alone.  Exact where it is
+        negative; where it is not, it may be any value >= 0 (pruning; the test asks only
+        for the sign, and for the value where negative).  ``checked=False`` as ``plane``.
         """
         return math.inf
 

@@ -88,12 +88,13 @@ class HorizonCone(InflatedCone):
                        block, valid)
 
     def min_h_along(self, prepared, velocities, offsets, age, start, path, period,
-                    velocity_epsilon):
+                    velocity_epsilon, checked=True):
         """Return h_tau's minimum along a braking path (``min_h_along``, the kernel)."""
-        return min_h_along(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
-                           prepared.inv_sq, prepared.counts, 1.0 / self.horizon,
-                           self.axis == 'bisector', velocities, offsets, float(age), start,
-                           path, float(period), velocity_epsilon * velocity_epsilon)
+        kernel = min_h_along if checked else min_h_along.unchecked
+        return kernel(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                      prepared.inv_sq, prepared.counts, prepared.boxes, 1.0 / self.horizon,
+                      self.axis == 'bisector', velocities, offsets, float(age), start, path,
+                      float(period), velocity_epsilon * velocity_epsilon)
 
     def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
                    velocity_epsilon, block, valid, checked):

@@ -4,7 +4,7 @@ The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_
 """
 import math
 
-from polyc2bf_ros.core.kernels.cones import nearest_edge, polygon_box
+from polyc2bf_ros.core.kernels.cones import nearest_edge
 from polyc2bf_ros.core.kernels.jit import F2, I1, kernel, signature
 
 
@@ -19,15 +19,15 @@ def _signed_distance(x, y, edge_x, edge_y, inv_sq, count, n, px, py):
 
 
 
-@kernel(signature('UniTuple(f8, 2)', F2, F2, F2, F2, F2, I1, F2, F2, 'f8', F2, 'f8',
+@kernel(signature('UniTuple(f8, 2)', F2, F2, F2, F2, F2, I1, F2, F2, F2, 'f8', F2, 'f8',
                   'f8', 'f8', 'f8', 'b1'))
-def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, age, path,
-                   period, cutoff, accel, velocity_error, closing_only):
+def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offsets, age,
+                   path, period, cutoff, accel, velocity_error, closing_only):
     """Return min(cutoff, the smallest signed distance of a ``path`` row's x, y to a polygon).
 
     Two values: over the static polygons, and over the moving ones.  Negative inside.
-    Polygon n (CCW, rows of ``x``, ``y`` as ``cones.PlanarPolygons``) has moved by
-    ``offsets[n]`` and moves at ``velocities[n]``; path row k ([x, y, vx, vy]) is at
+    Polygon n (CCW, rows of ``x``, ``y``, ``boxes`` as ``cones.PlanarPolygons``) has moved
+    by ``offsets[n]`` and moves at ``velocities[n]``; path row k ([x, y, vx, vy]) is at
     age + (k + 1) period.  A moving polygon counts less ``velocity_error`` t + ``accel``
     t^2 / 2, t = age + (k + 1) period: as far as it may stray from its stated velocity by
     then; with ``closing_only`` (the braking check) only at the rows where the path's
@@ -52,10 +52,9 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, ag
         reach = cutoff + horizon * math.sqrt(vx * vx + vy * vy)
         if moving:
             reach += horizon * (velocity_error + 0.5 * accel * horizon)
-        box_low_x, box_high_x, box_low_y, box_high_y = polygon_box(x, y, counts[n], n)
         ox, oy = offsets[n, 0], offsets[n, 1]
-        if (low_x - ox - reach > box_high_x or high_x - ox + reach < box_low_x
-                or low_y - oy - reach > box_high_y or high_y - oy + reach < box_low_y):
+        if (low_x - ox - reach > boxes[n, 1] or high_x - ox + reach < boxes[n, 0]
+                or low_y - oy - reach > boxes[n, 3] or high_y - oy + reach < boxes[n, 2]):
             continue
         for k in range(rows):
             t = age + (k + 1) * period
@@ -72,24 +71,24 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, velocities, offsets, ag
 
 
 
-@kernel(signature('b1', F2, F2, I1, F2, F2, 'f8', 'f8', 'f8', 'f8', 'b1'))
-def clear_around(x, y, counts, velocities, offsets, elapsed, cx, cy, reach, moving_only):
+@kernel(signature('b1', F2, F2, F2, 'f8', 'f8', 'f8', 'f8', 'b1'))
+def clear_around(boxes, velocities, offsets, elapsed, cx, cy, reach, moving_only):
     """Return True when no polygon's bounding box comes within ``reach`` of (cx, cy).
 
     With ``moving_only``, no moving polygon's (an evasion's trigger, ``SafetyFilter``).
 
-    Polygon n (rows of ``x``, ``y``) has moved by ``offsets[n]`` and moves at
-    ``velocities[n]`` for up to ``elapsed`` s more.  The square of half-side ``reach`` around
-    (cx, cy) holds the bounding box of any path within that distance of it, so
-    ``path_clearance`` of such a path, with ``cutoff`` <= reach - rho, returns ``cutoff``:
-    the check skips computing the path (``SafetyFilter``).
+    Polygon n (bounding box ``boxes[n]``, as ``cones.PlanarPolygons``) has moved by
+    ``offsets[n]`` and moves at ``velocities[n]`` for up to ``elapsed`` s more.  The square
+    of half-side ``reach`` around (cx, cy) holds the bounding box of any path within that
+    distance of it, so ``path_clearance`` of such a path, with ``cutoff`` <= reach - rho,
+    returns ``cutoff``: the check skips computing the path (``SafetyFilter``).
     """
-    for n in range(counts.shape[0]):
+    for n in range(boxes.shape[0]):
         vx, vy = velocities[n, 0], velocities[n, 1]
         if moving_only and vx == 0.0 and vy == 0.0:
             continue
         grown = reach + elapsed * math.sqrt(vx * vx + vy * vy)
-        low_x, high_x, low_y, high_y = polygon_box(x, y, counts[n], n)
+        low_x, high_x, low_y, high_y = boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3]
         px, py = cx - offsets[n, 0], cy - offsets[n, 1]
         if not (px - grown > high_x or px + grown < low_x
                 or py - grown > high_y or py + grown < low_y):

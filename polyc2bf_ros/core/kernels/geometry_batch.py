@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 
+from polyc2bf_ros.core.kernels.cones import polygon_box
 from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, kernel, signature
 
 REL_TOL = 1e-12
@@ -85,14 +86,16 @@ def pad(points, counts, vertices):
     return finite
 
 
-@kernel(signature('void', F2, F2, I1, F2, F2, F2))
-def edge_rows(x, y, counts, edge_x, edge_y, inv_sq):
+@kernel(signature('void', F2, F2, I1, F2, F2, F2, F2))
+def edge_rows(x, y, counts, edge_x, edge_y, inv_sq, boxes):
     """Fill the edges v_next(k) - v_k and 1 / |e|^2 (0 for a zero edge) of (N, W) vertex rows.
 
     Padding slots (k >= counts[n]) repeat the last vertex in ``x``, ``y`` (written here)
-    and the closing edge in the edge rows.
+    and the closing edge in the edge rows.  ``boxes`` (N, 4): each polygon's bounding box
+    (``cones.polygon_box``).
     """
     for n in range(counts.shape[0]):
+        boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3] = polygon_box(x, y, counts[n], n)
         last = counts[n] - 1
         for k in range(x.shape[1]):
             if k > last:

@@ -9,7 +9,6 @@ from polyc2bf_ros.core.kernels.cones import (
     midpoint_cone,
     nearest_edge,
     PLANE_ROWS,
-    polygon_box,
     silhouette,
 )
 from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, kernel, signature
@@ -163,10 +162,33 @@ def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, 
 
 @kernel
 def _box_gap(low_x, high_x, low_y, high_y, box):
-    """Return the distance between the box [low, high] and ``box`` (``polygon_box``)."""
+    """Return the distance between the box [low, high] and ``box``.
+
+    Both as [low x, high x, low y, high y] (``cones.PlanarPolygons.boxes``).
+    """
     gap_x = max(0.0, box[0] - high_x, low_x - box[1])
     gap_y = max(0.0, box[2] - high_y, low_y - box[3])
     return math.sqrt(gap_x * gap_x + gap_y * gap_y)
+
+
+
+@kernel
+def _misses_box(box, qx, qy, dx, dy):
+    """Return True when the ray from q along d meets no point of ``box`` (as ``_box_gap``).
+
+    So when the box lies strictly on one side of the line through q along d (cross(d,
+    c - q) of one strict sign at every corner c), or none of it ahead of q (<d, c - q> <= 0
+    at every corner; always when d = 0): the box is convex, so what holds at its corners
+    holds at every point of it.  Both are linear in c, so the signs of dx, dy pick the
+    corner where each is smallest or largest, and three corners decide.
+    """
+    low_x, high_x, low_y, high_y = box
+    right_x, right_y = (high_x if dy > 0.0 else low_x), (low_y if dx > 0.0 else high_y)
+    left_x, left_y = (low_x if dy > 0.0 else high_x), (high_y if dx > 0.0 else low_y)
+    front_x, front_y = (high_x if dx > 0.0 else low_x), (high_y if dy > 0.0 else low_y)
+    return (dx * (right_y - qy) - dy * (right_x - qx) > 0.0
+            or dx * (left_y - qy) - dy * (left_x - qx) < 0.0
+            or dx * (front_x - qx) + dy * (front_y - qy) <= 0.0)
 
 
 
@@ -192,22 +214,28 @@ def _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon, 
 
 
 
-@kernel(signature('f8', F2, F2, F2, F2, F2, I1, 'f8', 'b1', F2, F2, 'f8', F1, F2, 'f8',
+@kernel(signature('f8', F2, F2, F2, F2, F2, I1, F2, 'f8', 'b1', F2, F2, 'f8', F1, F2, 'f8',
                   'f8'))
-def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, velocities,
+def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon, bisector, velocities,
                 offsets, age, start, path, period, eps_sq):
     """Return the smallest h_tau of any polygon at ``start`` and every ``path`` row.
 
     ``start`` and the rows are the reference point's [x, y, vx, vy], ``start`` at ``age``
-    and row k at age + (k + 1) period; polygon n has moved by ``offsets[n]`` and moves at
-    ``velocities[n]``.  Points inside a polygon (no cone) are left out, as the filter
-    leaves such a part out of its rows.  Pruning (bisector axis) is exact: with w the
-    relative velocity, h_tau = L [<u, w> + |w|_e c + (d / tau)(1 - c)] >=
-    L (1 - c)(d / tau - |w|), as c = cos(half-angle) >= 0 and |w|_e >= |w|; so a point whose
-    distance to the polygon's bounding box is at least tau |w| has h_tau >= 0 and is not
-    evaluated, nor is a polygon for which that holds along the whole path.  The midpoint
-    axis's s can be negative close to a polygon, so there every point is evaluated.
-    +inf when nothing is evaluated.
+    and row k at age + (k + 1) period; polygon n (bounding box ``boxes[n]``, as
+    ``cones.PlanarPolygons``) has moved by ``offsets[n]`` and moves at ``velocities[n]``.
+    Points inside a polygon (no cone) are left out, as the filter leaves such a part out
+    of its rows.  Pruning (bisector axis) is exact, it skips only
+    points with h_tau >= 0; w is the relative velocity and
+    h_tau = L [<u, w> + |w|_e c + (d / tau)(1 - c)], c = cos(half-angle) >= 0,
+    |w|_e >= |w|.  First, h_tau >= L (1 - c)(d / tau - |w|): a point whose distance to the
+    polygon's bounding box is at least tau |w| is not evaluated, nor is a polygon for which
+    that holds along the whole path.  Second, the robot's velocity relative to the polygon,
+    -w: where the ray from q along -w misses the bounding box (``_misses_box``), -w lies
+    outside the cone of the polygon's silhouette rays (that cone is spanned by points of
+    the polygon, inside the box), so its angle to the axis u exceeds the half-angle:
+    <u, -w> < |w| c, and h_tau > 0 (or w = 0, and h_tau >= 0).  The midpoint axis's s can
+    be negative close to a polygon, so there every point is evaluated.  +inf when nothing
+    is evaluated; so the value is exact where it is negative, and otherwise only >= 0.
     """
     rows = path.shape[0]
     low_x = high_x = start[0]
@@ -224,7 +252,7 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, vel
         obstacle_speed = math.sqrt(ovx * ovx + ovy * ovy)
         reach = moved * obstacle_speed
         ox, oy = offsets[n, 0], offsets[n, 1]
-        box = polygon_box(x, y, counts[n], n)
+        box = boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3]
         gap = _box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
                        high_y - oy + reach, box)
         if bisector and inv_horizon * gap >= fastest + obstacle_speed:
@@ -237,8 +265,8 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, vel
             t = age + (k + 1) * period
             qx, qy = px - t * ovx - ox, py - t * ovy - oy
             vx, vy = ovx - pvx, ovy - pvy
-            if bisector and inv_horizon * _box_gap(qx, qx, qy, qy, box) >= math.sqrt(
-                    vx * vx + vy * vy):
+            if bisector and (_misses_box(box, qx, qy, -vx, -vy) or inv_horizon * _box_gap(
+                    qx, qx, qy, qy, box) >= math.sqrt(vx * vx + vy * vy)):
                 continue
             best = min(best, _value(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx, qy, vx,
                                     vy, inv_horizon, bisector, eps_sq))

@@ -22,21 +22,76 @@ def _offset_point(x, offset, position, velocity, drift, input_matrix):
 
 
 
-@kernel(signature('i8', F1, 'f8', F1, 'f8', 'f8', F2))
-def _braking_path(x, offset, limits, time_constant, period, out):
+@kernel(signature('i8', F1, 'f8', F1, 'f8', 'f8', 'f8', F2))
+def _braking_path(x, offset, limits, time_constant, coast, period, out):
     """Write the reference point's [x, y, vx, vy] along the brake into ``out``; return the rows.
+
+    ``_brake`` from x, coasted ``coast`` s first (``_coast``), as many rows as ``out`` holds.
+    """
+    px, py, theta, v, omega = _coast(x[0], x[1], x[2], x[3], x[4], coast)
+    return _brake(px, py, theta, v, omega, offset, limits, time_constant, period, out, 0,
+                  out.shape[0])
+
+
+
+@kernel(signature('i8', F1, F1, 'f8', F1, 'f8', 'f8', 'f8', F2))
+def _braking_after(x, u, offset, limits, time_constant, coast, period, out):
+    """Write the point at x+ and then along the brake from x+ into ``out``; return the rows.
+
+    Or minus the rows needed, writing nothing past row 0, when ``out`` is shorter.
+
+    x+ is x after holding ``u`` for ``period`` by the midpoint rule on x_dot (module
+    docstring), as ``RobotModel.one_period`` computes it, operation for operation:
+    middle = x + (T / 2) x_dot(x, u), x+ = x + T x_dot(middle, u).  Row 0 is the point at x+
+    (``RobotModel.point_row``), rows 1.. ``_brake`` from x+ coasted ``coast`` s with as many
+    rows as ``Unicycle.braking_path`` gives x+.
+    """
+    px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
+    half = 0.5 * period
+    mid_theta, mid_v = theta + half * omega, v + half * u[0]
+    mid_omega = omega + half * u[1]
+    px = px + period * (mid_v * math.cos(mid_theta))
+    py = py + period * (mid_v * math.sin(mid_theta))
+    theta, v, omega = theta + period * mid_omega, v + period * u[0], omega + period * u[1]
+    _point_row(px, py, theta, v, omega, offset, out[0])
+    stop = abs(v) / limits[0] + abs(omega) / limits[1]
+    capacity = int(stop / period) + int(8 * time_constant / period) + 2
+    if capacity + 1 > out.shape[0]:
+        return -(capacity + 1)
+    px, py, theta, v, omega = _coast(px, py, theta, v, omega, coast)
+    return 1 + _brake(px, py, theta, v, omega, offset, limits, time_constant, period, out, 1,
+                      capacity)
+
+
+
+@kernel
+def _coast(px, py, theta, v, omega, duration):
+    """Return the state ``duration`` s on at constant v and omega (none for 0).
+
+    The braking check's coast before each stop (``RobotModel.plan_braking``): ``_held_step``
+    with no input, skipped at 0 so that a plan without one computes what it did before.
+    """
+    if duration > 0.0:
+        return _held_step(px, py, theta, v, omega, 0.0, 0.0, duration)
+    return px, py, theta, v, omega
+
+
+
+@kernel
+def _brake(px, py, theta, v, omega, offset, limits, time_constant, period, out, first,
+           capacity):
+    """Write the point's rows along the brake from a state to ``out[first:]``; return them.
 
     One midpoint step of the dynamics per period, the damped brake held over it
     (``damped_brake``; exact for a straight stop); ends at rest (|v|, |omega| < 1e-4)
-    or when ``out`` is full.
+    or after ``capacity`` rows.
     """
-    px, py, theta, v, omega = x[0], x[1], x[2], x[3], x[4]
     rows = 0
-    for k in range(out.shape[0]):
+    for k in range(capacity):
         a = min(max(-v / time_constant, -limits[0]), limits[0])
         alpha = min(max(-omega / time_constant, -limits[1]), limits[1])
         px, py, theta, v, omega = _held_step(px, py, theta, v, omega, a, alpha, period)
-        _point_row(px, py, theta, v, omega, offset, out[k])
+        _point_row(px, py, theta, v, omega, offset, out[first + k])
         rows = k + 1
         if abs(v) < 1e-4 and abs(omega) < 1e-4:
             break  # the rest of the damped stop moves the point by < 1e-4 time_constant

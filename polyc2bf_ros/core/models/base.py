@@ -113,6 +113,34 @@ class RobotModel(abc.ABC):
         """
         return None
 
+    def point_row(self, x):
+        """Return the reference point's position, then velocity, at x: a path's row."""
+        ref = self.reference(x)
+        return np.concatenate((ref.position, ref.velocity))
+
+    def one_period(self, x, u, period):
+        """Return x+, the state ``period`` s after x with ``u`` held: the midpoint rule.
+
+        middle = x + (T / 2) x_dot(x, u), x+ = x + T x_dot(middle, u) (``state_derivative``;
+        exact for the point mass, where an Euler step misplaced it by T^2 u / 2).
+        """
+        middle = x + 0.5 * period * self.state_derivative(x, u)
+        return x + period * self.state_derivative(middle, u)
+
+    def braking_after(self, x, u, period):
+        """Return the braking check's rows for ``u``: the point at x+, then ``braking_path``.
+
+        (K + 1, 2 position_dim), C-contiguous float64: row 0 ``point_row`` at
+        x+ = ``one_period(x, u, period)``, rows 1.. ``braking_path(x+, period)``.  None when
+        the model has no braking path.  A model may compute it in one compiled call, with
+        exactly this arithmetic.
+        """
+        after = self.one_period(x, u, period)
+        path = self.braking_path(after, period)
+        if path is None:
+            return None
+        return np.vstack((self.point_row(after), path))
+
     def held_path(self, x, u, step, rows):
         """Return (path, state): the point's path with ``u`` held from x, and its last state.
 

@@ -21,7 +21,12 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core.kernels.unicycle import _braking_path, _held_path, _offset_point
+from polyc2bf_ros.core.kernels.unicycle import (
+    _braking_after,
+    _braking_path,
+    _held_path,
+    _offset_point,
+)
 from polyc2bf_ros.core.models.base import (
     damped_brake,
     ReferenceKinematics,
@@ -98,25 +103,36 @@ class Unicycle(RobotModel):
     def braking_path(self, x, period):
         """Return the reference point's path under the brake (``RobotModel.braking_path``)."""
         x = self.as_state(x)
-        if self.braking_coast:
-            x = self._coasted(x, self.braking_coast)
         limits = self.braking_limits
         stop = abs(x[3]) / limits[0] + abs(x[4]) / limits[1]
         time_constant = self.brake_time_constant / self.braking_share
         out = np.empty((int(stop / period) + int(8 * time_constant / period) + 2, 4))
         # Unchecked: as_state, braking_limits and out are C-contiguous float64.
-        rows = _braking_path.unchecked(x, self.offset_l, limits, time_constant, float(period),
-                                       out)
+        rows = _braking_path.unchecked(x, self.offset_l, limits, time_constant,
+                                       self.braking_coast, float(period), out)
         return out[:rows]
 
-    @staticmethod
-    def _coasted(x, duration):
-        """Return the state ``duration`` s on at constant v and omega (``plan_braking``)."""
-        px, py, theta, v, omega = x
-        heading = theta + 0.5 * duration * omega
-        return np.array([px + duration * v * math.cos(heading),
-                         py + duration * v * math.sin(heading), theta + duration * omega,
-                         v, omega])
+    def braking_after(self, x, u, period):
+        """Return the point at x+, then its path under the brake (``RobotModel.braking_after``).
+
+        One kernel call.  ``out`` holds the rows of any x+ the input reaches: |v+| <=
+        |v| + |a| T and |omega+| <= |omega| + |alpha| T bound ``braking_path``'s row count
+        from x+; one more for row 0, three for rounding.  Should it not, the kernel says how
+        many rows it needs, and a second call writes them.
+        """
+        x, u = self.as_state(x), np.ascontiguousarray(u, dtype=np.float64)
+        limits = self.braking_limits
+        time_constant = self.brake_time_constant / self.braking_share
+        stop = ((abs(float(x[3])) + period * abs(float(u[0]))) / limits[0]
+                + (abs(float(x[4])) + period * abs(float(u[1]))) / limits[1])
+        out = np.empty((int(stop / period) + int(8 * time_constant / period) + 6, 4))
+        while True:
+            # Unchecked: as_state, the input, braking_limits and out are C-contiguous float64.
+            rows = _braking_after.unchecked(x, u, self.offset_l, limits, time_constant,
+                                            self.braking_coast, float(period), out)
+            if rows >= 0:
+                return out[:rows]
+            out = np.empty((-rows, 4))
 
     def held_path(self, x, u, step, rows):
         """Return the reference point's path with ``u`` held (``RobotModel.held_path``)."""
