@@ -45,7 +45,15 @@ percentiles 0, 0.5, ..., 100) and beside it ``node.png``, those distributions
 against the targets.  DDS stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``).
 
     .venv/bin/python bench/bench_node.py [--rate 1000] [--obstacles 50] [--duration 10]
-        [--subjects echo echo_rclpy command timer] [--out /tmp/node.json]
+        [--subjects echo echo_rclpy command timer] [--layout in_reach] [--out /tmp/node.json]
+
+Layouts (``--layout``): ``scattered`` (the default), 8-gons 3-8 m around the robot, which
+odometry puts at the origin at 0.5 m/s: no obstacle within the braking check's reach, so
+its quick box test skips it on every step; ``in_reach``, ``bench_core.py``'s layout of that
+name (two rows of 8-gons whose near edges lie 0.95-1.05 m either side of the x axis, one
+just behind the robot) with odometry at 1 m/s along x, where the check's reach (about
+1.2 m: the stop from 1 m/s plus the guard radius) takes in the nearest of them: the check
+computes its paths on every step, as it does for a robot driving between obstacles.
 
 ``--obstacle-updates`` instead times the node's obstacle handling in-process
 (``run_obstacle_updates``): messages shaped like the sim bridge's (``--robots``
@@ -69,6 +77,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from bench_core import in_reach_obstacles
 from bench_io import require_installed_checkout, write_records
 from diagnostic_msgs.msg import DiagnosticArray
 from events_executor_subject import SlicedEventsExecutor
@@ -107,19 +116,34 @@ CDF_PERCENTILES = np.linspace(0.0, 100.0, 201)  # the latency distribution kept 
 TARGET_P50_MS, TARGET_P99_MS = 0.5, 1.5
 
 
-def obstacle_markers(count, seed=0):
-    """``count`` octagons (radius 0.3 m) at 3-8 m around the origin, as LINE_STRIP markers."""
-    rng = np.random.default_rng(seed)
+def scattered_polygons(count, rng):
+    """``count`` octagons (radius 0.3 m) at 3-8 m around the origin."""
     angles = np.linspace(0.0, 2.0 * np.pi, 9)[:-1]
     octagon = 0.3 * np.column_stack([np.cos(angles), np.sin(angles)])
-    result = MarkerArray()
-    for i in range(count):
+    polygons = []
+    for _ in range(count):
         bearing, distance = rng.uniform(0.0, 2.0 * np.pi), rng.uniform(3.0, 8.0)
-        centre = distance * np.array([np.cos(bearing), np.sin(bearing)])
+        polygons.append(distance * np.array([np.cos(bearing), np.sin(bearing)]) + octagon)
+    return polygons
+
+
+def in_reach_polygons(count, rng):
+    """``count`` 8-gons in ``bench_core.py``'s ``in_reach`` layout (module docstring)."""
+    return [obstacle.polygon for obstacle in in_reach_obstacles(count, rng)]
+
+
+#: layout -> (polygons of ``count`` obstacles, odometry speed along x [m/s])
+LAYOUTS = {'scattered': (scattered_polygons, 0.5), 'in_reach': (in_reach_polygons, 1.0)}
+
+
+def obstacle_markers(count, layout='scattered', seed=0):
+    """``count`` obstacles of ``layout`` as LINE_STRIP markers in frame odom."""
+    result = MarkerArray()
+    for i, polygon in enumerate(LAYOUTS[layout][0](count, np.random.default_rng(seed))):
         marker = Marker(ns='bench', id=i, type=Marker.LINE_STRIP, action=Marker.ADD)
         marker.header.frame_id = 'odom'
         marker.pose.orientation.w = 1.0
-        marker.points = [Point(x=float(x), y=float(y)) for x, y in centre + octagon]
+        marker.points = [Point(x=float(x), y=float(y)) for x, y in polygon]
         result.markers.append(marker)
     return result
 
@@ -194,8 +218,10 @@ def run_echo(role):
 
 # -- sender ------------------------------------------------------------------------------------
 
-def run_sender(rate, count):
+def run_sender(rate, count, speed):
     """Publish ``count`` odometry + command pairs at ``rate`` Hz; print lateness and skips as JSON.
+
+    The odometry says the robot is at the origin, heading along x at ``speed`` m/s.
 
     Prints ``ready`` once both subscriptions are matched and waits for a line on
     stdin before sending, so the receiver controls the start.
@@ -208,7 +234,7 @@ def run_sender(rate, count):
     odom.header.frame_id = 'odom'
     odom.child_frame_id = 'base_link'
     odom.pose.pose.orientation.w = 1.0
-    odom.twist.twist.linear.x = 0.5
+    odom.twist.twist.linear.x = speed
     cmd = TwistStamped()
     cmd.header.frame_id = '0' * SEQ_DIGITS
     cmd.twist.linear.x = 1.0
@@ -290,8 +316,8 @@ def wait_for(predicate, proc, log, what, timeout=30.0):
         time.sleep(0.05)
 
 
-def run(subject, rate, obstacles, duration, warmup):
-    """Benchmark one subject at ``rate`` Hz; return a flat result record."""
+def run(subject, rate, obstacles, duration, warmup, layout='scattered'):
+    """Benchmark one subject at ``rate`` Hz among ``layout``'s obstacles; return a record."""
     first, count = round(warmup * rate), round((warmup + duration) * rate)
     log = tempfile.TemporaryFile()
     proc = subprocess.Popen(subject_args(subject, rate), cwd=REPO, stdout=log,
@@ -306,7 +332,7 @@ def run(subject, rate, obstacles, duration, warmup):
     try:
         receiver = Receiver(node, count)
         obstacles_pub = node.create_publisher(MarkerArray, f'{NAMESPACE}/obstacles', LATCHED)
-        obstacles_pub.publish(obstacle_markers(obstacles))
+        obstacles_pub.publish(obstacle_markers(obstacles, layout))
         spinner.start()
         wait_for(lambda: receiver.answers_sub.get_publisher_count() > 0, proc, log,
                  f'{subject} start')
@@ -315,8 +341,8 @@ def run(subject, rate, obstacles, duration, warmup):
                      'obstacles subscription')
         sender = subprocess.Popen(
             [sys.executable, __file__, '--role', 'sender', '--rate', str(rate),
-             '--count', str(count)], cwd=REPO, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            text=True)
+             '--count', str(count), '--speed', str(LAYOUTS[layout][1])], cwd=REPO,
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         if sender.stdout.readline().strip() != 'ready':
             raise RuntimeError('sender failed to start')
         sender.stdin.write('go\n')
@@ -353,6 +379,7 @@ def run(subject, rate, obstacles, duration, warmup):
     return {
         'bench': 'node', 'subject': subject, 'rate_hz': int(rate) if rate.is_integer() else rate,
         'obstacles': 0 if subject.startswith('echo') else obstacles, 'model': 'unicycle',
+        'layout': layout, 'odometry_speed': LAYOUTS[layout][1],
         'trigger': FILTER_SUBJECTS[subject][0] if not subject.startswith('echo') else None,
         'duration_s': duration,
         'p50_ms': round(float(p50), 4), 'p99_ms': round(float(p99), 4),
@@ -514,6 +541,7 @@ def _cell(value, width, digits=3):
 def print_table(records):
     """One row per record."""
     columns = (('subject', 'subject', 10), ('rate_hz', 'rate', 5), ('obstacles', 'obst', 4),
+               ('layout', 'layout', 9),
                ('p50_ms', 'p50_ms', 7), ('p99_ms', 'p99_ms', 7), ('max_ms', 'max_ms', 7),
                ('answered_frac', 'answered', 8), ('achieved_hz', 'ach_hz', 7),
                ('rss_mb', 'rss_mb', 6), ('rss_peak_mb', 'hwm_mb', 6),
@@ -561,8 +589,11 @@ def main(argv=None):
                                            'echo_events'),
                         default='bench', help=argparse.SUPPRESS)
     parser.add_argument('--count', type=int, help=argparse.SUPPRESS)
+    parser.add_argument('--speed', type=float, default=0.5, help=argparse.SUPPRESS)
     parser.add_argument('--rate', type=float, nargs='+', default=[1000.0], help='Hz')
     parser.add_argument('--obstacles', type=int, default=50)
+    parser.add_argument('--layout', choices=tuple(LAYOUTS), default='scattered',
+                        help='where the obstacles lie (module docstring)')
     parser.add_argument('--duration', type=float, default=10.0, help='measured seconds')
     parser.add_argument('--warmup', type=float, default=2.0, help='seconds before measuring')
     parser.add_argument('--subjects', nargs='+', choices=SUBJECTS + EVENTS_SUBJECTS,
@@ -582,7 +613,7 @@ def main(argv=None):
     # on the same machine do not share DDS discovery with the benchmark.
     os.environ.setdefault('ROS_DOMAIN_ID', str(95 + os.getpid() % 7))
     if args.role == 'sender':
-        return run_sender(args.rate[0], args.count)
+        return run_sender(args.rate[0], args.count, args.speed)
     if args.role.startswith('echo'):
         return run_echo(args.role)
     require_installed_checkout()
@@ -591,7 +622,7 @@ def main(argv=None):
         print_obstacle_table(records)
         write_records(records, args.out or OBSTACLE_RESULTS)
         return 0
-    records = [run(subject, rate, args.obstacles, args.duration, args.warmup)
+    records = [run(subject, rate, args.obstacles, args.duration, args.warmup, args.layout)
                for rate in args.rate for subject in args.subjects]
     print_table(records)
     out = args.out or RESULTS
