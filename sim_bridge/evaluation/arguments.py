@@ -11,7 +11,8 @@ import sys
 
 import yaml
 
-from polyc2bf_ros.filter_parameters import ParameterError
+from polyc2bf_ros.core.models import MODEL_NAMES
+from polyc2bf_ros.filter_parameters import default_values, ParameterError
 from sim_bridge.actuation import Actuation
 from sim_bridge.launcher import default_barrier
 from sim_bridge.lidar import lidar_settings
@@ -57,15 +58,26 @@ def resolve_filters(filters, robot_type):
                               for name in filters))
 
 
+def unknown_parameters(parameters):
+    """Return the names in ``parameters`` that no model's node declares, sorted."""
+    known = set().union(*(default_values(model) for model in MODEL_NAMES))
+    return sorted(name for name in parameters if name not in known)
+
+
 def run_settings(parser, args):
     """Return the settings every suite's runs take from the shared options (exit 2 if bad).
 
-    Keys: ``parameters`` (``-p``), ``obstacle_source``, ``lidar``, ``actuation``.
+    Keys: ``parameters`` (``-p``), ``obstacle_source``, ``lidar``, ``actuation``.  A ``-p``
+    name that no node declares (a typo would otherwise change nothing) exits 2 naming it.
     """
     try:
         parameters = override_parameters(args)
     except ValueError as exc:
         parser.error(str(exc))
+    unknown = unknown_parameters(parameters)
+    if unknown:
+        parser.error(f'--param {unknown[0]}: the safety_filter node has no such parameter '
+                     '(doc/safety_filter.md lists them)')
     return {'parameters': parameters, 'obstacle_source': args.obstacle_source,
             'lidar': lidar_from_args(parser, args),
             'actuation': actuation_from_args(parser, args)}

@@ -97,6 +97,16 @@ def test_a_parameter_a_robots_filter_refuses_exits_2_naming_it(capsys):
     assert 'applies to velocity models' in capsys.readouterr().err
 
 
+def test_a_parameter_no_node_declares_exits_2_naming_it(capsys):
+    """A misspelt ``-p`` name would change nothing: refused before any run."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(['--suite', 'barn', '--limit', '1', '--no-plots', '--out', '/dev/null/none',
+              '-p', 'command_latency_eror:=0.01'])
+    assert exit_info.value.code == 2
+    assert '--param command_latency_eror: the safety_filter node has no such parameter' in (
+        capsys.readouterr().err)
+
+
 @pytest.mark.parametrize('told, margin', [((0.03, 0.1), None), ((0.02, 0.07), 0.02)],
                          ids=['true values', 'told 20 ms and 0.07 s'])
 def test_a_late_lagging_base_touches_unless_the_filter_is_told(told, margin):
