@@ -19,7 +19,12 @@ from polyc2bf_ros.core.decision import ObstacleSnapshot
 from polyc2bf_ros.core.obstacles.marker_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.obstacles.scan_conversion import pose_at, scan_to_obstacles, ScanSettings
-from polyc2bf_ros.core.obstacles.scan_tracker import ScanTracker, TrackerSettings, unseen_obstacles
+from polyc2bf_ros.core.obstacles.scan_tracker import (
+    ScanTracker,
+    TrackerSettings,
+    unseen_obstacles,
+    with_velocities,
+)
 from polyc2bf_ros.obstacle_settings import IntakeSettings
 from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 
@@ -145,7 +150,7 @@ class ObstaclePipeline:
             self.scan_status[topic] = status._replace(
                 received=received, rejected=status.rejected + 1, reason=str(exc))
             return
-        velocities, unseen = [STILL_3D] * len(scan.clusters), []
+        obstacles, unseen = scan.obstacles, []
         if settings.scan_tracking:
             # Unstamped scans and odometry: the tracker times them by their receipt.
             clock = scan.stamp if scan.stamp > 0.0 else received
@@ -156,13 +161,13 @@ class ObstaclePipeline:
                 self._scan_tracker = ScanTracker(TrackerSettings(
                     pose_std=tracking[1], heading_std=tracking[2]), link=link)
                 self._tracking = tracking
-            velocities = [np.array([*track.velocity, 0.0])
-                          for track in self._scan_tracker.update(clock, scan.clusters,
-                                                                 scan.origin)]
+            obstacles = with_velocities(
+                scan.obstacles, scan.owner,
+                self._scan_tracker.update(clock, scan.clusters, scan.origin),
+                float(settings.scan_unknown_speed))
             unseen = unseen_obstacles(self._scan_tracker, f'{topic}:')
         self._scans[topic] = (scan.stamp, [
-            dataclasses.replace(o, key=f'{topic}:{o.key}', velocity=velocities[cluster])
-            for o, cluster in zip(scan.obstacles, scan.owner.tolist())] + unseen)
+            dataclasses.replace(o, key=f'{topic}:{o.key}') for o in obstacles] + unseen)
         self.scan_status[topic] = status._replace(accepted=received, received=received)
 
 
@@ -173,10 +178,6 @@ def _moved(obstacle, dt):
     if dt == 0.0 or not velocity[:2].any():
         return obstacle
     return dataclasses.replace(obstacle, polygon=obstacle.polygon + velocity[:2] * dt)
-
-
-STILL_3D = np.zeros(3)
-STILL_3D.flags.writeable = False
 
 
 def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=None):

@@ -270,7 +270,9 @@ class _Prepared:
     ``velocities`` (N, d) are their c_dot in the robot's d dimensions and ``offsets``
     (N, d) how far they moved from where ``views`` has them (zero unless the set is a
     translation, see ``polyc2bf_ros.core.geometry.views``); ``rows_a`` (N, m), ``rows_b`` and
-    ``index`` (N,) are scratch space for the QP rows (the first rows of a step are valid).
+    ``index`` (N,) are scratch space for the QP rows (the first rows of a step are valid);
+    ``velocity_errors`` (2, N): how far each part's velocity may be off, for the braking
+    check, then for an evasion's look ahead (``_velocity_errors``).
     """
 
     count: int
@@ -282,17 +284,19 @@ class _Prepared:
     rows_b: np.ndarray
     index: np.ndarray
     footprints: Optional[object] = None
+    velocity_errors: Optional[np.ndarray] = None
 
     @functools.cached_property
     def moving(self):
         """Return True when some part moves in the plane (``velocities``' first two columns)."""
         return bool(self.velocities[:, :2].any())
 
-    def translated(self, offsets, velocities):
+    def translated(self, offsets, velocities, velocity_errors):
         """Return the same views and buffers with obstacles moved by ``offsets`` (N, d)."""
         return _Prepared(count=self.count, views=self.views, velocities=velocities,
                          offsets=offsets, finite=self.finite, rows_a=self.rows_a,
-                         rows_b=self.rows_b, index=self.index, footprints=self.footprints)
+                         rows_b=self.rows_b, index=self.index, footprints=self.footprints,
+                         velocity_errors=velocity_errors)
 
 
 def compile_kernels():
@@ -547,8 +551,8 @@ class SafetyFilter:
             return False
         footprints = prepared.footprints
         return clear_around.unchecked(
-            footprints.boxes, prepared.velocities, prepared.offsets,
-            max(abs(age), abs(age + duration)), float(state[0]), float(state[1]),
+            footprints.boxes, prepared.velocities, prepared.offsets, prepared.velocity_errors[0],
+            self._braking_accel, max(abs(age), abs(age + duration)), float(state[0]), float(state[1]),
             reach + self._clearance, False)
 
     def _backup_input(self, state, u, prepared, age, now):
@@ -585,7 +589,8 @@ class SafetyFilter:
                  + self._clearance + EVASION_REACH)
         footprints = prepared.footprints
         return not clear_around.unchecked(
-            footprints.boxes, velocities, prepared.offsets, abs(age) + horizon,
+            footprints.boxes, velocities, prepared.offsets, prepared.velocity_errors[1], 0.0,
+            abs(age) + horizon,
             float(ref.position[0]), float(ref.position[1]), reach, True)
 
     def _evade(self, state, u, prepared, age, now):
@@ -663,8 +668,8 @@ class SafetyFilter:
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
             prepared.offsets, float(age), np.ascontiguousarray(path, dtype=np.float64),
-            self._evasion_step, self._clearance + EVASION_REACH, 0.0, self._velocity_error,
-            False)
+            self._evasion_step, self._clearance + EVASION_REACH, 0.0,
+            prepared.velocity_errors[1], False)
 
     def _path_clearance(self, path, prepared, age):
         """Return c(B), capped at the margin, of a braking ``path``: (static, moving parts).
@@ -679,7 +684,7 @@ class SafetyFilter:
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
             prepared.offsets, float(age), path, self.config.control_period, self._clearance,
-            self._braking_accel, self._velocity_error, True)
+            self._braking_accel, prepared.velocity_errors[0], True)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""
@@ -786,7 +791,8 @@ class SafetyFilter:
                 offsets, velocities = ground_offsets(offsets, velocities)
             prepared = self._base.translated(
                 np.ascontiguousarray(offsets, dtype=np.float64),
-                np.ascontiguousarray(velocities, dtype=np.float64))
+                np.ascontiguousarray(velocities, dtype=np.float64),
+                self._velocity_errors(velocities, obstacles))
         else:
             chosen = obstacles if finite else ObstacleSet.empty()
             prepared = self._fresh(self.geometry.grounded(chosen), finite)
@@ -803,4 +809,20 @@ class SafetyFilter:
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
             index=np.empty(count, dtype=np.intp),
             footprints=PlanarPolygons.from_batch(obstacles.footprints) if self._braking
-            else None)
+            else None, velocity_errors=self._velocity_errors(obstacles.velocities, obstacles))
+
+    def _velocity_errors(self, velocities, obstacles):
+        """Return (2, N): how far each part's velocity may be off.
+
+        Row 1, an evasion's look ahead (``_look_ahead``, ``_moving_near``):
+        ``obstacle_velocity_error`` for a part that moves, else 0.  Row 0, the braking
+        check: at least the part's own ``ObstacleSet.velocity_errors`` (planar models,
+        whose sets have no ground part), so that a part whose velocity is not known counts
+        as moving there.
+        """
+        errors = np.empty((2, len(velocities)))
+        errors[1] = np.where(velocities[:, :2].any(axis=1), self._velocity_error, 0.0)
+        errors[0] = errors[1]
+        if obstacles.velocity_errors is not None and self.geometry.ground is None:
+            np.maximum(errors[0], obstacles.velocity_errors, out=errors[0])
+        return errors

@@ -48,17 +48,21 @@ def test_point_mass_braking_path_ends_at_rest():
     assert make_model('point_mass_3d').braking_path(np.zeros(6), PERIOD).shape == (1, 6)
 
 
-def _clearance_by_brute_force(polygons, velocities, path, age, cutoff):
-    """Return (static, moving) distances along the path; moving ones where it closes."""
+def _clearance_by_brute_force(polygons, velocities, errors, path, age, cutoff):
+    """Return (static, moving) distances along the path; moving ones where it closes.
+
+    A part with a velocity error e counts as moving, e t nearer at time t.
+    """
     distances, moving = [cutoff], [cutoff]
-    for polygon, velocity in zip(polygons, velocities):
+    for polygon, velocity, error in zip(polygons, velocities, errors):
         for k, row in enumerate(path):
-            moved = polygon + (age + (k + 1) * PERIOD) * velocity
+            t = age + (k + 1) * PERIOD
+            moved = polygon + t * velocity
             distance = signed_distance(row[:2], moved)
-            if not velocity.any():
+            if not velocity.any() and error == 0.0:
                 distances.append(distance)
             elif distance <= 0.0 or row[2:4] @ (_nearest_point(row[:2], moved) - row[:2]) > 0:
-                moving.append(distance)
+                moving.append(distance - error * t)
     return min(distances), min(moving)
 
 
@@ -89,15 +93,16 @@ def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     rng = np.random.default_rng(seed)
     path = _straight_path(rng, rng.integers(1, 60), rng.choice([-1.0, 0.0, 1.0]))
     velocities = rng.uniform(-0.5, 0.5, (len(polygons), 2)) * rng.integers(0, 2)
+    errors = rng.choice([0.0, 0.0, 1.5], len(polygons))  # 1.5: a velocity not known
     age = float(rng.uniform(0.0, 0.2))
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
     answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                             prepared.inv_sq, prepared.counts, prepared.boxes, velocities,
-                            np.zeros_like(velocities), age, path, PERIOD, cutoff, 0.0, 0.0,
+                            np.zeros_like(velocities), age, path, PERIOD, cutoff, 0.0, errors,
                             True)
-    expected = _clearance_by_brute_force(polygons, velocities, path, age, cutoff)
+    expected = _clearance_by_brute_force(polygons, velocities, errors, path, age, cutoff)
     assert answer == pytest.approx(expected, abs=1e-9)
-    assert not velocities.any() or answer[0] == cutoff
+    assert not (velocities.any(axis=1) | (errors > 0.0)).all() or answer[0] == cutoff
 
 
 @settings(max_examples=examples(100), deadline=None)
@@ -120,15 +125,21 @@ def test_a_part_coming_at_a_robot_that_backs_away_does_not_count():
     closing = backing * [-1.0, 1.0, -1.0, 1.0]
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
             prepared.counts, prepared.boxes, np.array([[-1.4, 0.0]]), np.zeros((1, 2)), 0.0)
-    assert path_clearance(*args, backing, PERIOD, 0.5, 2.0, 0.5, True) == (0.5, 0.5)
-    assert path_clearance(*args, closing, PERIOD, 0.5, 0.0, 0.0, True)[1] < 0.0
+    bounds, exact = np.array([0.5]), np.zeros(1)
+    assert path_clearance(*args, backing, PERIOD, 0.5, 2.0, bounds, True) == (0.5, 0.5)
+    assert path_clearance(*args, closing, PERIOD, 0.5, 0.0, exact, True)[1] < 0.0
     # An evasion's look ahead counts every row: the box gains on the slower robot.
-    assert path_clearance(*args, backing, PERIOD, 0.5, 0.0, 0.0, False)[1] < 0.5
+    assert path_clearance(*args, backing, PERIOD, 0.5, 0.0, exact, False)[1] < 0.5
     near = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box - [0.3, 0.0]]))
     static = (near.x, near.y, near.edge_x, near.edge_y, near.inv_sq, near.counts, near.boxes,
               np.zeros((1, 2)), np.zeros((1, 2)), 0.0)
-    assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, 0.5, True) == pytest.approx(
+    assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, exact, True) == pytest.approx(
         (0.31, 0.5))
+    # The same box standing, its velocity not known: it counts as moving where the path
+    # closes on it, and not at all while the robot backs away.
+    assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, bounds, True) == (0.5, 0.5)
+    unknown = path_clearance(*static, closing, PERIOD, 0.5, 0.0, bounds, True)
+    assert unknown[0] == 0.5 and unknown[1] < 0.0
 
 
 def test_a_moving_part_may_stray_from_its_velocity_by_the_bounds():
@@ -139,8 +150,8 @@ def test_a_moving_part_may_stray_from_its_velocity_by_the_bounds():
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
             prepared.counts, prepared.boxes, np.array([[1.0, 0.0]]), np.zeros((1, 2)), 0.0,
             path, 0.5, 5.0)
-    _, plain = path_clearance(*args, 0.0, 0.0, True)
-    _, robust = path_clearance(*args, 2.0, 0.2, True)
+    _, plain = path_clearance(*args, 0.0, np.zeros(1), True)
+    _, robust = path_clearance(*args, 2.0, np.array([0.2]), True)
     assert robust == pytest.approx(plain - 0.5 * (0.2 + 0.5 * 2.0 * 0.5))
 
 
@@ -220,20 +231,25 @@ def test_clear_around_promises_what_path_clearance_returns(polygons, seed, cutof
                             rng.uniform(-1.0, 1.0, (30, 2))])
     velocities = rng.uniform(-0.5, 0.5, (len(polygons), 3)) * rng.integers(0, 2)
     offsets = rng.uniform(-0.3, 0.3, (len(polygons), 3)) * rng.integers(0, 2)
+    errors = rng.choice([0.0, 0.0, 1.5], len(polygons))
+    accel = float(rng.choice([0.0, 1.0]))
     age = float(rng.uniform(0.0, 0.2))
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
-    around = (prepared.boxes, velocities, offsets, age + len(path) * PERIOD,
+    around = (prepared.boxes, velocities, offsets, errors, accel, age + len(path) * PERIOD,
               float(centre[0]), float(centre[1]), rho + cutoff)
     clearance = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
                  prepared.counts, prepared.boxes, velocities, offsets, age, path, PERIOD,
-                 cutoff, 0.0, 0.0)
+                 cutoff, accel, errors)
     if clear_around(*around, False):
         assert path_clearance(*clearance, True) == (cutoff, cutoff)
-    if clear_around(*around, True):  # moving parts only: an evasion's look ahead
+    # Moving parts only, their bounds with them (an evasion's look ahead, ``SafetyFilter``).
+    errors[~velocities[:, :2].any(axis=1)] = 0.0  # the array both tuples hold
+    if clear_around(*around, True):
         assert path_clearance(*clearance, False)[1] == cutoff
     far = PlanarPolygons.from_batch(PolygonBatch.from_polygons([p + 100.0 for p in polygons]))
-    assert clear_around(far.boxes, np.zeros_like(velocities), np.zeros_like(offsets), age,
-                        float(centre[0]), float(centre[1]), rho + cutoff, False)
+    assert clear_around(far.boxes, np.zeros_like(velocities), np.zeros_like(offsets),
+                        np.zeros_like(errors), 0.0, age, float(centre[0]), float(centre[1]),
+                        rho + cutoff, False)
 
 
 @pytest.mark.parametrize('wall_x, checked', [(1.0, True), (30.0, False)])

@@ -218,6 +218,41 @@ def test_with_velocities_gives_moving_obstacles_their_track_velocity():
             assert after is before
 
 
+def test_a_track_is_trusted_only_while_its_registrations_explain_its_cluster():
+    """Two cylinders close on each other: measured moving, trusted after 3 scans, not once met.
+
+    Two 0.3 m cylinders 2.5 m ahead close on each other at 1 m/s each; a third stands.  The
+    standing one, never measured moving, is always trusted.  The moving ones are not from
+    their first registration (it measures them moving) until three in a row explained
+    their clusters; when they touch, the scan shows one cluster whose track keeps one
+    velocity (the other cylinder's points do not register onto its outline), and it is no
+    longer trusted: ``with_velocities`` gives its obstacles the unknown speed.
+    """
+    rng = np.random.default_rng(3)
+    tracker = ScanTracker(link=SCAN.cluster_tolerance)
+    post = np.array([2.0, 2.0])
+    for k in range(11):
+        up, down = np.array([2.5, -1.0 + k / 10]), np.array([2.6, 1.0 - k / 10])
+        obstacles, owner, clusters = _clusters((0.0, 0.0, 0.0), (),
+                                               [(up, 0.3), (down, 0.3), (post, 0.3)],
+                                               noise=0.005, rng=rng)
+        estimates = tracker.update(k / 10, clusters)
+        first, second = _cluster_of(clusters, up, 0.35), _cluster_of(clusters, down, 0.35)
+        assert estimates[_cluster_of(clusters, post, 0.35)].trusted
+        if 1 <= k <= 2:
+            assert not estimates[first].trusted and not estimates[second].trusted
+        elif 4 <= k and first != second:
+            assert estimates[first].trusted and estimates[second].trusted
+        if first == second:
+            assert k >= 7 and not estimates[first].trusted
+    assert first == second
+    marked = with_velocities(obstacles, owner, estimates, unknown_speed=1.5)
+    assert all((obstacle.velocity_error == 1.5) == (index == first)
+               for obstacle, index in zip(marked, owner))
+    assert not any(obstacle.velocity_error for obstacle in with_velocities(obstacles, owner,
+                                                                           estimates))
+
+
 def test_a_moving_track_the_scan_misses_is_kept_where_it_goes():
     """A cylinder hidden for a few scans stays an obstacle, moved along its velocity.
 
@@ -370,7 +405,8 @@ BAD_SETTINGS = [('gate', 0.0), ('gate', math.inf), ('accel_std', -1.0), ('speed_
                 ('iterations', 2.5), ('min_overlap', 1.5), ('confirm_hits', True),
                 ('max_coast', -1.0), ('moving_speed', 'fast'), ('n_sigma', -1.0),
                 ('moving_scans', 0), ('max_velocity_std', 0.0), ('static_extent', 0.0),
-                ('max_backstep', -0.1), ('pose_std', -0.01), ('heading_std', math.nan)]
+                ('max_backstep', -0.1), ('pose_std', -0.01), ('heading_std', math.nan),
+                ('trust_share', -0.1), ('trust_scans', 0)]
 
 
 @pytest.mark.parametrize('name, value', BAD_SETTINGS)

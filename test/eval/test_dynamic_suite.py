@@ -266,6 +266,23 @@ def test_default_filter_in_markers_mode_is_never_at_fault(worlds):
         assert len(trajectory['positions']) >= 2
 
 
+def test_from_scans_an_object_whose_track_is_not_trusted_is_not_run_into(worlds):
+    """Worlds 1 and 34 from scans: at fault unless untrusted tracks get an unknown speed.
+
+    In both a cylinder hid behind or merged with another and its track published 0 or the
+    other's velocity; the robot drove into it.  Untrusted tracks' obstacles get
+    ``scan_unknown_speed`` (1.5 m/s), which the braking check allows for.
+    """
+    barrier = default_barrier('diff_drive')
+    for world in (worlds[1], worlds[34]):
+        ((trusting, _),) = run_world(world, [(barrier, 'goal')], obstacle_source='scan',
+                                     parameters={'scan_unknown_speed': 0.0})
+        assert trusting['at_fault_contact'], trusting['outcome']
+        ((record, _),) = run_world(world, [(barrier, 'goal')], obstacle_source='scan')
+        assert record['obstacle_source'] == 'scan'
+        assert not record['at_fault_contact'], record['contact']
+
+
 def test_evasion_takes_the_robot_out_of_a_cylinders_way(worlds):
     """World 21 with markers: evasion takes the robot to the goal.
 

@@ -33,6 +33,9 @@ changes, so at a path point t seconds ahead it may be ``obstacle_velocity_error`
 ``braking_obstacle_accel`` t^2 / 2 nearer than its stated velocity says; that much is taken
 off its clearance there.  (Without it the check let the robot race a cylinder across its path,
 since its stated velocity said the race was won; the cylinder turned, and the robot hit it.)
+A part may carry its own bound e_n (``ObstacleSet.velocity_errors``: a scan obstacle whose
+track is not trusted, ``scan_tracker`` step 5); it counts as moving, whatever its stated
+velocity, with max(e_n, ``obstacle_velocity_error``) in place of the latter.
 
 Once c(B(x)) > 0 it stays >= min(margin, its first value): a kept u hands the next step a
 path B(x+) at least that clear, and a brake continues along the rest of B(x).  By induction

@@ -5,7 +5,7 @@ The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_
 import math
 
 from polyc2bf_ros.core.kernels.cones import nearest_edge
-from polyc2bf_ros.core.kernels.jit import F2, I1, kernel, signature
+from polyc2bf_ros.core.kernels.jit import F1, F2, I1, kernel, signature
 
 
 @kernel
@@ -20,17 +20,17 @@ def _signed_distance(x, y, edge_x, edge_y, inv_sq, count, n, px, py):
 
 
 @kernel(signature('UniTuple(f8, 2)', F2, F2, F2, F2, F2, I1, F2, F2, F2, 'f8', F2, 'f8',
-                  'f8', 'f8', 'f8', 'b1'))
+                  'f8', 'f8', F1, 'b1'))
 def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offsets, age,
-                   path, period, cutoff, accel, velocity_error, closing_only):
+                   path, period, cutoff, accel, velocity_errors, closing_only):
     """Return min(cutoff, the smallest signed distance of a ``path`` row's x, y to a polygon).
 
     Two values: over the static polygons, and over the moving ones.  Negative inside.
     Polygon n (CCW, rows of ``x``, ``y``, ``boxes`` as ``cones.PlanarPolygons``) has moved
     by ``offsets[n]`` and moves at ``velocities[n]``; path row k ([x, y, vx, vy]) is at
-    age + (k + 1) period.  A moving polygon counts less ``velocity_error`` t + ``accel``
-    t^2 / 2, t = age + (k + 1) period: as far as it may stray from its stated velocity by
-    then; with ``closing_only`` (the braking check) only at the rows where the path's
+    age + (k + 1) period.  A moving polygon, or one with ``velocity_errors[n]`` > 0,
+    counts less ``velocity_errors[n]`` t + ``accel`` t^2 / 2, t = age + (k + 1) period: as
+    far as it may stray from its stated velocity by then; with ``closing_only`` (the braking check) only at the rows where the path's
     velocity closes on it (points towards its nearest point) or that lie inside it (module
     docstring), else at every row (an evasion's look ahead, ``SafetyFilter``).  A polygon
     whose bounding box stays farther than ``cutoff`` from the path's is not measured.
@@ -47,7 +47,8 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
     best, best_moving = cutoff, cutoff
     for n in range(counts.shape[0]):
         vx, vy = velocities[n, 0], velocities[n, 1]
-        moving = vx != 0.0 or vy != 0.0
+        velocity_error = velocity_errors[n]
+        moving = vx != 0.0 or vy != 0.0 or velocity_error > 0.0
         horizon = max(abs(age), abs(last))
         reach = cutoff + horizon * math.sqrt(vx * vx + vy * vy)
         if moving:
@@ -71,14 +72,17 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
 
 
 
-@kernel(signature('b1', F2, F2, F2, 'f8', 'f8', 'f8', 'f8', 'b1'))
-def clear_around(boxes, velocities, offsets, elapsed, cx, cy, reach, moving_only):
+@kernel(signature('b1', F2, F2, F2, F1, 'f8', 'f8', 'f8', 'f8', 'f8', 'b1'))
+def clear_around(boxes, velocities, offsets, velocity_errors, accel, elapsed, cx, cy, reach,
+                 moving_only):
     """Return True when no polygon's bounding box comes within ``reach`` of (cx, cy).
 
     With ``moving_only``, no moving polygon's (an evasion's trigger, ``SafetyFilter``).
 
     Polygon n (bounding box ``boxes[n]``, as ``cones.PlanarPolygons``) has moved by
-    ``offsets[n]`` and moves at ``velocities[n]`` for up to ``elapsed`` s more.  The square
+    ``offsets[n]`` and moves at ``velocities[n]`` for up to ``elapsed`` s more, straying by
+    up to ``velocity_errors[n]`` t + ``accel`` t^2 / 2 if it moves (as ``path_clearance``
+    counts it).  The square
     of half-side ``reach`` around (cx, cy) holds the bounding box of any path within that
     distance of it, so ``path_clearance`` of such a path, with ``cutoff`` <= reach - rho,
     returns ``cutoff``: the check skips computing the path (``SafetyFilter``).
@@ -88,6 +92,8 @@ def clear_around(boxes, velocities, offsets, elapsed, cx, cy, reach, moving_only
         if moving_only and vx == 0.0 and vy == 0.0:
             continue
         grown = reach + elapsed * math.sqrt(vx * vx + vy * vy)
+        if vx != 0.0 or vy != 0.0 or velocity_errors[n] > 0.0:
+            grown += elapsed * (velocity_errors[n] + 0.5 * accel * elapsed)
         low_x, high_x, low_y, high_y = boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3]
         px, py = cx - offsets[n, 0], cy - offsets[n, 1]
         if not (px - grown > high_x or px + grown < low_x

@@ -29,14 +29,16 @@ FAR = 1.0e6
 """The cost of a pair outside the gate [m] (real costs are a few metres at most)."""
 
 # Columns of the per-track arrays: floats (bounding box, centroid, last matched stamp) and
-# integers (id, hits, moving streak, moving, outline first, size).  A track's filter state
+# integers (id, hits, moving streak, moving, outline first, size, trusted streak, whether a
+# registration ever measured it moving).  A track's filter state
 # is [p, v, c] (``constant_velocity``, with the clone c of its position at its outline).
 LOW, HIGH, CENTROID, SEEN, TRACK_FLOATS = 0, 2, 4, 6, 7
-ID, HITS, STREAK, MOVING, FIRST, SIZE, TRACK_INTS = 0, 1, 2, 3, 4, 5, 6
+ID, HITS, STREAK, MOVING, FIRST, SIZE, TRUST, MOVED, TRACK_INTS = range(9)
 
 # Entries of the settings vector the kernels read.
 (GATE, ACCEL, SPEED, POINT, TRIM, SPAN, ITERATIONS, OVERLAP, CONFIRM, COAST, MOVING_SPEED,
- SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING, ORIGIN_X, ORIGIN_Y, PARAMETERS) = range(21)
+ SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING, SHARE, TRUSTED, ORIGIN_X, ORIGIN_Y,
+ PARAMETERS) = range(23)
 I2 = 'i8[:, ::1]'
 B2 = 'b1[:, ::1]'
 
@@ -406,13 +408,16 @@ def _known_velocity(state, P, limit):
 def _classify(state, P, track, params, registered):
     """Step 4 for a matched track: count passes and flip ``track[MOVING]``.
 
-    A failed registration (``registered`` false) does not pass.
+    A failed registration (``registered`` false) does not pass; one that passes sets
+    ``track[MOVED]`` for good (step 5).
     """
     vx, vy = _known_velocity(state, P, params[KNOWN])
     speed_sq = vx * vx + vy * vy
     along_sq = vx * vx * P[2, 2] + 2.0 * vx * vy * P[2, 3] + vy * vy * P[3, 3]
     passes = (registered and speed_sq > params[MOVING_SPEED] ** 2
               and speed_sq * speed_sq > params[SIGMAS] ** 2 * along_sq)
+    if passes:
+        track[MOVED] = 1
     if passes != (track[MOVING] == 1):
         track[STREAK] += 1
     else:
@@ -479,8 +484,12 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
     ``count`` + clusters), the smoothed outlines' ``storage`` and ``new_storage`` (7
     columns, rows at least ``len(points) + len(storage)``; structure tracks keep none),
     ``next_id`` (1,); per cluster ``out`` (C, 3): the published velocity and the worst-axis
-    velocity standard deviation, ``flags`` (C, 3): confirmed, moving, published, and
-    ``ids`` (C,).  Every cluster but structure is smoothed once, here.
+    velocity standard deviation, ``flags`` (C, 4): confirmed, moving, published, trusted,
+    and ``ids`` (C,).  Every cluster but structure is smoothed once, here.  A track's
+    trusted streak counts its successive registrations that paired at least ``SHARE`` of
+    the cluster's whole windows (anything else, a failed registration included, ends it).
+    A track no registration has measured moving (``_classify``) is trusted; one that has
+    been so measured is trusted while its streak is ``TRUSTED`` or more.
     """
     clusters = starts.shape[0] - 1
     smoothed = np.empty((points.shape[0], 7))
@@ -507,6 +516,11 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
                                   covariances[t], floats[t], ints[t], params, relative,
                                   result, other, scratch)
             ints[t, HITS] += registered
+            whole = 0
+            for i in range(starts[c], starts[c + 1]):
+                whole += smoothed[i, 6] > 0.0
+            explained = registered and result[5] >= params[SHARE] * whole
+            ints[t, TRUST] = ints[t, TRUST] + 1 if explained else 0
             _classify(states[t], covariances[t], ints[t], params, registered)
         else:
             reclone_one(states[t], covariances[t])
@@ -569,6 +583,8 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
         out[c, 0] = vx if published else 0.0
         out[c, 1] = vy if published else 0.0
         flags[c, 0], flags[c, 1], flags[c, 2] = confirmed, moving, published
+        flags[c, 3] = (structure[c] or ints[t, MOVED] == 0
+                       or ints[t, TRUST] >= params[TRUSTED])
         ids[c] = ints[t, ID]
     return kept, used
 

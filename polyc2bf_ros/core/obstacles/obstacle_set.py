@@ -29,13 +29,19 @@ from polyc2bf_ros.core.kernels.obstacle_set import _finite
 
 @dataclass(frozen=True)
 class Obstacle:
-    """One obstacle: footprint polygon (k,2), velocity (2,) or (3,), z range, key."""
+    """One obstacle: footprint polygon (k,2), velocity (2,) or (3,), z range, key.
+
+    ``velocity_error`` [m/s] >= 0: how far its true velocity may be from ``velocity`` (an
+    obstacle whose velocity is not known: ``scan_tracker``, step 5); the braking check
+    allows for it (``barrier.braking_check``).
+    """
 
     polygon: np.ndarray
     velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     z_min: float = -np.inf
     z_max: float = np.inf
     key: str = ''
+    velocity_error: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -47,7 +53,8 @@ class ObstacleSet:
     translation), and ``offsets`` (N, 3): part n is base part n moved by ``offsets[n]``
     in x, y and z; otherwise both are None.  ``capped``: keys of the footprints replaced by
     their convex hull (more than ``max_parts`` parts); ``geometry``: prepared views by
-    filter geometry (``SafetyFilter.prepare``).
+    filter geometry (``SafetyFilter.prepare``); ``velocity_errors`` (N,): the parts'
+    ``Obstacle.velocity_error``, None when all are 0.
     """
 
     footprints: PolygonBatch
@@ -59,6 +66,7 @@ class ObstacleSet:
     offsets: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
     capped: tuple = ()
     geometry: dict = field(default_factory=dict, repr=False, compare=False)
+    velocity_errors: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
     @classmethod
     def empty(cls):
@@ -80,6 +88,8 @@ class ObstacleSet:
         z_ranges[:, 0] = [obstacle.z_min for obstacle in obstacles]
         z_ranges[:, 1] = [obstacle.z_max for obstacle in obstacles]
         owner = np.arange(len(obstacles))
+        errors = [obstacle.velocity_error for obstacle in obstacles]
+        errors = np.array(errors, dtype=np.float64) if any(errors) else None
         capped = ()
         if not convex.all():
             pieces, hulled = zip(*[_convex_parts(o.polygon, ok, max_parts)
@@ -88,8 +98,10 @@ class ObstacleSet:
             owner = np.repeat(owner, [len(parts) for parts in pieces])
             footprints = PolygonBatch.from_polygons([part for parts in pieces for part in parts])
             velocities, z_ranges = velocities[owner], z_ranges[owner]
+            errors = None if errors is None else errors[owner]
         return cls(footprints=footprints, velocities=velocities, z_ranges=z_ranges, owner=owner,
-                   keys=tuple(obstacle.key for obstacle in obstacles), capped=capped)
+                   keys=tuple(obstacle.key for obstacle in obstacles), capped=capped,
+                   velocity_errors=errors)
 
     def translated(self, offsets, velocities=None):
         """Return the set with part n moved by ``offsets[n]`` ((N, 2) x, y or (N, 3) x, y, z).
@@ -116,7 +128,7 @@ class ObstacleSet:
         return ObstacleSet(footprints=base.footprints.translated(moves[:, :2]),
                            velocities=velocities, z_ranges=base.z_ranges + moves[:, 2:],
                            owner=base.owner, keys=base.keys, base=base, offsets=moves,
-                           capped=base.capped)
+                           capped=base.capped, velocity_errors=self.velocity_errors)
 
     def __len__(self):
         """Return the number of convex parts."""
