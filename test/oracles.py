@@ -17,8 +17,8 @@ from polyc2bf_ros.core.barrier.cone_barrier import BarrierTerms
 from polyc2bf_ros.core.geometry import polygons as geometry
 from polyc2bf_ros.core.kernels import geometry_batch as batch_geometry
 from polyc2bf_ros.core.kernels.barrier import barrier_column
-from polyc2bf_ros.core.kernels.braking import _signed_distance
-from polyc2bf_ros.core.kernels.horizon import _box_gap, _misses_box, _value
+from polyc2bf_ros.core.kernels.braking import _signed_distance, box_gap
+from polyc2bf_ros.core.kernels.horizon import _misses_box, _value
 from polyc2bf_ros.core.qp import proxsuite_backend as qp_proxsuite, solver as qp
 
 # Exact up to rounding: far tighter than a solver's certificate (``qp_proxsuite._MULTIPLIER_TOL``).
@@ -182,7 +182,7 @@ def min_h_along_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon
         reach = moved * obstacle_speed
         ox, oy = offsets[n, 0], offsets[n, 1]
         box = boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3]
-        gap = _box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
+        gap = box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
                        high_y - oy + reach, box)
         if bisector and inv_horizon * gap >= fastest + obstacle_speed:
             continue
@@ -191,7 +191,7 @@ def min_h_along_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon
             t = age + (k + 1) * period
             qx, qy = px - t * ovx - ox, py - t * ovy - oy
             vx, vy = ovx - pvx, ovy - pvy
-            if bisector and (_misses_box(box, qx, qy, -vx, -vy) or inv_horizon * _box_gap(
+            if bisector and (_misses_box(box, qx, qy, -vx, -vy) or inv_horizon * box_gap(
                     qx, qx, qy, qy, box) >= math.sqrt(vx * vx + vy * vy)):
                 continue
             best = min(best, _value(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx, qy, vx,
