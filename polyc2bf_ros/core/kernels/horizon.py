@@ -286,9 +286,9 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon, bisect
     <u, -w> < |w| c, and h_tau > 0 (or w = 0, and h_tau >= 0).  The midpoint axis's s can
     be negative close to a polygon, so there every point is evaluated.  +inf when nothing
     is evaluated; so the value is exact where it is negative, and otherwise only >= 0.
-    The rows are taken a group at a time (``path_groups``): a group whose every row these two tests
-    skip (``_group_heads_past``, on the group's bounds) is skipped whole, so the value
-    is the one the tests taken row by row give, bit for bit.
+    The rows are taken a group at a time (``path_groups``): a group whose every row these
+    two tests skip (``_group_heads_past``, on the group's bounds) is skipped whole, so the
+    value is the one the tests taken row by row give, bit for bit.
     """
     rows = path.shape[0]
     low_x = high_x = start[0]
