@@ -2,11 +2,14 @@
 
 Usage: python bench/bench_core.py [--steps N] [--repeats R] [--out bench/results/core.json]
        [--models unicycle ...] [--backends daqp ...] [--counts 1 10 ...]
-       [--barrier NAME ...] [--in-reach] [--no-startup] [--rebuilds N] [--moving M]
+       [--barrier NAME ...] [--in-reach] [--rate HZ] [--no-startup] [--rebuilds N]
+       [--moving M]
 
 Every step of a closed-loop numpy rollout is timed: the robot starts at rest
 and its nominal controller drives it towards a goal 15 m away (40 m in_reach),
-so the mix of ok / slack steps is the one the filter meets in operation.  The obstacle set
+so the mix of ok / slack steps is the one the filter meets in operation.  The filter
+runs at ``--rate`` (default 100 Hz, the control period of ``FilterConfig``), and the
+rollout lasts 20 s (``--steps`` periods: 2000 at 100 Hz, 20000 at 1 kHz).  The obstacle set
 is built once per case, as the node does once per obstacle message.  Layouts:
 
 * ``scattered`` (the default): N random 8-gons 2-20 m around the start, drifting
@@ -138,6 +141,8 @@ def in_reach_obstacles(count, rng):
 
 LAYOUTS = {'scattered': octagon_obstacles, 'in_reach': in_reach_obstacles}
 
+RATE = 100.0  # default control rate [Hz]: FilterConfig's control period, CASES' period
+ROLLOUT_S = 20.0  # default length of a timed rollout [s]
 CASES = {
     # model: (start state, goal, controller, control period, physics substeps)
     'unicycle': (np.zeros(5), np.array([15.0, 0.0]), UnicycleGoalController(), 0.01, 1),
@@ -201,11 +206,12 @@ def check_and_evasion(filt, x, obstacles, age, status):
 class _Rollout:
     """One configuration's closed-loop rollout through a case's obstacles."""
 
-    def __init__(self, configuration, model_name, backend, obstacles, steps, layout):
-        """Build the filter, start at rest, and step once (the per-obstacle-set cache)."""
+    def __init__(self, configuration, model_name, backend, obstacles, steps, layout, rate):
+        """Build the filter at ``rate`` Hz, start at rest, and step once (the set's cache)."""
         self.configuration = configuration
         self.model = make_model(model_name)
-        self.x, self.goal, self.controller, self.period, self.substeps = CASES[model_name]
+        self.x, self.goal, self.controller, _, self.substeps = CASES[model_name]
+        self.period = 1.0 / rate
         self.x = self.x.copy()
         if layout == 'in_reach':
             self.goal = self.goal.copy()
@@ -241,7 +247,7 @@ def _share(flags):
 
 
 def time_case(model_name, backend, count, steps, rng, names=(DEFAULT, EQ7),
-              layout='scattered', repeats=1):
+              layout='scattered', repeats=1, rate=RATE):
     """Return one record per configuration of a model/backend/obstacle-count case.
 
     The configurations step interleaved, each its own rollout, the order rotating every
@@ -251,7 +257,7 @@ def time_case(model_name, backend, count, steps, rng, names=(DEFAULT, EQ7),
     obstacles = ObstacleSet.from_obstacles(LAYOUTS[layout](count, rng))
     runs = {name: [] for name in names}
     for _ in range(repeats):
-        rollouts = [_Rollout(name, model_name, backend, obstacles, steps, layout)
+        rollouts = [_Rollout(name, model_name, backend, obstacles, steps, layout, rate)
                     for name in names]
         for i in range(steps):
             shift = i % len(rollouts)
@@ -269,7 +275,7 @@ def time_case(model_name, backend, count, steps, rng, names=(DEFAULT, EQ7),
         first = rollouts[0]
         records.append({
             'bench': 'core', 'model': model_name, 'backend': backend, 'obstacles': count,
-            'vertices': VERTICES, 'layout': layout, 'configuration': name,
+            'vertices': VERTICES, 'layout': layout, 'rate_hz': rate, 'configuration': name,
             'barrier': config.barrier, 'cone_axis': config.cone_axis,
             'braking_check': bool(config.braking_check),
             'p50_us': round(float(np.median(p50[name])), 1),
@@ -408,7 +414,7 @@ def step_records(args, names, layout, counts):
                 # One seed per case: a case's obstacles do not depend on which others ran.
                 rng = np.random.default_rng([7, MODELS.index(model_name), count])
                 for record in time_case(model_name, backend, count, args.steps, rng, names,
-                                        layout, args.repeats):
+                                        layout, args.repeats, args.rate):
                     records.append(record)
                     print(f'{model_name:<10} {backend:<10} {layout:<9} {count:>4} '
                           f'{record["configuration"]:<{width}} {record["p50_us"]:>8.1f} '
@@ -424,7 +430,10 @@ def step_records(args, names, layout, counts):
 def main(argv=None):
     """Run all cases, print a table and write the JSON records."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--steps', type=int, default=2000)
+    parser.add_argument('--steps', type=int, default=None,
+                        help='timed steps per rollout (default: 20 s at the rate)')
+    parser.add_argument('--rate', type=float, default=RATE,
+                        help=f'control rate [Hz] of the filter and the rollout (default {RATE:g})')
     parser.add_argument('--repeats', type=int, default=3,
                         help='interleaved rounds per case; p50, p99 and ratios are medians')
     parser.add_argument('--out', default=None,
@@ -447,6 +456,7 @@ def main(argv=None):
     parser.add_argument('--moving', type=int, default=10,
                         help='obstacles that move between rebuilds')
     args = parser.parse_args(argv)
+    args.steps = args.steps or round(ROLLOUT_S * args.rate)
     names = configurations(args.barrier)
     layout = 'in_reach' if args.in_reach else 'scattered'
     counts = args.counts or ((50,) if args.in_reach else OBSTACLE_COUNTS)

@@ -3,8 +3,13 @@
 ``ReferenceSolver`` solves the QP exactly by enumeration; ``silhouette_pair`` and
 ``inflate_polygon`` are the one-polygon forms of the batch geometry the filter runs;
 ``barrier_terms`` evaluates the barrier of every cone by the filter's per-cone function;
-``quaternion_matrix`` reads a message quaternion as a rotation matrix.
+``quaternion_matrix`` reads a message quaternion as a rotation matrix;
+``path_clearance_by_rows`` and ``min_h_along_by_rows`` are the braking check's kernels row
+by row, as they were before they pruned rows in groups (same arithmetic, so the kernels
+must agree with them bit for bit).
 """
+import math
+
 import numpy as np
 
 from polyc2bf_ros.conversions import rotation
@@ -12,6 +17,8 @@ from polyc2bf_ros.core.barrier.cone_barrier import BarrierTerms
 from polyc2bf_ros.core.geometry import polygons as geometry
 from polyc2bf_ros.core.kernels import geometry_batch as batch_geometry
 from polyc2bf_ros.core.kernels.barrier import barrier_column
+from polyc2bf_ros.core.kernels.braking import _signed_distance, box_gap
+from polyc2bf_ros.core.kernels.horizon import _misses_box, _value
 from polyc2bf_ros.core.qp import proxsuite_backend as qp_proxsuite, solver as qp
 
 # Exact up to rounding: far tighter than a solver's certificate (``qp_proxsuite._MULTIPLIER_TOL``).
@@ -114,3 +121,80 @@ def barrier_terms(cones, projections, velocities, reference, velocity_epsilon) -
 def quaternion_matrix(q):
     """Return the rotation matrix (3, 3) of Quaternion ``q``, normalised (zero: identity)."""
     return np.array(rotation(q.x, q.y, q.z, q.w)).reshape(3, 3)
+
+
+def path_clearance_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offsets,
+                           age, path, period, cutoff, accel, velocity_errors, closing_only):
+    """Return ``kernels.braking.path_clearance`` measured at every row of every part.
+
+    The parts whose bounding box stays out of reach of the path's are skipped, as the
+    kernel does; every other part is measured at every row.
+    """
+    rows = path.shape[0]
+    if rows == 0:
+        return cutoff, cutoff
+    low_x, high_x = float(path[:, 0].min()), float(path[:, 0].max())
+    low_y, high_y = float(path[:, 1].min()), float(path[:, 1].max())
+    last = age + rows * period
+    best, best_moving = cutoff, cutoff
+    for n in range(counts.shape[0]):
+        vx, vy = velocities[n, 0], velocities[n, 1]
+        velocity_error = velocity_errors[n]
+        moving = vx != 0.0 or vy != 0.0 or velocity_error > 0.0
+        horizon = max(abs(age), abs(last))
+        reach = cutoff + horizon * math.sqrt(vx * vx + vy * vy)
+        if moving:
+            reach += horizon * (velocity_error + 0.5 * accel * horizon)
+        ox, oy = offsets[n, 0], offsets[n, 1]
+        if (low_x - ox - reach > boxes[n, 1] or high_x - ox + reach < boxes[n, 0]
+                or low_y - oy - reach > boxes[n, 3] or high_y - oy + reach < boxes[n, 2]):
+            continue
+        for k in range(rows):
+            t = age + (k + 1) * period
+            distance, dx, dy = _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
+                                                path[k, 0] - t * vx - ox,
+                                                path[k, 1] - t * vy - oy)
+            if not moving:
+                best = min(best, distance)
+            elif (not closing_only or distance <= 0.0
+                  or path[k, 2] * dx + path[k, 3] * dy < 0.0):
+                best_moving = min(best_moving,
+                                  distance - t * (velocity_error + 0.5 * accel * t))
+    return best, best_moving
+
+
+def min_h_along_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon, bisector,
+                        velocities, offsets, age, start, path, period, eps_sq):
+    """Return ``kernels.horizon.min_h_along`` with its tests taken at every row.
+
+    A part is skipped by the test on the whole path's box, a point by the tests on its own
+    position and velocity (the kernel's docstring); the rest are evaluated.
+    """
+    rows = path.shape[0]
+    points = np.vstack([start[None, :4], path[:, :4]])
+    low_x, high_x = float(points[:, 0].min()), float(points[:, 0].max())
+    low_y, high_y = float(points[:, 1].min()), float(points[:, 1].max())
+    fastest = max(math.sqrt(vx * vx + vy * vy) for vx, vy in points[:, 2:4].tolist())
+    moved = max(abs(age), abs(age + rows * period))
+    best = math.inf
+    for n in range(counts.shape[0]):
+        ovx, ovy = velocities[n, 0], velocities[n, 1]
+        obstacle_speed = math.sqrt(ovx * ovx + ovy * ovy)
+        reach = moved * obstacle_speed
+        ox, oy = offsets[n, 0], offsets[n, 1]
+        box = boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3]
+        gap = box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
+                       high_y - oy + reach, box)
+        if bisector and inv_horizon * gap >= fastest + obstacle_speed:
+            continue
+        for k in range(-1, rows):
+            px, py, pvx, pvy = points[k + 1]
+            t = age + (k + 1) * period
+            qx, qy = px - t * ovx - ox, py - t * ovy - oy
+            vx, vy = ovx - pvx, ovy - pvy
+            if bisector and (_misses_box(box, qx, qy, -vx, -vy) or inv_horizon * box_gap(
+                    qx, qx, qy, qy, box) >= math.sqrt(vx * vx + vy * vy)):
+                continue
+            best = min(best, _value(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx, qy, vx,
+                                    vy, inv_horizon, bisector, eps_sq))
+    return best

@@ -3,6 +3,7 @@ import numpy as np
 from hypothesis import settings, strategies as st
 
 from polyc2bf_ros.core.geometry.polygons import convex_hull
+from polyc2bf_ros.core.models import make_model
 
 
 def examples(count):
@@ -50,3 +51,22 @@ def random_state(model_name, rng):
     return np.concatenate([rng.uniform(-1, 1, 3), rng.uniform(-1.5, 1.5, 3),
                            rng.uniform(-0.7, 0.7, 2), rng.uniform(-np.pi, np.pi, 1),
                            rng.uniform(-3, 3, 3)])
+
+
+def long_path(rng, near):
+    """Return a path of up to 400 rows [x, y, vx, vy], 0-30 mm apart, from within 1 m of ``near``.
+
+    A unicycle's braking path from a random state at a random period down to 1 ms (the
+    filter's own rows), or a random walk: started near a polygon's vertex, it passes
+    near, along and through it, so that groups of rows straddle the part's box.
+    """
+    start = np.asarray(near) + rng.uniform(-1.0, 1.0, 2)
+    if rng.random() < 0.5:
+        state = np.array([*start, rng.uniform(-np.pi, np.pi), rng.uniform(-2.0, 2.0),
+                          rng.uniform(-2.0, 2.0)])
+        period = float(rng.choice([0.001, 0.002, 0.005, 0.01]))
+        return make_model('unicycle').braking_path(state, period)[:400]
+    rows = int(rng.integers(1, 400))
+    steps = rng.normal(0.0, rng.uniform(0.0, 0.03), (rows, 4))
+    return np.ascontiguousarray(np.r_[start, rng.uniform(-2.0, 2.0, 2)]
+                                + np.cumsum(steps, axis=0))

@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings, strategies as st
 
-from oracles import inflate_polygon
+from oracles import inflate_polygon, min_h_along_by_rows
 from polyc2bf_ros.core.barrier.cones import InflatedCone
 from polyc2bf_ros.core.barrier.horizon_cone import HorizonCone
 from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from strategies import convex_polygons, examples, random_state
+from strategies import convex_polygons, examples, long_path, random_state
 
 viewpoints = st.tuples(st.floats(-8, 8), st.floats(-8, 8)).map(np.array)
 
@@ -181,6 +181,34 @@ def test_min_h_along_a_path_is_the_smallest_h_the_filter_evaluates(axis, polygon
     assert kernel >= expected - 1e-9
     if expected < 0.0 or axis == 'midpoint':
         assert kernel == pytest.approx(expected, rel=1e-9, abs=1e-9)
+
+
+@pytest.mark.parametrize('axis', ['midpoint', 'bisector'])
+@settings(max_examples=examples(120), deadline=None)
+@given(polygons=st.lists(convex_polygons(centre_range=1.5), min_size=1, max_size=3),
+       seed=st.integers(0, 2 ** 32 - 1), horizon=st.sampled_from([0.3, 1.0, math.inf]))
+def test_min_h_along_is_its_row_by_row_form_bit_for_bit(axis, polygons, seed, horizon):
+    """Skipping groups of rows whose every row the point tests skip changes no bit.
+
+    Against the tests taken at every row (``oracles.min_h_along_by_rows``): long braking
+    paths and random walks near and through the parts, static and moving, with offsets
+    and ages.
+    """
+    rng = np.random.default_rng(seed)
+    path = long_path(rng, polygons[0][0])
+    count = len(polygons)
+    velocities = rng.uniform(-1.0, 1.0, (count, 2)) * (rng.random((count, 1)) < 0.5)
+    offsets = rng.uniform(-0.5, 0.5, (count, 2)) * rng.integers(0, 2)
+    start = np.r_[path[0, :2] - 0.01 * path[0, 2:], path[0, 2:]]
+    age, period = float(rng.uniform(-0.05, 0.3)), float(rng.choice([0.001, 0.01, 0.05]))
+    model = HorizonCone(0.2, horizon=horizon, axis=axis)
+    prepared = model.prepare(PolygonBatch.from_polygons(polygons))
+    kernel = model.min_h_along(prepared, velocities, offsets, age, start, path, period, 0.05)
+    rows = min_h_along_by_rows(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                               prepared.inv_sq, prepared.counts, prepared.boxes,
+                               1.0 / horizon, axis == 'bisector', velocities, offsets, age,
+                               start, path, period, 0.05 * 0.05)
+    assert kernel == rows
 
 
 @settings(max_examples=examples(300), deadline=None)

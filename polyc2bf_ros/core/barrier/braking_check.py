@@ -66,7 +66,11 @@ H(x+).  The parts' bounding boxes are computed once per obstacle update
 (``PlanarPolygons.boxes``); a part is only measured against the path when its box comes
 within reach of the path's, so the cost grows with the obstacles near the robot, not with
 all, and h is evaluated only at path points that head at a part's box and lie within
-tau |w| of it (``min_h_along``; along a corridor, none).  What braking now gives is
+tau |w| of it (``min_h_along``; along a corridor, none).  The path has a row per control
+period (793 from 1 m/s at 1 kHz, 77 at 100 Hz), so both kernels take the rows about
+sqrt(rows) at a time (``kernels.braking.path_groups``) and skip, per part, every group
+whose bounds prove that no row of it changes the result: the same value, bit for bit,
+for a test per group where the part is far.  What braking now gives is
 computed only when the comparison needs it: B(x) and c(B(x)) when c(B(x+)) is under the
 margin, H(x) when H(x+) < 0.  Before any of that, ``clear_around`` asks whether any
 bounding box comes within rho + margin of the robot, rho the model's bound on every path

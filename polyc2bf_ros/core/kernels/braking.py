@@ -4,6 +4,8 @@ The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_
 """
 import math
 
+import numpy as np
+
 from polyc2bf_ros.core.kernels.cones import nearest_edge
 from polyc2bf_ros.core.kernels.jit import F1, F2, I1, kernel, signature
 
@@ -19,6 +21,93 @@ def _signed_distance(x, y, edge_x, edge_y, inv_sq, count, n, px, py):
 
 
 
+SLACK = 1e-9
+"""m a group's bound must clear by: the rounding of a computed distance, within 10 km of the
+origin, is below 1e-11 m."""
+
+
+@kernel
+def group_size(rows):
+    """Return how many consecutive rows of a path of ``rows`` the check bounds together.
+
+    About sqrt(rows): a part costs a test per group plus a test per row of the groups near
+    it, rows / G + G of them along a stretch of path near it, least at G = sqrt(rows) (77
+    rows: 9, 793: 29).
+    """
+    return max(1, int(math.sqrt(rows)))
+
+
+
+@kernel
+def path_groups(path, size, velocities):
+    """Return the bounds of each ``size`` consecutive rows of ``path`` ([x, y, vx, vy]).
+
+    Row g: [low x, high x, low y, high y] of rows g size ... (g + 1) size - 1 (the last
+    group may be shorter); with ``velocities`` also [low vx, high vx, low vy, high vy, the
+    largest vx^2 + vy^2].
+    """
+    rows = path.shape[0]
+    groups = np.empty(((rows + size - 1) // size, 9 if velocities else 4))
+    for g in range(groups.shape[0]):
+        first, end = g * size, min((g + 1) * size, rows)
+        low_x = high_x = path[first, 0]
+        low_y = high_y = path[first, 1]
+        for k in range(first + 1, end):
+            low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
+            low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
+        groups[g, 0], groups[g, 1], groups[g, 2], groups[g, 3] = low_x, high_x, low_y, high_y
+        if velocities:
+            low_x = high_x = path[first, 2]
+            low_y = high_y = path[first, 3]
+            square = 0.0
+            for k in range(first, end):
+                low_x, high_x = min(low_x, path[k, 2]), max(high_x, path[k, 2])
+                low_y, high_y = min(low_y, path[k, 3]), max(high_y, path[k, 3])
+                square = max(square, path[k, 2] * path[k, 2] + path[k, 3] * path[k, 3])
+            groups[g, 4], groups[g, 5], groups[g, 6], groups[g, 7] = (low_x, high_x, low_y,
+                                                                      high_y)
+            groups[g, 8] = square
+    return groups
+
+
+
+@kernel
+def box_gap(low_x, high_x, low_y, high_y, box):
+    """Return the distance between the box [low, high] and ``box``.
+
+    Both as [low x, high x, low y, high y] (``cones.PlanarPolygons.boxes``).  Each
+    operation rounds monotonically, so a box holding another gives a gap at most the
+    other's, in floating point too.
+    """
+    gap_x = max(0.0, box[0] - high_x, low_x - box[1])
+    gap_y = max(0.0, box[2] - high_y, low_y - box[3])
+    return math.sqrt(gap_x * gap_x + gap_y * gap_y)
+
+
+
+@kernel
+def sorted_pair(a, b):
+    """Return (min(a, b), max(a, b))."""
+    return (a, b) if a <= b else (b, a)
+
+
+
+@kernel
+def group_box(group, first_time, last_time, vx, vy, ox, oy):
+    """Return (low x, high x, low y, high y) of a group's points relative to a moving part.
+
+    Row k of ``group`` (``path_groups``) at time t_k, first_time <= t_k <= last_time, is at
+    q_k = p_k - t_k c_dot - o relative to a part moved by o and moving at c_dot = (vx,
+    vy), computed as ``p - t * v - o``; every operation rounds monotonically and
+    t_k v lies between its values at the two ends, so the box holds every q_k as computed.
+    """
+    shift_low_x, shift_high_x = sorted_pair(first_time * vx, last_time * vx)
+    shift_low_y, shift_high_y = sorted_pair(first_time * vy, last_time * vy)
+    return (group[0] - shift_high_x - ox, group[1] - shift_low_x - ox,
+            group[2] - shift_high_y - oy, group[3] - shift_low_y - oy)
+
+
+
 @kernel(signature('UniTuple(f8, 2)', F2, F2, F2, F2, F2, I1, F2, F2, F2, 'f8', F2, 'f8',
                   'f8', 'f8', F1, 'b1'))
 def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offsets, age,
@@ -30,19 +119,29 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
     by ``offsets[n]`` and moves at ``velocities[n]``; path row k ([x, y, vx, vy]) is at
     age + (k + 1) period.  A moving polygon, or one with ``velocity_errors[n]`` > 0,
     counts less ``velocity_errors[n]`` t + ``accel`` t^2 / 2, t = age + (k + 1) period: as
-    far as it may stray from its stated velocity by then; with ``closing_only`` (the braking check) only at the rows where the path's
-    velocity closes on it (points towards its nearest point) or that lie inside it (module
-    docstring), else at every row (an evasion's look ahead, ``SafetyFilter``).  A polygon
-    whose bounding box stays farther than ``cutoff`` from the path's is not measured.
+    far as it may stray from its stated velocity by then; with ``closing_only`` (the
+    braking check) only at the rows where the path's velocity closes on it (points towards
+    its nearest point) or that lie inside it (module docstring), else at every row (an
+    evasion's look ahead, ``SafetyFilter``).
+
+    Pruning, exact: a polygon whose bounding box stays farther than ``cutoff`` from the
+    path's is not measured.  Nor is a group of consecutive rows (``path_groups``) whose
+    box, relative to the polygon over the group's times (``group_box``), lies a gap g > 0
+    from the polygon's box: each of its points is outside the box, so at least g from
+    the polygon, and counts at least g - max(e t + a t^2 / 2) over the group's two end
+    times (the bound is convex in t); when that is ``SLACK`` above the running minimum,
+    no row of the group can lower it, and the result is the one every row gives.
     """
     rows = path.shape[0]
     if rows == 0:
         return cutoff, cutoff
-    low_x = high_x = path[0, 0]
-    low_y = high_y = path[0, 1]
-    for k in range(rows):
-        low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
-        low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
+    size = group_size(rows)
+    groups = path_groups(path, size, False)
+    low_x, high_x = groups[0, 0], groups[0, 1]
+    low_y, high_y = groups[0, 2], groups[0, 3]
+    for g in range(1, groups.shape[0]):
+        low_x, high_x = min(low_x, groups[g, 0]), max(high_x, groups[g, 1])
+        low_y, high_y = min(low_y, groups[g, 2]), max(high_y, groups[g, 3])
     last = age + rows * period
     best, best_moving = cutoff, cutoff
     for n in range(counts.shape[0]):
@@ -57,17 +156,31 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
         if (low_x - ox - reach > boxes[n, 1] or high_x - ox + reach < boxes[n, 0]
                 or low_y - oy - reach > boxes[n, 3] or high_y - oy + reach < boxes[n, 2]):
             continue
-        for k in range(rows):
-            t = age + (k + 1) * period
-            distance, dx, dy = _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
-                                                path[k, 0] - t * vx - ox,
-                                                path[k, 1] - t * vy - oy)
-            if not moving:
-                best = min(best, distance)
-            elif (not closing_only or distance <= 0.0
-                  or path[k, 2] * dx + path[k, 3] * dy < 0.0):
-                best_moving = min(best_moving,
-                                  distance - t * (velocity_error + 0.5 * accel * t))
+        for g in range(groups.shape[0]):
+            first = g * size
+            end = min(first + size, rows)
+            first_time, last_time = age + (first + 1) * period, age + end * period
+            low_qx, high_qx, low_qy, high_qy = group_box(groups[g], first_time, last_time,
+                                                         vx, vy, ox, oy)
+            gap = box_gap(low_qx, high_qx, low_qy, high_qy, boxes[n])
+            if moving:
+                bound = gap - max(first_time * (velocity_error + 0.5 * accel * first_time),
+                                  last_time * (velocity_error + 0.5 * accel * last_time))
+            else:
+                bound = gap
+            if gap > 0.0 and bound - SLACK >= (best_moving if moving else best):
+                continue
+            for k in range(first, end):
+                t = age + (k + 1) * period
+                distance, dx, dy = _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n],
+                                                    n, path[k, 0] - t * vx - ox,
+                                                    path[k, 1] - t * vy - oy)
+                if not moving:
+                    best = min(best, distance)
+                elif (not closing_only or distance <= 0.0
+                      or path[k, 2] * dx + path[k, 3] * dy < 0.0):
+                    best_moving = min(best_moving,
+                                      distance - t * (velocity_error + 0.5 * accel * t))
     return best, best_moving
 
 

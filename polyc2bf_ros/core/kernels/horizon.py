@@ -5,6 +5,13 @@ The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_
 import math
 
 from polyc2bf_ros.core.kernels.barrier import barrier_column, plane_motion, store_input_column
+from polyc2bf_ros.core.kernels.braking import (
+    box_gap,
+    group_box,
+    group_size,
+    path_groups,
+    sorted_pair,
+)
 from polyc2bf_ros.core.kernels.cones import (
     midpoint_cone,
     nearest_edge,
@@ -161,20 +168,8 @@ def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, 
 
 
 @kernel
-def _box_gap(low_x, high_x, low_y, high_y, box):
-    """Return the distance between the box [low, high] and ``box``.
-
-    Both as [low x, high x, low y, high y] (``cones.PlanarPolygons.boxes``).
-    """
-    gap_x = max(0.0, box[0] - high_x, low_x - box[1])
-    gap_y = max(0.0, box[2] - high_y, low_y - box[3])
-    return math.sqrt(gap_x * gap_x + gap_y * gap_y)
-
-
-
-@kernel
 def _misses_box(box, qx, qy, dx, dy):
-    """Return True when the ray from q along d meets no point of ``box`` (as ``_box_gap``).
+    """Return True when the ray from q along d meets no point of ``box`` (as ``box_gap``).
 
     So when the box lies strictly on one side of the line through q along d (cross(d,
     c - q) of one strict sign at every corner c), or none of it ahead of q (<d, c - q> <= 0
@@ -214,6 +209,61 @@ def _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon, 
 
 
 
+@kernel
+def _product_range(low_a, high_a, low_b, high_b):
+    """Return (min, max) of the rounded a b over a in [low_a, high_a], b in [low_b, high_b].
+
+    a b is bilinear, so both lie at corners, and rounding is monotone: so are they rounded.
+    """
+    first, second = sorted_pair(low_a * low_b, low_a * high_b)
+    third, fourth = sorted_pair(high_a * low_b, high_a * high_b)
+    return min(first, third), max(second, fourth)
+
+
+
+@kernel
+def _group_heads_past(group, box, first_time, last_time, ovx, ovy, ox, oy, inv_horizon):
+    """Return True when ``min_h_along``'s point tests skip every row of a group.
+
+    The group's rows (``path_groups``) at times in [first_time, last_time], relative to a
+    part moved by o and moving at (ovx, ovy).  Each bound below is the row tests' own
+    arithmetic on the group's extremes (``group_box``; ``ovx - pvx`` is monotone in pvx),
+    and rounding is monotone, so it bounds every row's value as the row test computes it.
+    Far: inv_tau gap(group box) >= |w| at the largest |w_x|, |w_y| of the group.  Heads
+    past (``_misses_box`` along d = -w): where the signs of d_x, d_y are the same at every
+    row, the three corners are, and one of the three tests holds for all rows: its two
+    products' ranges (``_product_range``) do not overlap (a rounded difference or sum of
+    two floats has the sign of the exact one).
+    """
+    low_qx, high_qx, low_qy, high_qy = group_box(group, first_time, last_time, ovx, ovy,
+                                                 ox, oy)
+    low_wx, high_wx = ovx - group[5], ovx - group[4]
+    low_wy, high_wy = ovy - group[7], ovy - group[6]
+    wx, wy = max(abs(low_wx), abs(high_wx)), max(abs(low_wy), abs(high_wy))
+    if inv_horizon * box_gap(low_qx, high_qx, low_qy, high_qy, box) >= math.sqrt(
+            wx * wx + wy * wy):
+        return True
+    low_dx, high_dx, low_dy, high_dy = -high_wx, -low_wx, -high_wy, -low_wy
+    if (low_dx > 0.0) != (high_dx > 0.0) or (low_dy > 0.0) != (high_dy > 0.0):
+        return False
+    low_x, high_x, low_y, high_y = box
+    right_x, right_y = (high_x if low_dy > 0.0 else low_x), (low_y if low_dx > 0.0 else high_y)
+    left_x, left_y = (low_x if low_dy > 0.0 else high_x), (high_y if low_dx > 0.0 else low_y)
+    front_x, front_y = (high_x if low_dx > 0.0 else low_x), (high_y if low_dy > 0.0 else low_y)
+    cross_y = _product_range(low_dx, high_dx, right_y - high_qy, right_y - low_qy)
+    cross_x = _product_range(low_dy, high_dy, right_x - high_qx, right_x - low_qx)
+    if cross_y[0] > cross_x[1]:
+        return True
+    cross_y = _product_range(low_dx, high_dx, left_y - high_qy, left_y - low_qy)
+    cross_x = _product_range(low_dy, high_dy, left_x - high_qx, left_x - low_qx)
+    if cross_y[1] < cross_x[0]:
+        return True
+    ahead_x = _product_range(low_dx, high_dx, front_x - high_qx, front_x - low_qx)
+    ahead_y = _product_range(low_dy, high_dy, front_y - high_qy, front_y - low_qy)
+    return ahead_x[1] + ahead_y[1] <= 0.0
+
+
+
 @kernel(signature('f8', F2, F2, F2, F2, F2, I1, F2, 'f8', 'b1', F2, F2, 'f8', F1, F2, 'f8',
                   'f8'))
 def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon, bisector, velocities,
@@ -236,15 +286,21 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon, bisect
     <u, -w> < |w| c, and h_tau > 0 (or w = 0, and h_tau >= 0).  The midpoint axis's s can
     be negative close to a polygon, so there every point is evaluated.  +inf when nothing
     is evaluated; so the value is exact where it is negative, and otherwise only >= 0.
+    The rows are taken a group at a time (``path_groups``): a group whose every row these
+    two tests skip (``_group_heads_past``, on the group's bounds) is skipped whole, so the
+    value is the one the tests taken row by row give, bit for bit.
     """
     rows = path.shape[0]
     low_x = high_x = start[0]
     low_y = high_y = start[1]
-    fastest = math.sqrt(start[2] * start[2] + start[3] * start[3])
-    for k in range(rows):
-        low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
-        low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
-        fastest = max(fastest, math.sqrt(path[k, 2] * path[k, 2] + path[k, 3] * path[k, 3]))
+    square = start[2] * start[2] + start[3] * start[3]
+    size = group_size(rows)
+    groups = path_groups(path, size, True)
+    for g in range(groups.shape[0]):
+        low_x, high_x = min(low_x, groups[g, 0]), max(high_x, groups[g, 1])
+        low_y, high_y = min(low_y, groups[g, 2]), max(high_y, groups[g, 3])
+        square = max(square, groups[g, 8])
+    fastest = math.sqrt(square)  # the largest |v| of the rows: sqrt is monotone
     moved = max(abs(age), abs(age + rows * period))
     best = math.inf
     for n in range(counts.shape[0]):
@@ -253,21 +309,43 @@ def min_h_along(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon, bisect
         reach = moved * obstacle_speed
         ox, oy = offsets[n, 0], offsets[n, 1]
         box = boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3]
-        gap = _box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
-                       high_y - oy + reach, box)
+        gap = box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
+                      high_y - oy + reach, box)
         if bisector and inv_horizon * gap >= fastest + obstacle_speed:
             continue
-        for k in range(-1, rows):
-            if k < 0:
-                px, py, pvx, pvy = start[0], start[1], start[2], start[3]
-            else:
-                px, py, pvx, pvy = path[k, 0], path[k, 1], path[k, 2], path[k, 3]
-            t = age + (k + 1) * period
-            qx, qy = px - t * ovx - ox, py - t * ovy - oy
-            vx, vy = ovx - pvx, ovy - pvy
-            if bisector and (_misses_box(box, qx, qy, -vx, -vy) or inv_horizon * _box_gap(
-                    qx, qx, qy, qy, box) >= math.sqrt(vx * vx + vy * vy)):
+        best = min(best, _point_h(x, y, edge_x, edge_y, inv_sq, counts[n], n, box, start[0],
+                                  start[1], start[2], start[3], age, ovx, ovy, ox, oy,
+                                  inv_horizon, bisector, eps_sq))
+        for g in range(groups.shape[0]):
+            first = g * size
+            end = min(first + size, rows)
+            if bisector and _group_heads_past(groups[g], box, age + (first + 1) * period,
+                                              age + end * period, ovx, ovy, ox, oy,
+                                              inv_horizon):
                 continue
-            best = min(best, _value(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx, qy, vx,
-                                    vy, inv_horizon, bisector, eps_sq))
+            for k in range(first, end):
+                best = min(best, _point_h(x, y, edge_x, edge_y, inv_sq, counts[n], n, box,
+                                          path[k, 0], path[k, 1], path[k, 2], path[k, 3],
+                                          age + (k + 1) * period, ovx, ovy, ox, oy,
+                                          inv_horizon, bisector, eps_sq))
     return best
+
+
+
+@kernel
+def _point_h(x, y, edge_x, edge_y, inv_sq, count, n, box, px, py, pvx, pvy, t, ovx, ovy, ox,
+             oy, inv_horizon, bisector, eps_sq):
+    """Return h_tau of polygon n at the point (px, py) moving at (pvx, pvy) at time t.
+
+    inf where skipped.
+
+    Skipped (bisector axis) where the point heads past the box or lies tau |w| from it
+    (``min_h_along``).
+    """
+    qx, qy = px - t * ovx - ox, py - t * ovy - oy
+    vx, vy = ovx - pvx, ovy - pvy
+    if bisector and (_misses_box(box, qx, qy, -vx, -vy) or inv_horizon * box_gap(
+            qx, qx, qy, qy, box) >= math.sqrt(vx * vx + vy * vy)):
+        return math.inf
+    return _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon,
+                  bisector, eps_sq)
