@@ -125,8 +125,8 @@ NODE_PARAMETERS = {
     'scan_tracking': (True, None, 'track scan clusters from scan to scan '
                       '(core/obstacles/scan_tracker.py): obstacles of a confirmed, moving '
                       'track get its velocity; false: every scan obstacle stands still', False),
-    'scan_unknown_speed': (1.5, (0.0, 10.0), 'bound [m/s] on the speed of a scan obstacle whose '
-                           'track is not trusted (measured moving, then not registered or '
+    'scan_unknown_speed': (2.0, (0.0, 10.0), 'bound [m/s] on the speed of a scan obstacle whose '
+                           'track is not trusted (once moving, then not registered or '
                            'holding two objects; core/obstacles/scan_tracker.py); the braking '
                            'check allows for it; 0 = off', False),
     'odom_position_std': (0.0, (0.0, 1.0), 'noise [m] of the odometry position scans are '

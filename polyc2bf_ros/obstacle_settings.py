@@ -23,6 +23,6 @@ class IntakeSettings(NamedTuple):
     scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
     scan_obstacle_depth: float = 0.10
     scan_tracking: bool = True
-    scan_unknown_speed: float = 1.5
+    scan_unknown_speed: float = 2.0
     odom_position_std: float = 0.0
     odom_heading_std: float = 0.0

@@ -219,14 +219,14 @@ def test_with_velocities_gives_moving_obstacles_their_track_velocity():
 
 
 def test_a_track_is_trusted_only_while_its_registrations_explain_its_cluster():
-    """Two cylinders close on each other: measured moving, trusted after 3 scans, not once met.
+    """Two cylinders close on each other: trusted while apart, not once they meet.
 
     Two 0.3 m cylinders 2.5 m ahead close on each other at 1 m/s each; a third stands.  The
-    standing one, never measured moving, is always trusted.  The moving ones are not from
-    their first registration (it measures them moving) until three in a row explained
-    their clusters; when they touch, the scan shows one cluster whose track keeps one
-    velocity (the other cylinder's points do not register onto its outline), and it is no
-    longer trusted: ``with_velocities`` gives its obstacles the unknown speed.
+    standing one, never moving, is always trusted; so are the moving ones while each
+    registration explains its own cluster.  When they touch, the scan shows one cluster
+    whose track keeps one velocity (the other cylinder's points do not register onto its
+    outline), and it is no longer trusted: ``with_velocities`` gives its obstacles the
+    unknown speed.
     """
     rng = np.random.default_rng(3)
     tracker = ScanTracker(link=SCAN.cluster_tolerance)
@@ -239,9 +239,11 @@ def test_a_track_is_trusted_only_while_its_registrations_explain_its_cluster():
         estimates = tracker.update(k / 10, clusters)
         first, second = _cluster_of(clusters, up, 0.35), _cluster_of(clusters, down, 0.35)
         assert estimates[_cluster_of(clusters, post, 0.35)].trusted
-        if 1 <= k <= 2:
-            assert not estimates[first].trusted and not estimates[second].trusted
-        elif 4 <= k and first != second:
+        apart = first != second
+        if apart and k < tracker.settings.moving_scans:  # not yet moving: trusted
+            assert estimates[first].trusted and estimates[second].trusted
+        if apart and k >= 4:  # moving, each registration explaining its cluster
+            assert estimates[first].moving and estimates[second].moving
             assert estimates[first].trusted and estimates[second].trusted
         if first == second:
             assert k >= 7 and not estimates[first].trusted

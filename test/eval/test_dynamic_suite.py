@@ -271,7 +271,7 @@ def test_from_scans_an_object_whose_track_is_not_trusted_is_not_run_into(worlds)
 
     In both a cylinder hid behind or merged with another and its track published 0 or the
     other's velocity; the robot drove into it.  Untrusted tracks' obstacles get
-    ``scan_unknown_speed`` (1.5 m/s), which the braking check allows for.
+    ``scan_unknown_speed`` (2 m/s), which the braking check allows for.
     """
     barrier = default_barrier('diff_drive')
     for world in (worlds[1], worlds[34]):

@@ -29,8 +29,8 @@ FAR = 1.0e6
 """The cost of a pair outside the gate [m] (real costs are a few metres at most)."""
 
 # Columns of the per-track arrays: floats (bounding box, centroid, last matched stamp) and
-# integers (id, hits, moving streak, moving, outline first, size, trusted streak, whether a
-# registration ever measured it moving).  A track's filter state
+# integers (id, hits, moving streak, moving, outline first, size, trusted streak, whether it
+# was ever moving).  A track's filter state
 # is [p, v, c] (``constant_velocity``, with the clone c of its position at its outline).
 LOW, HIGH, CENTROID, SEEN, TRACK_FLOATS = 0, 2, 4, 6, 7
 ID, HITS, STREAK, MOVING, FIRST, SIZE, TRUST, MOVED, TRACK_INTS = range(9)
@@ -408,16 +408,14 @@ def _known_velocity(state, P, limit):
 def _classify(state, P, track, params, registered):
     """Step 4 for a matched track: count passes and flip ``track[MOVING]``.
 
-    A failed registration (``registered`` false) does not pass; one that passes sets
-    ``track[MOVED]`` for good (step 5).
+    A failed registration (``registered`` false) does not pass.  A track once moving keeps
+    ``track[MOVED]`` set for good (step 5).
     """
     vx, vy = _known_velocity(state, P, params[KNOWN])
     speed_sq = vx * vx + vy * vy
     along_sq = vx * vx * P[2, 2] + 2.0 * vx * vy * P[2, 3] + vy * vy * P[3, 3]
     passes = (registered and speed_sq > params[MOVING_SPEED] ** 2
               and speed_sq * speed_sq > params[SIGMAS] ** 2 * along_sq)
-    if passes:
-        track[MOVED] = 1
     if passes != (track[MOVING] == 1):
         track[STREAK] += 1
     else:
@@ -425,6 +423,7 @@ def _classify(state, P, track, params, registered):
     if track[STREAK] >= params[SCANS]:
         track[MOVING] = 1 - track[MOVING]
         track[STREAK] = 0
+    track[MOVED] |= track[MOVING]
 
 
 
@@ -488,8 +487,8 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
     and ``ids`` (C,).  Every cluster but structure is smoothed once, here.  A track's
     trusted streak counts its successive registrations that paired at least ``SHARE`` of
     the cluster's whole windows (anything else, a failed registration included, ends it).
-    A track no registration has measured moving (``_classify``) is trusted; one that has
-    been so measured is trusted while its streak is ``TRUSTED`` or more.
+    A track that has never been moving (``_classify``) is trusted; one that has is
+    trusted while its streak is ``TRUSTED`` or more.
     """
     clusters = starts.shape[0] - 1
     smoothed = np.empty((points.shape[0], 7))
