@@ -552,8 +552,8 @@ class SafetyFilter:
         footprints = prepared.footprints
         return clear_around.unchecked(
             footprints.boxes, prepared.velocities, prepared.offsets, prepared.velocity_errors[0],
-            self._braking_accel, max(abs(age), abs(age + duration)), float(state[0]), float(state[1]),
-            reach + self._clearance, False)
+            self._braking_accel, max(abs(age), abs(age + duration)), float(state[0]),
+            float(state[1]), reach + self._clearance, False)
 
     def _backup_input(self, state, u, prepared, age, now):
         """Return (input, message) once the braking check refused ``u``.

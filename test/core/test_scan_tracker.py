@@ -408,7 +408,7 @@ BAD_SETTINGS = [('gate', 0.0), ('gate', math.inf), ('accel_std', -1.0), ('speed_
                 ('max_coast', -1.0), ('moving_speed', 'fast'), ('n_sigma', -1.0),
                 ('moving_scans', 0), ('max_velocity_std', 0.0), ('static_extent', 0.0),
                 ('max_backstep', -0.1), ('pose_std', -0.01), ('heading_std', math.nan),
-                ('trust_share', -0.1), ('trust_scans', 0)]
+                ('trust_share', -0.1), ('trust_scans', 0), ('distrust_time', -1.0)]
 
 
 @pytest.mark.parametrize('name, value', BAD_SETTINGS)

@@ -28,17 +28,17 @@ WALK = 2
 FAR = 1.0e6
 """The cost of a pair outside the gate [m] (real costs are a few metres at most)."""
 
-# Columns of the per-track arrays: floats (bounding box, centroid, last matched stamp) and
-# integers (id, hits, moving streak, moving, outline first, size, trusted streak, whether it
-# was ever moving).  A track's filter state
+# Columns of the per-track arrays: floats (bounding box, centroid, last matched stamp, last
+# stamp it was moving) and integers (id, hits, moving streak, moving, outline first, size,
+# trusted streak).  A track's filter state
 # is [p, v, c] (``constant_velocity``, with the clone c of its position at its outline).
-LOW, HIGH, CENTROID, SEEN, TRACK_FLOATS = 0, 2, 4, 6, 7
-ID, HITS, STREAK, MOVING, FIRST, SIZE, TRUST, MOVED, TRACK_INTS = range(9)
+LOW, HIGH, CENTROID, SEEN, MOVED, TRACK_FLOATS = 0, 2, 4, 6, 7, 8
+ID, HITS, STREAK, MOVING, FIRST, SIZE, TRUST, TRACK_INTS = range(8)
 
 # Entries of the settings vector the kernels read.
 (GATE, ACCEL, SPEED, POINT, TRIM, SPAN, ITERATIONS, OVERLAP, CONFIRM, COAST, MOVING_SPEED,
- SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING, SHARE, TRUSTED, ORIGIN_X, ORIGIN_Y,
- PARAMETERS) = range(23)
+ SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING, SHARE, TRUSTED, DISTRUST, ORIGIN_X,
+ ORIGIN_Y, PARAMETERS) = range(24)
 I2 = 'i8[:, ::1]'
 B2 = 'b1[:, ::1]'
 
@@ -408,8 +408,7 @@ def _known_velocity(state, P, limit):
 def _classify(state, P, track, params, registered):
     """Step 4 for a matched track: count passes and flip ``track[MOVING]``.
 
-    A failed registration (``registered`` false) does not pass.  A track once moving keeps
-    ``track[MOVED]`` set for good (step 5).
+    A failed registration (``registered`` false) does not pass.
     """
     vx, vy = _known_velocity(state, P, params[KNOWN])
     speed_sq = vx * vx + vy * vy
@@ -423,7 +422,6 @@ def _classify(state, P, track, params, registered):
     if track[STREAK] >= params[SCANS]:
         track[MOVING] = 1 - track[MOVING]
         track[STREAK] = 0
-    track[MOVED] |= track[MOVING]
 
 
 
@@ -487,8 +485,8 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
     and ``ids`` (C,).  Every cluster but structure is smoothed once, here.  A track's
     trusted streak counts its successive registrations that paired at least ``SHARE`` of
     the cluster's whole windows (anything else, a failed registration included, ends it).
-    A track that has never been moving (``_classify``) is trusted; one that has is
-    trusted while its streak is ``TRUSTED`` or more.
+    A track that has not been moving (``_classify``) for ``DISTRUST`` s is trusted; one
+    that has is trusted while its streak is ``TRUSTED`` or more.
     """
     clusters = starts.shape[0] - 1
     smoothed = np.empty((points.shape[0], 7))
@@ -525,6 +523,8 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
             reclone_one(states[t], covariances[t])
             ints[t, MOVING] = ints[t, STREAK] = 0
         floats[t, SEEN] = stamp
+        if ints[t, MOVING] == 1:
+            floats[t, MOVED] = stamp
         for k in range(6):
             floats[t, LOW + k] = stats[c, k]
     total = count
@@ -541,6 +541,7 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
         for k in range(6):
             floats[total, LOW + k] = stats[c, k]
         floats[total, SEEN] = stamp
+        floats[total, MOVED] = -np.inf
         ints[total, :] = 0
         ints[total, ID] = next_id[0]
         ints[total, HITS] = 1
@@ -582,7 +583,7 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
         out[c, 0] = vx if published else 0.0
         out[c, 1] = vy if published else 0.0
         flags[c, 0], flags[c, 1], flags[c, 2] = confirmed, moving, published
-        flags[c, 3] = (structure[c] or ints[t, MOVED] == 0
+        flags[c, 3] = (structure[c] or stamp - floats[t, MOVED] > params[DISTRUST]
                        or ints[t, TRUST] >= params[TRUSTED])
         ids[c] = ints[t, ID]
     return kept, used

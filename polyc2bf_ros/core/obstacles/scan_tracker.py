@@ -81,22 +81,24 @@ last matched).  Per scan, with ``dt`` the time since the newest stamp:
    gives it to the obstacles of the cluster.
    (Along v, not along the worst axis: a box seen face-on is measured only across its face,
    and its approach speed is known though its sideways speed is not.)
-5. Trust.  A track that has been moving (step 4) is trusted while its last
-   ``trust_scans`` registrations each paired at least ``trust_share`` of the cluster's
-   whole windows; a registration that fails or explains less ends the streak.  An
-   untrusted track's velocity, 0 or not, may be wrong by anything: its registrations fail
-   (it took another object's cluster), or its cluster holds more than the outline it
-   follows (two objects that meet make one cluster, which keeps one track and one
-   velocity, and the one that is not followed may come at the robot).  The obstacle
-   pipeline gives its obstacles an unknown velocity (``scan_unknown_speed``), which the
-   braking check allows for.  A track that has never been moving (standing structure,
-   clutter, a post seen for the first time) is trusted as before: its view grows and
-   shrinks as the robot drives, so its registrations often explain less than
-   ``trust_share``, and distrusting every young or short track kept the robot off BARN's
-   posts (57 % of 30 worlds from scans instead of 100 %); a single registration fast
-   enough to pass step 4 is no better a sign (standing posts pass now and then: 93-95 % of
-   BARN).  (Measured in the dynamic suite from scans: the 9 at-fault contacts came from
-   such merged or failing tracks, and none is left.)
+5. Trust.  A track that has been moving (step 4) within the last ``distrust_time`` s is
+   trusted only while its last ``trust_scans`` registrations each paired at least
+   ``trust_share`` of the cluster's whole windows; a registration that fails or explains
+   less ends the streak.  An untrusted track's velocity, 0 or not, may be wrong by
+   anything: its registrations fail (it took another object's cluster), or its cluster
+   holds more than the outline it follows (two objects that meet make one cluster, which
+   keeps one track and one velocity, and the one that is not followed may come at the
+   robot).  The obstacle pipeline gives its obstacles an unknown velocity
+   (``scan_unknown_speed``), which the braking check allows for.  Every other track
+   (standing structure, clutter, a post seen for the first time) is trusted as before:
+   its view grows and shrinks as the robot drives, so its registrations often explain
+   less than ``trust_share``, and distrusting every young or short track kept the robot
+   off BARN's posts (57 % of 30 worlds from scans instead of 100 %); a single
+   registration fast enough to pass step 4 is no better a sign (standing posts pass now
+   and then: 93-95 % of BARN).  Nor is a track that was moving long ago: a row of BARN's
+   posts, once misregistered into a moving track, kept a robot off it for good.
+   (Measured in the dynamic suite from scans: the 9 at-fault contacts came from merged or
+   failing moving tracks, and none is left.)
 
 Birth, confirmation, deletion.  A cluster no track takes starts a track at its centroid
 (position variance ``point_std^2``, velocity ``speed_std`` per axis) with one hit; each
@@ -156,6 +158,7 @@ from polyc2bf_ros.core.kernels.tracking import (
     ACCEL,
     COAST,
     CONFIRM,
+    DISTRUST,
     EXTENT,
     FIRST,
     GATE,
@@ -246,6 +249,8 @@ class TrackerSettings:
     - ``trust_share`` 0.9, in [0, 1]: the least share of a cluster's whole windows a
       registration pairs to count towards trust (step 5).
     - ``trust_scans`` 3, >= 1: successive such registrations to trust a track.
+    - ``distrust_time`` [s] 2.0, >= 0: how long after it was last moving a track needs
+      them (step 5).
     - ``max_backstep`` [s] 0.25, >= 0: a stamp this much before the newest resets the
       tracker.
     - ``pose_std`` [m] 0, >= 0, and ``heading_std`` [rad] 0, >= 0: the noise of the
@@ -272,6 +277,7 @@ class TrackerSettings:
     static_extent: float = 3.0
     trust_share: float = 0.9
     trust_scans: int = 3
+    distrust_time: float = 2.0
     max_backstep: float = 0.25
     pose_std: float = 0.0
     heading_std: float = 0.0
@@ -286,7 +292,7 @@ class TrackerSettings:
                                ('point_std', True), ('trim', True), ('span', True),
                                ('max_coast', False), ('moving_speed', False),
                                ('n_sigma', False), ('max_velocity_std', True),
-                               ('static_extent', True),
+                               ('static_extent', True), ('distrust_time', False),
                                ('max_backstep', False), ('pose_std', False),
                                ('heading_std', False)):
             value = getattr(self, name)
@@ -309,12 +315,12 @@ class TrackerSettings:
         values = np.zeros(PARAMETERS)  # ORIGIN_X, ORIGIN_Y: set per scan (``update``)
         values[[GATE, ACCEL, SPEED, POINT, TRIM, SPAN, ITERATIONS, OVERLAP, CONFIRM, COAST,
                 MOVING_SPEED, SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING, SHARE,
-                TRUSTED]] = (
+                TRUSTED, DISTRUST]] = (
             self.gate, self.accel_std, self.speed_std, self.point_std, self.trim, self.span,
             self.iterations, self.min_overlap, self.confirm_hits, self.max_coast,
             self.moving_speed, self.n_sigma, self.moving_scans, self.max_velocity_std,
             self.static_extent, link, self.pose_std, self.heading_std, self.trust_share,
-            self.trust_scans)
+            self.trust_scans, self.distrust_time)
         return values
 
 
