@@ -283,8 +283,8 @@ class _Prepared:
     rows_a: np.ndarray
     rows_b: np.ndarray
     index: np.ndarray
+    velocity_errors: np.ndarray
     footprints: Optional[object] = None
-    velocity_errors: Optional[np.ndarray] = None
 
     @functools.cached_property
     def moving(self):
@@ -590,8 +590,7 @@ class SafetyFilter:
         footprints = prepared.footprints
         return not clear_around.unchecked(
             footprints.boxes, velocities, prepared.offsets, prepared.velocity_errors[1], 0.0,
-            abs(age) + horizon,
-            float(ref.position[0]), float(ref.position[1]), reach, True)
+            abs(age) + horizon, float(ref.position[0]), float(ref.position[1]), reach, True)
 
     def _evade(self, state, u, prepared, age, now):
         """Return (input, message) of an evasion when ``u`` runs into a moving part, or None.
