@@ -62,6 +62,10 @@ NODE_PARAMETERS = {
                            True),
     'velocity_tau': (0.0, (0.0, 10.0), 'tau [s] in u_nom = (v_cmd - v) / tau; 0 = one '
                      'control period (transparent when nothing constrains)', False),
+    'footprint_topic': ('', None, 'geometry_msgs/PolygonStamped topic whose polygons (in the '
+                        'odometry child frame) replace filter.footprint as they come, as '
+                        "Nav2's collision monitor takes them; a refused one is logged and the "
+                        "previous footprint kept; '': none", True),
     'odom_timeout': (0.25, (0.002, 10.0), 'odometry older than this [s] -> stop', False),
     'cmd_timeout': (0.5, (0.002, 10.0), 'nominal command older than this [s] -> stop', False),
     'use_markers': (True, None, 'subscribe to the MarkerArray topic obstacles and watch it with '
@@ -119,7 +123,8 @@ NODE_PARAMETERS = {
                                'endpoints of one obstacle '
                                '(core/obstacles/scan_conversion.py)', False),
     'scan_footprint_radius': (-1.0, (-1.0, 10.0), 'scan endpoints this close [m] to the base '
-                              'are the robot itself; negative: filter.robot_radius', False),
+                              'are the robot itself; negative: filter.robot_radius (with '
+                              "filter.footprint: its covering disc's radius)", False),
     'scan_obstacle_depth': (0.10, (0.02, 10.0), 'how far [m] each scan obstacle reaches behind '
                             'the surface the beams lit (the unseen body behind it)', False),
     'scan_tracking': (True, None, 'track scan clusters from scan to scan '
@@ -142,6 +147,9 @@ FILTER_PARAMETERS = {
                 "'polyc2bf_inflated' (polygon inflated by the radius), 'c3bf' (circles) or "
                 "'polyc2bf_horizon' (inflated, only what is reachable within the horizon)"),
     'robot_radius': ((0.0, 10.0), 'robot radius w/2 [m]'),
+    'footprint': (None, 'the body as a polygon "[[x, y], ...]" [m] in the odometry child '
+                  "frame (Nav2's footprint); '[]': the disc of robot_radius.  Set, it "
+                  'replaces robot_radius: the disc about the origin covering it is guarded'),
     'gamma': ((0.0, 1000.0), 'class-K gain in h_dot + gamma h >= margin [1/s], > 0'),
     'margin_gain': ((0.0, 1000.0), 'sample-and-hold margin = margin_gain * T'),
     'solver': (None, "QP solver: 'daqp' or 'proxsuite'"),

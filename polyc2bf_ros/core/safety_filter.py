@@ -96,6 +96,7 @@ from polyc2bf_ros.core.barrier.cone_barrier import BarrierTerms
 from polyc2bf_ros.core.barrier.cone_models import CONE_AXES, CONE_MODELS
 from polyc2bf_ros.core.barrier.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K
 from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
+from polyc2bf_ros.core.geometry.footprint import covering_radius, NO_FOOTPRINT, parse_footprint
 from polyc2bf_ros.core.geometry.views import choose_planes
 from polyc2bf_ros.core.kernels.barrier import tighten_for_obstacle_accel
 from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance
@@ -136,11 +137,14 @@ class FilterConfig:
     check (design.md 3.9-3.10): on the 200 BARN worlds it reaches the goal in all of them
     with a path-following nominal and collides in none, where the inflated-silhouette
     PolyC2BF (eq. 7) stalled in 26 % and grazed 1.5 %.  ``robot_radius`` is the body's
-    radius around its centre; the filter adds the model's ``guard_offset``.
+    radius around its centre; the filter adds the model's ``guard_offset``.  ``footprint``
+    (Nav2's polygon string, ``geometry.footprint``), when set, replaces it: the body is
+    then guarded as the disc about the origin that covers the polygon (``body_radius``).
     """
 
     barrier: str = 'polyc2bf_horizon'
     robot_radius: float = 0.3
+    footprint: str = NO_FOOTPRINT
     gamma: float = 1.0
     control_period: float = 0.01
     margin_gain: float = 1.0
@@ -162,6 +166,12 @@ class FilterConfig:
     obstacle_velocity_error: float = 0.0
     evasion_horizon: float = 1.0
     evasion_commit: bool = False
+
+    @property
+    def body_radius(self):
+        """Return the radius of the disc guarded: ``robot_radius``, or the footprint's cover."""
+        points = parse_footprint(self.footprint)
+        return self.robot_radius if points is None else covering_radius(points)
 
     @property
     def margin(self):
@@ -192,6 +202,10 @@ class FilterConfig:
         if math.isnan(self.ground_z) or self.ground_z == math.inf:
             raise ValueError(f'ground_z must be a height or -inf (no ground), '
                              f'got {self.ground_z!r}')
+        if not isinstance(self.footprint, str):
+            raise ValueError('footprint must be a string "[[x, y], ...]" (Nav2\'s format), '
+                             f'got {self.footprint!r}')
+        parse_footprint(self.footprint)  # FootprintError (a ValueError) says what is wrong
         if not 3 <= self.inflation_segments <= 256:
             raise ValueError('inflation_segments must be in [3, 256], '
                              f'got {self.inflation_segments!r}')

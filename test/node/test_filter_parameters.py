@@ -113,3 +113,18 @@ def test_error_bounds_slow_and_delay_the_braking_checks_stops_only():
     state = [0.0, 0.0, 0.0, 1.0, 0.0]
     np.testing.assert_array_equal(model.braking_input(state), exact.braking_input(state))
     assert model.braking_path(state, 0.01)[-1, 0] > exact.braking_path(state, 0.01)[-1, 0] + 0.1
+
+
+def test_a_nav2_footprint_in_a_parameter_file_is_guarded_by_its_covering_disc(tmp_path):
+    """``footprint`` as Nav2 writes it (a quoted string) replaces robot_radius everywhere."""
+    path = tmp_path / 'params.yaml'
+    path.write_text('safety_filter:\n  ros__parameters:\n    filter:\n      robot_radius: 0.1\n'
+                    '      footprint: "[[0.5, 0.3], [-0.5, 0.3], [-0.5, -0.3], [0.5, -0.3]]"\n')
+    setup = build_filter(load_parameters([path], [], ''))
+    geometry = setup.command_filter.safety_filter.geometry
+    assert geometry.robot_radius == pytest.approx(np.hypot(0.5, 0.3))  # the scans' own body too
+    with pytest.raises(ParameterError, match='footprint .* self-intersecting') as error:
+        build_filter({'filter.footprint': '[[0.5, 0.3], [-0.5, -0.3], [-0.5, 0.3], [0.5, -0.3]]'})
+    assert '\n' not in str(error.value)
+    with pytest.raises(ParameterError, match='footprint must be a string'):
+        build_filter({'filter.footprint': [[0.5, 0.3], [-0.5, 0.3], [-0.5, -0.3]]})

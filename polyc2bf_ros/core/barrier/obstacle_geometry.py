@@ -22,12 +22,13 @@ class ObstacleGeometry:
     def __init__(self, model, config):
         """For ``model`` (a ``RobotModel``) and a validated ``FilterConfig``.
 
-        The guard radius is the body's radius grown by the model's offset l: the guarded
+        The guard radius is the body's radius (``FilterConfig.body_radius``: a footprint's
+        covering disc, else ``robot_radius``) grown by the model's offset l: the guarded
         point keeps R + l, so the body around its centre keeps R (``guard_offset``).
         """
         self.dim = model.position_dim
-        self.robot_radius = float(config.robot_radius)
-        self.guard_radius = float(config.robot_radius + model.guard_offset)
+        self.robot_radius = float(config.body_radius)
+        self.guard_radius = float(self.robot_radius + model.guard_offset)
         self.cone_model = make_cone_model(config.barrier, self.guard_radius,
                                           config.inflation_segments, config.horizon,
                                           config.cone_axis)
