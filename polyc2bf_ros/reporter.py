@@ -28,6 +28,7 @@ from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
 from polyc2bf_ros import diagnostics, filter_state, rviz_markers
+from polyc2bf_ros.core.geometry.footprint import parse_footprint
 from polyc2bf_ros.core.stats import LatencyRing
 
 _FALLBACKS = ('slack', 'brake', 'escape', 'backup', 'evade')
@@ -136,13 +137,21 @@ class Reporter:
             return
         info = self.last_info
         active = info.active if info is not None else ()
-        apex = cones = None
-        if info is not None and self._model.position_dim == 2:
-            apex = self._model.reference(np.asarray(self._decision.state)).position
+        apex = cones = body = None
+        decision = self._decision
+        state = decision.state
+        if state is not None:
+            state = np.asarray(state)
+            config = decision.filter.safety_filter.config
+            body = rviz_markers.body_outline(self._model.body_centre(state), decision.yaw,
+                                             parse_footprint(config.footprint),
+                                             config.body_radius)
+        if info is not None and state is not None and self._model.position_dim == 2:
+            apex = self._model.reference(state).position
             cones = info.cones
         self._markers_pub.publish(rviz_markers.filter_markers(
             frame, self._node.get_clock().now().to_msg(),
-            self._decision.snapshot.obstacles.footprints, active, apex, cones))
+            decision.snapshot.obstacles.footprints, active, apex, cones, body))
 
     # -- /diagnostics ------------------------------------------------------------------------
 

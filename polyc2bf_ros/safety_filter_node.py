@@ -1,8 +1,9 @@
 """``safety_filter``: PolyC2BF safety filter between a planner and a robot.
 
 Topics, QoS, parameters and diagnostics: doc/safety_filter.md.  In short: ``odom``,
-``obstacles`` (markers; not with ``use_markers:=false``), ``scan_topics`` and the nominal
-``cmd_vel_in`` (Twist, TwistStamped with ``stamped:=true``) or ``wrench_in`` (quadrotor) in;
+``obstacles`` (markers; not with ``use_markers:=false``), ``scan_topics``,
+``footprint_topic`` and the nominal ``cmd_vel_in`` (Twist, TwistStamped with
+``stamped:=true``) or ``wrench_in`` (quadrotor) in;
 the safe command on ``cmd_vel_out`` / ``wrench_out`` (the input's type and header),
 ``/diagnostics``, ``~/markers``, ``~/state`` and ``~/deadlock`` out; ``~/enable`` switches
 filtering off (pass-through, WARN) and on.
@@ -26,11 +27,11 @@ an ERROR status (``stall_guard``).
 ``SafetyFilterMixin`` is the composition root: ``_configure`` creates and wires the parts,
 ``_step`` runs a step.  The parts: ``node_parameters``, ``ports`` (one input port per
 source: ``odometry_port``, ``command_port``, ``marker_port``, ``scan_port``,
-``transform_port``; ``obstacle_feed``), ``lockstep_gate`` (``match_stamps``) and
-``reporter``.  ``SafetyFilterNode`` (this executable) sets it up and starts it at once, the
-managed ``safety_filter_lifecycle`` from its lifecycle transitions.  Hot path: inputs are
-taken serialized and only the fields used are read (``conversions``); the answer is a copy
-of the command's bytes with its six numbers replaced.
+``transform_port``, ``footprint_port``; ``obstacle_feed``), ``lockstep_gate``
+(``match_stamps``) and ``reporter``.  ``SafetyFilterNode`` (this executable) sets it up and
+starts it at once, the managed ``safety_filter_lifecycle`` from its lifecycle transitions.
+Hot path: inputs are taken serialized and only the fields used are read (``conversions``);
+the answer is a copy of the command's bytes with its six numbers replaced.
 """
 import sys
 import time
@@ -51,6 +52,7 @@ from polyc2bf_ros.node_main import run_node
 from polyc2bf_ros.node_parameters import NodeParameters
 from polyc2bf_ros.obstacle_intake import ObstacleIntake
 from polyc2bf_ros.ports.command_port import COMMAND_QOS, command_topics, CommandPort
+from polyc2bf_ros.ports.footprint_port import FootprintPort
 from polyc2bf_ros.ports.invalid_messages import InvalidMessages
 from polyc2bf_ros.ports.marker_port import MarkerPort
 from polyc2bf_ros.ports.obstacle_feed import ObstacleFeed
@@ -143,6 +145,9 @@ class SafetyFilterMixin(NodeEntitiesMixin):
             subscribe_static_transforms(self, self._intake)
         self._odometry = OdometryPort(self, self._decision, self._intake, self._invalid,
                                       self._gate, self._model_name, keep_history=bool(watchdogs))
+        footprint_topic = self.get_parameter('footprint_topic').value
+        if footprint_topic:
+            FootprintPort(self, footprint_topic, self._odometry, self._log)
         scans = (ScanPort(self, self._decision, self._intake, self._log, self._odometry,
                           watchdogs) if watchdogs else None)
         self._commands = CommandPort(

@@ -510,6 +510,13 @@ def test_filter_markers_and_diagnostics():
     grounded = rviz_markers.filter_markers('odom', odometry().header.stamp,
                                            obstacles.footprints, active=[1])
     assert [m.color.r < 0.5 for m in grounded.markers[1:]] == [True]
+    # The body: a footprint turned to the heading and moved to the base, closed.
+    body = rviz_markers.body_outline(np.array([1.0, 2.0]), 0.5 * np.pi,
+                                     np.array([[0.5, 0.2], [-0.5, 0.2], [-0.5, -0.2]]), 0.3)
+    assert np.allclose(body, [[0.8, 2.5], [0.8, 1.5], [1.2, 1.5]])
+    robot = rviz_markers.filter_markers('odom', odometry().header.stamp, obstacles.footprints,
+                                        active=(), body=body).markers[-1]
+    assert robot.ns == 'robot' and [(p.x, p.y) for p in robot.points][::3] == [(0.8, 2.5)] * 2
     array = diagnostics.diagnostic_array(odometry().header.stamp, 'f', 'unicycle', b'\x01',
                                          'msg', {'a': 1, 'b': 'x'})
     [status] = array.status

@@ -73,7 +73,9 @@ def test_diagnostics_fields_follow_the_inputs_and_markers_show_the_cones():
                             1.0 / RATE), 'no markers for a subscriber'
         _, latest = drawn[-1]
         namespaces = {m.ns for m in latest.markers if m.action == Marker.ADD}
-        assert namespaces == {'obstacles', 'cones'}
+        assert namespaces == {'obstacles', 'cones', 'robot'}
+        body = next(m for m in latest.markers if m.ns == 'robot')  # the 0.3 m disc at the origin
+        assert all(math.hypot(p.x, p.y) == pytest.approx(0.3) for p in body.points)
         assert all(m.header.frame_id == 'odom' for m in latest.markers[1:])
 
         inputs['obstacles'].append(wall([(0.0, 3.0), (1.0, 3.0)], marker_id=9, frame='map'))
