@@ -182,7 +182,8 @@ FILTER_PARAMETERS = {
                         'would, hold the input that keeps clearest instead (0: never evade)'),
     'evasion_commit': (None, 'evasion: also take an input whose look ahead keeps clear of '
                        'every obstacle all along, checked against standing obstacles only '
-                       '(faster past crossing obstacles; trusts their estimated velocities)'),
+                       '(faster past crossing obstacles; trusts their estimated velocities, '
+                       'so never while an untrusted scan track is near)'),
     'ground_z': (None, '3-D models: height of the ground [m], an obstacle like any other '
                  '(core/obstacles/ground.py); -.inf: no ground'),
 }

@@ -285,8 +285,9 @@ class _Prepared:
     (N, d) how far they moved from where ``views`` has them (zero unless the set is a
     translation, see ``polyc2bf_ros.core.geometry.views``); ``rows_a`` (N, m), ``rows_b`` and
     ``index`` (N,) are scratch space for the QP rows (the first rows of a step are valid);
-    ``velocity_errors`` (2, N): how far each part's velocity may be off, for the braking
-    check, then for an evasion's look ahead (``_velocity_errors``).
+    ``velocity_errors`` (3, N): how far each part's velocity may be off, for the braking
+    check, then for an evasion's look ahead, then the part's own bound alone
+    (``_velocity_errors``).
     """
 
     count: int
@@ -589,22 +590,47 @@ class SafetyFilter:
     def _moving_near(self, state, prepared, age):
         """Return True when a moving part may come within an evasion's look ahead.
 
-        ``clear_around`` over the moving parts, with reach the distance any held input moves
-        the reference point over the horizon H, |r_dot| H + a H^2 / 2 (a the largest input
-        bound, the model's input matrix at most 1 per unit), plus the look ahead's cutoff.
+        ``clear_around`` over the moving parts, with ``_evasion_reach``.
         """
         if not prepared.moving:
             return False
-        velocities = prepared.velocities
+        position, reach, horizon = self._evasion_reach(state)
+        return not clear_around.unchecked(
+            prepared.footprints.boxes, prepared.velocities, prepared.offsets,
+            prepared.velocity_errors[1], 0.0, abs(age) + horizon, position[0], position[1],
+            reach, True)
+
+    def _untrusted_near(self, state, prepared, age):
+        """Return True when a part with its own velocity bound may come as near.
+
+        ``_moving_near`` over the parts whose velocity is not known
+        (``ObstacleSet.velocity_errors``: a scan track that is not trusted), each grown by
+        its bound over the horizon: a committed evasion wagers on stated velocities, which
+        such a part does not have.
+        """
+        own = prepared.velocity_errors[2]
+        if not own.any():
+            return False
+        unknown = own > 0.0
+        position, reach, horizon = self._evasion_reach(state)
+        return not clear_around(
+            prepared.footprints.boxes[unknown], prepared.velocities[unknown],
+            prepared.offsets[unknown], own[unknown], 0.0, abs(age) + horizon, position[0],
+            position[1], reach, False)
+
+    def _evasion_reach(self, state):
+        """Return (reference position, reach, horizon H) of an evasion's look ahead.
+
+        The reach is how far any held input moves the reference point over H,
+        |r_dot| H + a H^2 / 2 (a the largest input bound, the model's input matrix at most
+        1 per unit), plus the look ahead's cutoff.
+        """
         horizon = self._evasion_rows * self._evasion_step
         ref = self.model.reference(state)
         reach = (float(np.linalg.norm(ref.velocity)) * horizon
                  + 0.5 * float(np.max(self._upper)) * horizon ** 2
                  + self._clearance + EVASION_REACH)
-        footprints = prepared.footprints
-        return not clear_around.unchecked(
-            footprints.boxes, velocities, prepared.offsets, prepared.velocity_errors[1], 0.0,
-            abs(age) + horizon, float(ref.position[0]), float(ref.position[1]), reach, True)
+        return (float(ref.position[0]), float(ref.position[1])), reach, horizon
 
     def _evade(self, state, u, prepared, age, now):
         """Return (input, message) of an evasion when ``u`` runs into a moving part, or None.
@@ -617,7 +643,8 @@ class SafetyFilter:
         ``EVASION_GAIN`` more than ``u``'s, is returned if the braking check keeps it, or,
         with ``evasion_commit``, if that look ahead keeps the check's clearance of every part
         all along and the check's static test keeps it (committed: the way out may lie
-        across a moving part's braking path, never across a standing one's).
+        across a moving part's braking path, never across a standing one's), and no part
+        whose velocity is not known comes near (``_untrusted_near``).
         """
         static, moving = self._look_ahead(
             self._then_brake(np.zeros((0, 4)),
@@ -626,6 +653,8 @@ class SafetyFilter:
         if moving >= self._clearance:
             return None
         held = min(static, moving)
+        # A committed input wagers on stated velocities: not with an unknown one near.
+        may_commit = self._evasion_commit and not self._untrusted_near(state, prepared, age)
         scores = [max(min(self._look_ahead(path, prepared, age))
                       for path in self._evasion_paths(state, candidate))
                   for candidate in self._evasion_inputs]
@@ -634,7 +663,7 @@ class SafetyFilter:
             if score <= held + EVASION_GAIN:
                 break
             # Committed (clear all along): the check's static test alone.
-            committed = self._evasion_commit and score >= self._clearance
+            committed = may_commit and score >= self._clearance
             if not self._must_brake(state, candidate, prepared, age, now, moving=not committed):
                 return candidate.copy(), (
                     f'evading a moving obstacle: {np.round(candidate, 2).tolist()} keeps '
@@ -825,17 +854,17 @@ class SafetyFilter:
             else None, velocity_errors=self._velocity_errors(obstacles.velocities, obstacles))
 
     def _velocity_errors(self, velocities, obstacles):
-        """Return (2, N): how far each part's velocity may be off.
+        """Return (3, N): how far each part's velocity may be off.
 
         Row 1, an evasion's look ahead (``_look_ahead``, ``_moving_near``):
-        ``obstacle_velocity_error`` for a part that moves, else 0.  Row 0, the braking
-        check: at least the part's own ``ObstacleSet.velocity_errors`` (planar models,
-        whose sets have no ground part), so that a part whose velocity is not known counts
-        as moving there.
+        ``obstacle_velocity_error`` for a part that moves, else 0.  Row 2: the part's own
+        ``ObstacleSet.velocity_errors`` (planar models, whose sets have no ground part),
+        else 0.  Row 0, the braking check: the larger of rows 1 and 2, so that a part
+        whose velocity is not known counts as moving there.
         """
-        errors = np.empty((2, len(velocities)))
+        errors = np.zeros((3, len(velocities)))
         errors[1] = np.where(velocities[:, :2].any(axis=1), self._velocity_error, 0.0)
-        errors[0] = errors[1]
         if obstacles.velocity_errors is not None and self.geometry.ground is None:
-            np.maximum(errors[0], obstacles.velocity_errors, out=errors[0])
+            errors[2] = obstacles.velocity_errors
+        np.maximum(errors[1], errors[2], out=errors[0])
         return errors

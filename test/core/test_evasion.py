@@ -20,11 +20,12 @@ def _filter(horizon, model=None, commit=False):
                                      evasion_horizon=horizon, evasion_commit=commit))
 
 
-def _square(centre, velocity):
+def _square(centre, velocity, error=0.0):
     cx, cy = centre
     polygon = np.array([[cx - SIDE, cy - SIDE], [cx + SIDE, cy - SIDE],
                         [cx + SIDE, cy + SIDE], [cx - SIDE, cy + SIDE]])
-    return Obstacle(polygon=polygon, velocity=np.array([*velocity, 0.0]))
+    return Obstacle(polygon=polygon, velocity=np.array([*velocity, 0.0]),
+                    velocity_error=error)
 
 
 def _gap(position, centre):
@@ -33,12 +34,14 @@ def _gap(position, centre):
     return float(np.linalg.norm(np.maximum(offset, 0.0)) + min(offset.max(), 0.0)) - RADIUS
 
 
-def _crossing(horizon, speed, seconds=4.0, start=((0.0, 2.0), 0.0, 'stay'), commit=False):
+def _crossing(horizon, speed, seconds=4.0, start=((0.0, 2.0), 0.0, 'stay'), commit=False,
+              error=0.0):
     """Run a unicycle past a square crossing from the side at ``speed``.
 
     ``start``: the square's centre, the robot's speed along +x from the origin, and its
-    nominal: 'stay' (the brake) or 'keep' (no acceleration).  Return (smallest gap,
-    statuses, the robot's speed toward the square at the closest approach).
+    nominal: 'stay' (the brake) or 'keep' (no acceleration); ``error``: the square's own
+    velocity bound (an untrusted scan track).  Return (smallest gap, statuses, the robot's
+    speed toward the square at the closest approach).
     """
     model = make_model('unicycle', offset_l=0.01, max_accel=2.0)
     filt = _filter(horizon, model, commit)
@@ -49,7 +52,7 @@ def _crossing(horizon, speed, seconds=4.0, start=((0.0, 2.0), 0.0, 'stay'), comm
     for _ in range(round(seconds / PERIOD)):
         u_nom = (model.clip_input(model.braking_input(state)) if nominal == 'stay'
                  else np.zeros(2))
-        u, info = filt.step(state, ObstacleSet.from_obstacles([_square(centre, velocity)]),
+        u, info = filt.step(state, ObstacleSet.from_obstacles([_square(centre, velocity, error)]),
                             u_nom)
         statuses.append(info.status)
         middle = state + 0.5 * PERIOD * model.state_derivative(state, u)
@@ -94,6 +97,19 @@ def test_a_committed_evasion_drives_on_past_a_square_that_would_catch_it_braking
     gap, statuses, _ = _crossing(1.0, 1.5, 2.5, start, commit=True)
     assert gap > 0.0, gap
     assert FilterStatus.EVADE in statuses
+
+
+def test_no_evasion_is_committed_past_an_obstacle_whose_velocity_is_not_known():
+    """The same square as an untrusted scan track (its own 2 m/s bound): no wager on it.
+
+    A committed input trusts the square's stated velocity; with its own bound the filter
+    does exactly what it does without commitment.
+    """
+    start = ((0.5, 2.0), 1.0, 'keep')
+    committed = _crossing(1.0, 1.5, 2.5, start, commit=True, error=2.0)
+    plain = _crossing(1.0, 1.5, 2.5, start, commit=False, error=2.0)
+    assert committed[0] == plain[0] and committed[1] == plain[1]
+    assert committed[0] != _crossing(1.0, 1.5, 2.5, start, commit=True)[0]
 
 
 @settings(max_examples=examples(60), deadline=None)
