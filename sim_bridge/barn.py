@@ -20,13 +20,14 @@ the world and the field, e.g. ``barn.json: world 17 (worlds[3]): centers[5]:
 expected 2 numbers [x, y], got 3``.
 
 A world is run as the Scenario ``BarnWorld.scenario()`` builds (checked like a
-scenario file, so a start or goal inside a cylinder is refused): one
-``diff_drive`` robot ``base`` (a disc of ``robots.DIFF_DRIVE_RADIUS``) at the start, its
-``path`` the reference path, every cylinder an obstacle ``CYLINDER_HEIGHT``
-tall (a true cylinder in PyBullet, its circumscribed 12-gon for the filter, as
-for a CYLINDER marker), ``TIME_LIMIT`` s long, the project's default rates.  It
-is built once per world.  Every cylinder stays in the filter's obstacle set: a
-collision cone is blind to distance (h scales with |p_rel|, the condition
+scenario file, so a start or goal inside a cylinder is refused): one robot ``base``
+at the start, by default a ``diff_drive`` (a disc of ``robots.DIFF_DRIVE_RADIUS``) with the
+nominals' default 1 m/s, or a ``jackal`` (its box, ``robots.JACKAL_SIZE``) and any cruise
+speed (BARN's Jackal drives at up to 2 m/s), its ``path`` the reference path, every
+cylinder an obstacle ``CYLINDER_HEIGHT`` tall (a true cylinder in PyBullet, its
+circumscribed 12-gon for the filter, as for a CYLINDER marker), ``TIME_LIMIT`` s long,
+the project's default rates.  It is built once per world.  Every cylinder stays in the
+filter's obstacle set: a collision cone is blind to distance (h scales with |p_rel|, the condition
 h_dot + gamma h >= m does not get easier far away), so no distance cut-off is
 exact, and merging touching cylinders into convex parts changes the cones the
 filter sees (a merged wall's cone spans the wall's ends).  The simulator makes
@@ -51,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim_bridge.robots import DIFF_DRIVE_RADIUS
+from sim_bridge.robots import ROBOT_TYPES
 from sim_bridge.scenario import FieldReader, SCENARIO_DIR, scenario_from_dict
 from sim_bridge.scenario_specs import ScenarioError
 
@@ -96,11 +97,16 @@ class BarnWorld:
         """Return BARN's optimal time OT = reference path length / 2 m/s [s]."""
         return self.reference_path_length_m / OPTIMAL_SPEED
 
-    def scenario(self, radius=DIFF_DRIVE_RADIUS):
-        """Return the world as a checked Scenario with a diff-drive disc of ``radius``."""
-        robot = {'name': ROBOT_NAME, 'type': 'diff_drive', 'start': self.start.tolist(),
-                 'goal': self.goal.tolist(), 'radius': float(radius),
+    def scenario(self, robot_type='diff_drive', speed=None):
+        """Return the world as a checked Scenario with one ground robot of ``robot_type``.
+
+        ``speed`` [m/s]: the nominals' cruise speed (None: their default).
+        """
+        robot = {'name': ROBOT_NAME, 'type': robot_type, 'start': self.start.tolist(),
+                 'goal': self.goal.tolist(), 'radius': float(ROBOT_TYPES[robot_type].radius),
                  'path': self.reference_path.tolist()}
+        if speed is not None:
+            robot['speed'] = float(speed)
         obstacles = [{'cylinder': centre, 'radius': self.cylinder_radius,
                       'z': [0.0, CYLINDER_HEIGHT], 'name': f'cylinder_{i}'}
                      for i, centre in enumerate(self.centers.tolist())]

@@ -155,12 +155,13 @@ class _Robot:
         robot = ROBOT_TYPES[spec.type]
         self.kind, self.yaw_index = robot.command_kind, robot.yaw_index
         self.spec = spec
-        self.controller, self.target = robot.goal_controller(), spec.goal
+        self.controller, self.target = robot.goal_controller(**spec.nominal_gains), spec.goal
         if nominal == 'path':
             if not robot.unicycle or spec.path is None:
                 raise ValueError(f'robot {spec.name!r}: the path nominal needs a unicycle '
                                  f'robot with a path, not a {spec.type} with path {spec.path}')
-            self.controller, self.target = UnicyclePathController(), ReferencePath(spec.path)
+            self.controller = UnicyclePathController(**spec.nominal_gains)
+            self.target = ReferencePath(spec.path)
         parameters = {**load_parameters([params_file(spec.type)], (), spec.name),
                       'rate': 1.0 / period, **body_parameters(spec), **(overrides or {})}
         self.filter = self.decision = self.intake = self.geometry = None

@@ -235,7 +235,8 @@ def closed_loop_plan(scenario, barrier='default', bridge_parameters=None,
         robot_type = robots.ROBOT_TYPES[robot.type]
         safe, nominal = robot_type.safe_topic, robot_type.nominal_topic
         goal = [float(g) for g in robot.goal]
-        controller = {'robot_type': robot.type, 'goal': goal}
+        controller = {'robot_type': robot.type, 'goal': goal,
+                      **{f'gains.{name}': value for name, value in robot.nominal_gains.items()}}
         if barrier == 'none':
             plan.append(ProcessSpec(f'{robot.name}_nominal', 'nominal_controller',
                                     'sim_bridge.nominal_controller_node', robot.name,

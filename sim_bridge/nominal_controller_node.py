@@ -53,8 +53,8 @@ class NominalControllerNode(Node):
         super().__init__('nominal_controller', **kwargs)
         self._log = LoopLogger(self.get_logger())  # for the loop (loop_log)
         robot_type = self.declare_parameter('robot_type', 'quadruped', ParameterDescriptor(
-            description='a sim_bridge.robots type: quadruped or diff_drive (TwistStamped on '
-            'cmd_vel_in) or crazyflie (WrenchStamped on wrench_in)', read_only=True)).value
+            description='a sim_bridge.robots type: quadruped, diff_drive or jackal (TwistStamped '
+            'on cmd_vel_in) or crazyflie (WrenchStamped on wrench_in)', read_only=True)).value
         if robot_type not in ROBOT_TYPES:
             raise ValueError(f"parameter 'robot_type' must be one of {', '.join(ROBOT_TYPES)}, "
                              f'got {robot_type!r}')

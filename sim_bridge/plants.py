@@ -1,9 +1,10 @@
 """The simulated robots of a ``SimWorld``: one plant class per robot type (``PLANTS``).
 
-Quadruped (Unitree A1, ``pybullet_data/a1/a1.urdf``, a dynamic body) and
-diff-drive base (an upright PyBullet cylinder of the scenario's ``radius`` and
-``DIFF_DRIVE_HEIGHT``, a dynamic body) are the paper's acceleration-controlled
-unicycle: both are the one plant below, driven by ``cmd_vel`` [v, omega].  Its
+Quadruped (Unitree A1, ``pybullet_data/a1/a1.urdf``, a dynamic body), diff-drive
+base (an upright PyBullet cylinder of the scenario's ``radius`` and
+``DIFF_DRIVE_HEIGHT``, a dynamic body) and Clearpath Jackal (a box of
+``JACKAL_SIZE``) are the paper's acceleration-controlled unicycle: all are the one
+plant below, driven by ``cmd_vel`` [v, omega], each with its own limits.  Its
 plant state [x, y, theta, v, omega] is integrated here, per physics step dt::
 
     velocity command: a = clip((v_cmd - v) / dt, +-a_max)   (reach v_cmd at a_max)
@@ -44,6 +45,7 @@ import numpy as np
 import pybullet as pb
 
 from polyc2bf_ros.core.models import crazyflie as cf
+from sim_bridge.robots import JACKAL_SIZE
 
 # Unicycle plant limits (at least the filter's unicycle bounds, so its inputs are realisable).
 QUADRUPED_MAX_SPEED = 2.0             # m/s
@@ -56,6 +58,13 @@ A1_STANDING_POSE = (0.0, 0.9, -1.8)   # hip, thigh, calf [rad], the same for all
 ASLEEP = pb.ACTIVATION_STATE_SLEEP | pb.ACTIVATION_STATE_DISABLE_WAKEUP
 DIFF_DRIVE_HEIGHT = 0.25              # m, the disc's height (a Clearpath Jackal is 0.25 m)
 DIFF_DRIVE_MASS = 15.0                # kg (never integrated: only "dynamic" for contacts)
+# Clearpath Jackal (its box: robots.JACKAL_SIZE): the limits of its diff_drive_controller
+# (jackal/jackal, jackal_control/config/control.yaml): 2.0 m/s, 4.0 rad/s, 20.0 m/s^2,
+# 25.0 rad/s^2.
+JACKAL_MAX_SPEED = 2.0                # m/s
+JACKAL_MAX_TURN_RATE = 4.0            # rad/s
+JACKAL_MAX_ACCEL = 20.0               # m/s^2
+JACKAL_MAX_ANGULAR_ACCEL = 25.0       # rad/s^2
 CRAZYFLIE_URDF = Path(__file__).resolve().parent / 'assets' / 'crazyflie21.urdf'
 CRAZYFLIE_HALF_HEIGHT = 0.015         # m, half the collision cylinder's length
 FOOTPRINT_SEGMENTS = 16               # vertices of a robot's footprint circle
@@ -132,9 +141,12 @@ class UnicyclePlant(Plant):
     """The acceleration-limited unicycle plant of a kinematic body (the module docstring).
 
     The body is kept asleep and out of contact solving; its base sits at ``height``.
+    ``LIMITS``: (v_max, omega_max, a_max, alpha_max).
     """
 
     COMMAND_KINDS = ('velocity', 'acceleration')
+    LIMITS = (QUADRUPED_MAX_SPEED, QUADRUPED_MAX_TURN_RATE, QUADRUPED_MAX_ACCEL,
+              QUADRUPED_MAX_ANGULAR_ACCEL)
 
     def __init__(self, spec, body, client, height):
         """Put ``body`` to sleep for good, drop it from contacts, start from the spec's pose."""
@@ -160,14 +172,14 @@ class UnicyclePlant(Plant):
         """Integrate the unicycle over dt; the Bullet base follows on ``sync()``."""
         x, y, theta, v, omega = self.state.tolist()
         a, alpha = self.command
+        max_speed, max_turn_rate, max_accel, max_angular_accel = self.LIMITS
         if self.velocity_mode:
             lag = max(self.actuator_tau, dt)
             a, alpha = (a - v) / lag, (alpha - omega) / lag
-        a = min(max(a, -QUADRUPED_MAX_ACCEL), QUADRUPED_MAX_ACCEL)
-        alpha = min(max(alpha, -QUADRUPED_MAX_ANGULAR_ACCEL), QUADRUPED_MAX_ANGULAR_ACCEL)
-        v_new = min(max(v + a * dt, -QUADRUPED_MAX_SPEED), QUADRUPED_MAX_SPEED)
-        omega_new = min(max(omega + alpha * dt, -QUADRUPED_MAX_TURN_RATE),
-                        QUADRUPED_MAX_TURN_RATE)
+        a = min(max(a, -max_accel), max_accel)
+        alpha = min(max(alpha, -max_angular_accel), max_angular_accel)
+        v_new = min(max(v + a * dt, -max_speed), max_speed)
+        omega_new = min(max(omega + alpha * dt, -max_turn_rate), max_turn_rate)
         speed, turn = 0.5 * (v + v_new), 0.5 * (omega + omega_new)
         heading = theta + 0.5 * turn * dt
         x += speed * math.cos(heading) * dt
@@ -234,6 +246,28 @@ class DiffDrivePlant(UnicyclePlant):
         body = pb.createMultiBody(DIFF_DRIVE_MASS, shape, physicsClientId=client)
         pb.changeDynamics(body, -1, collisionMargin=0.0, physicsClientId=client)
         super().__init__(spec, body, client, 0.5 * DIFF_DRIVE_HEIGHT)
+
+
+class JackalPlant(UnicyclePlant):
+    """Clearpath Jackal: the unicycle plant carrying a box of ``JACKAL_SIZE``, its limits.
+
+    The box is the body every contact and clearance is measured against (closest points),
+    centred on the base; other robots' lidars see it as the cylinder of the scenario's
+    ``radius`` (``ray_scene``).
+    """
+
+    LIMITS = (JACKAL_MAX_SPEED, JACKAL_MAX_TURN_RATE, JACKAL_MAX_ACCEL,
+              JACKAL_MAX_ANGULAR_ACCEL)
+
+    def __init__(self, spec, client, ground):
+        """Create the box (collision margin 0) standing on the ground at the start pose."""
+        length, width, height = JACKAL_SIZE
+        shape = pb.createCollisionShape(pb.GEOM_BOX,
+                                        halfExtents=(0.5 * length, 0.5 * width, 0.5 * height),
+                                        physicsClientId=client)
+        body = pb.createMultiBody(DIFF_DRIVE_MASS, shape, physicsClientId=client)
+        pb.changeDynamics(body, -1, collisionMargin=0.0, physicsClientId=client)
+        super().__init__(spec, body, client, 0.5 * height)
 
 
 class CrazyfliePlant(Plant):
@@ -321,4 +355,5 @@ class CrazyfliePlant(Plant):
 
 # Robot type (``sim_bridge.robots.ROBOT_TYPES``): its plant, built as ``plant(spec, client,
 # ground)`` with the ground plane's body id.
-PLANTS = {'quadruped': QuadrupedPlant, 'diff_drive': DiffDrivePlant, 'crazyflie': CrazyfliePlant}
+PLANTS = {'quadruped': QuadrupedPlant, 'diff_drive': DiffDrivePlant, 'jackal': JackalPlant,
+          'crazyflie': CrazyfliePlant}

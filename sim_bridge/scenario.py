@@ -10,7 +10,8 @@ YAML schema (units: m, s, rad, Hz)::
     robots:                    # names are the robots' ROS namespaces
       - {name: a1, type: quadruped, start: [x, y, yaw], goal: [x, y], radius: 0.4}
       - {name: base, type: diff_drive, start: [x, y, yaw], goal: [x, y],
-         path: [[x, y], ...]}  # optional: what the ``path`` nominal follows
+         path: [[x, y], ...],  # optional: what the ``path`` nominal follows
+         speed: 1.0}           # optional: the nominal's cruise speed [m/s]
       - {name: cf, type: crazyflie, start: [x, y, z, yaw], goal: [x, y, z]}
     obstacles:                 # optional
       - polygon: [[x, y], ...] # convex or simple non-convex, either orientation
@@ -161,7 +162,7 @@ class FieldReader:
 
 def _robot(reader, data, path):
     """Parse one entry of ``robots``."""
-    reader.mapping(data, path, ('name', 'type', 'start', 'goal'), ('radius', 'path'))
+    reader.mapping(data, path, ('name', 'type', 'start', 'goal'), ('radius', 'path', 'speed'))
     name = reader.name(data['name'], f'{path}.name')
     kind = data['type']
     try:
@@ -182,8 +183,13 @@ def _robot(reader, data, path):
             reader.fail(f'{path}.path', f'expected a list of >= 2 points [x, y], got {points!r}')
         waypoints = frozen([reader.numbers(p, f'{path}.path[{i}]', 2, '[x, y]')
                              for i, p in enumerate(points)])
+    speed = None
+    if 'speed' in data:
+        if not robot.unicycle:
+            reader.fail(f'{path}.speed', f'a {kind} has no cruise speed (ground robots only)')
+        speed = reader.number(data['speed'], f'{path}.speed', positive=True)
     return RobotSpec(name=name, type=kind, start=frozen(start), goal=frozen(goal),
-                     radius=radius, path=waypoints)
+                     radius=radius, path=waypoints, speed=speed)
 
 
 def _obstacle(reader, data, path, index):

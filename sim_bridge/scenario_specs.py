@@ -98,7 +98,9 @@ def cylinder_polygon(centre, radius, sides=CYLINDER_SIDES):
 class RobotSpec:
     """One robot: namespace ``name``, ``type``, start pose, goal position, footprint radius.
 
-    ``path`` (P, 2), optional: the waypoints the ``path`` nominal controller follows.
+    ``path`` (P, 2), optional: the waypoints the ``path`` nominal controller follows;
+    ``speed`` [m/s], optional (ground robots): the nominal controllers' cruise speed
+    (``max_speed``; None: their default, 1 m/s).
     """
 
     name: str
@@ -107,6 +109,12 @@ class RobotSpec:
     goal: np.ndarray
     radius: float
     path: np.ndarray = None
+    speed: float = None
+
+    @property
+    def nominal_gains(self):
+        """Return the nominal controller's settings this robot overrides."""
+        return {} if self.speed is None else {'max_speed': self.speed}
 
     @property
     def position(self):

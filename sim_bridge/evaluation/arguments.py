@@ -16,6 +16,7 @@ from polyc2bf_ros.filter_parameters import default_values, ParameterError
 from sim_bridge.actuation import Actuation
 from sim_bridge.launcher import default_barrier
 from sim_bridge.lidar import lidar_settings
+from sim_bridge.robots import ROBOT_TYPES
 
 
 def override_parameters(args):
@@ -40,14 +41,17 @@ def actuation_from_args(parser, args):
     except ValueError as exc:
         parser.error('--' + str(exc).replace('_', '-', 1))  # names the option
 
-def lidar_from_args(parser, args):
-    """Return the LidarSettings of ``--lidar`` in scan mode (None with markers); exit 2 if bad."""
+def lidar_from_args(parser, args, robot='diff_drive'):
+    """Return the LidarSettings of ``--lidar`` in scan mode (None with markers); exit 2 if bad.
+
+    ``--lidar`` fields override ``robot``'s own lidar (``RobotType.lidar``).
+    """
     if args.obstacle_source != 'scan':
         if args.lidar:
             parser.error('--lidar needs --obstacle-source scan')
         return None
     try:
-        return lidar_settings(args.lidar)
+        return lidar_settings(args.lidar, **ROBOT_TYPES[robot].lidar)
     except ValueError as exc:
         parser.error(str(exc))
 
@@ -64,11 +68,12 @@ def unknown_parameters(parameters):
     return sorted(name for name in parameters if name not in known)
 
 
-def run_settings(parser, args):
+def run_settings(parser, args, robot='diff_drive'):
     """Return the settings every suite's runs take from the shared options (exit 2 if bad).
 
-    Keys: ``parameters`` (``-p``), ``obstacle_source``, ``lidar``, ``actuation``.  A ``-p``
-    name that no node declares (a typo would otherwise change nothing) exits 2 naming it.
+    Keys: ``parameters`` (``-p``), ``obstacle_source``, ``lidar`` (over ``robot``'s own),
+    ``actuation``.  A ``-p`` name that no node declares (a typo would otherwise change
+    nothing) exits 2 naming it.
     """
     try:
         parameters = override_parameters(args)
@@ -79,7 +84,7 @@ def run_settings(parser, args):
         parser.error(f'--param {unknown[0]}: the safety_filter node has no such parameter '
                      '(doc/safety_filter.md lists them)')
     return {'parameters': parameters, 'obstacle_source': args.obstacle_source,
-            'lidar': lidar_from_args(parser, args),
+            'lidar': lidar_from_args(parser, args, robot),
             'actuation': actuation_from_args(parser, args)}
 
 
@@ -97,13 +102,13 @@ def run_or_exit(parser, run, *arguments, **settings):
         parser.error(str(exc))
 
 
-def world_suite_plan(parser, args, nominal):
-    """Return (combos, jobs, settings) of a suite of worlds for the diff-drive disc.
+def world_suite_plan(parser, args, nominal, robot='diff_drive'):
+    """Return (combos, jobs, settings) of a suite of worlds for one ground robot type.
 
-    ``combos``: every (filter, nominal) of ``--filters`` (default ``default``) x
-    ``--nominal`` (default ``nominal``); ``jobs``: ``--jobs`` or the CPU count; ``settings``:
-    ``run_settings``.
+    ``combos``: every (filter, nominal) of ``--filters`` (default ``default``: ``robot``'s)
+    x ``--nominal`` (default ``nominal``); ``jobs``: ``--jobs`` or the CPU count;
+    ``settings``: ``run_settings``.
     """
-    filters = resolve_filters(args.filters or ['default'], 'diff_drive')
+    filters = resolve_filters(args.filters or ['default'], robot)
     combos = [(name, chosen) for chosen in args.nominal or [nominal] for name in filters]
-    return combos, args.jobs or os.cpu_count() or 1, run_settings(parser, args)
+    return combos, args.jobs or os.cpu_count() or 1, run_settings(parser, args, robot)

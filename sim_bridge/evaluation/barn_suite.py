@@ -1,14 +1,15 @@
 """``evaluate --suite barn``: every BARN world x filter x nominal, in lockstep, in parallel.
 
 Each run is ``closed_loop.run_in_process`` on the world's Scenario
-(``sim_bridge.barn``: a 0.2 m diff-drive disc, PyBullet closest points for
-collisions), with the ``goal`` or ``path`` nominal and ``BarnReferee`` ending
-it.  A world's Scenario is built once and runs all its filter x nominal
-combinations in one task; tasks go out over ``jobs`` processes (one progress
-bar, counted in runs).
+(``sim_bridge.barn``: a 0.2 m diff-drive disc, or with ``--robot jackal`` the Jackal's
+box, PyBullet closest points for collisions), with the ``goal`` or ``path`` nominal at
+its default speed or ``--speed``, and ``BarnReferee`` ending it.  A world's Scenario is
+built once and runs all its filter x nominal combinations in one task; tasks go out over
+``jobs`` processes (one progress bar, counted in runs).
 
-With ``obstacle_source`` 'scan' the robot carries the simulated lidar and its filter
-sees only the scans (``closed_loop``; ``evaluate --obstacle-source``).
+With ``obstacle_source`` 'scan' the robot carries the simulated lidar (the robot type's
+own, ``RobotType.lidar``, with ``--lidar`` changes) and its filter sees only the scans
+(``closed_loop``; ``evaluate --obstacle-source``).
 
 Per run (one record in ``results.json``; the keys of doc/design.md, result records, first):
 ``suite`` ('barn'), ``world`` (its id), ``filter``, ``nominal``, ``obstacle_source``
@@ -18,9 +19,10 @@ Per run (one record in ``results.json``; the keys of doc/design.md, result recor
 a success), ``barn_metric`` (``barn.barn_metric``), ``min_clearance_m`` (null:
 nothing came within 0.5 m), ``mean_intervention`` and ``fallback_rate`` as in
 the scenario suite (``evaluate.filter_statistics``; null for ``none``); extras:
-``optimal_time_s``, ``final_position`` [x, y], ``final_distance_m`` (to the
-goal), ``final_gap_m`` (from the disc to the nearest cylinder's surface at the
-end, exact for cylinders: |p - c| - r_cylinder - r_disc), ``path_length_m``,
+``optimal_time_s``, ``robot`` (its type), ``speed`` (the nominal's cruise speed, null:
+its default), ``final_position`` [x, y], ``final_distance_m`` (to the
+goal), ``final_gap_m`` (from the robot's radius to the nearest cylinder's surface at the
+end, exact for the disc: |p - c| - r_cylinder - r_disc), ``path_length_m``,
 latency, fallback steps, ``steps``, ``wall_time_s`` and the deadlock report's
 ``deadlock_detections`` and ``deadlocked_at_end`` (``evaluate.filter_statistics``).
 
@@ -79,7 +81,8 @@ def barn_record(world, run):
     outcome = run.ended or 'timeout'
     trace = run.robots[ROBOT_NAME]
     final = trace.positions()[-1]
-    radius = run.scenario.robot(ROBOT_NAME).radius
+    spec = run.scenario.robot(ROBOT_NAME)
+    radius = spec.radius
     gaps = np.hypot(*(world.centers - final).T) - world.cylinder_radius - radius
     metrics = run.metrics[ROBOT_NAME]
     time_s = len(trace.times) * run.period
@@ -96,6 +99,7 @@ def barn_record(world, run):
         'mean_intervention': stats['mean_intervention'],
         'fallback_rate': stats['fallback_rate'],
         'outcome': outcome, 'optimal_time_s': _round(world.optimal_time, 3),
+        'robot': spec.type, 'speed': spec.speed,
         'final_position': [_round(value, 3) for value in final],
         'final_distance_m': _round(math.dist(final, world.goal)),
         'final_gap_m': _round(gaps.min()) if len(gaps) else None,
@@ -117,14 +121,15 @@ def _trajectory(run):
 
 
 def run_world(world, combos, parameters=None, obstacle_source='markers', lidar=None,
-              actuation=None):
+              actuation=None, robot='diff_drive', speed=None):
     """Run ``world`` (BarnWorld) with every (filter, nominal) of ``combos``.
 
     Return [(record, trajectory)] in ``combos`` order; the Scenario is built once.
     ``parameters``: node parameters that override the parameter file's;
-    ``obstacle_source``, ``lidar``, ``actuation``: as for ``run_in_process``.
+    ``obstacle_source``, ``lidar``, ``actuation``: as for ``run_in_process``; ``robot``,
+    ``speed``: as for ``BarnWorld.scenario``.
     """
-    scenario = world.scenario()
+    scenario = world.scenario(robot, speed)
     results = []
     for barrier, nominal in combos:
         run = run_in_process(scenario, barrier, nominal=nominal, until=BarnReferee(),
@@ -135,16 +140,19 @@ def run_world(world, combos, parameters=None, obstacle_source='markers', lidar=N
 
 
 def run_barn(worlds, combos, jobs=None, progress=True, parameters=None,
-             obstacle_source='markers', lidar=None, actuation=None):
+             obstacle_source='markers', lidar=None, actuation=None, robot='diff_drive',
+             speed=None):
     """Run every world x combo over ``jobs`` processes (default: the CPU count).
 
-    ``parameters``, ``obstacle_source``, ``lidar``, ``actuation``: as for ``run_world``.
+    ``parameters``, ``obstacle_source``, ``lidar``, ``actuation``, ``robot``, ``speed``: as
+    for ``run_world``.
 
     Return (records, trajectories) in world, then combo order; trajectories are keyed
     by (world id, filter, nominal).  With one job everything runs in this process.
     """
     return run_worlds(worlds, combos, run_world,
-                      (parameters, obstacle_source, lidar, actuation), jobs, progress)
+                      (parameters, obstacle_source, lidar, actuation, robot, speed), jobs,
+                      progress)
 
 
 # -- tables and plots -----------------------------------------------------------------------
@@ -271,7 +279,11 @@ def main_barn(parser, args, command):
         worlds = load_worlds(args.worlds or WORLDS_FILE)[:args.limit]
     except BarnError as exc:
         parser.error(str(exc))
-    combos, jobs, settings = world_suite_plan(parser, args, 'path')
+    robot = args.robot or 'diff_drive'
+    if args.speed is not None and not 0.0 < args.speed <= 10.0:
+        parser.error(f'--speed must be in (0, 10] m/s, got {args.speed:g}')
+    combos, jobs, settings = world_suite_plan(parser, args, 'path', robot)
+    settings.update(robot=robot, speed=args.speed)
     out = Path(args.out or 'runs/barn')
     start = time.monotonic()
     records, trajectories = run_or_exit(parser, run_barn, worlds, combos, jobs, **settings)

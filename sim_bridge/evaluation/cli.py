@@ -115,13 +115,19 @@ def _parser():
                       help='processes (default: the CPU count)')
     barn.add_argument('--limit', type=int, default=None, metavar='K',
                       help='barn: only the first K worlds of the file')
+    barn.add_argument('--robot', choices=('diff_drive', 'jackal'), default=None,
+                      help="barn: the robot (default diff_drive, the 0.2 m disc; jackal: "
+                      "Clearpath's box, 2 m/s, its lidar in scan mode)")
+    barn.add_argument('--speed', type=float, default=None, metavar='M_S',
+                      help="barn: the nominal's cruise speed [m/s] (default: the "
+                      "nominal's, 1 m/s)")
     barn.add_argument('--difficulty', nargs='+', choices=list(DIFFICULTIES), default=None,
                       help='dynamic: only worlds of these difficulties (default: all)')
     return parser
 
 
 SUITE_OPTIONS = {'scenarios': ('scenarios', 'seeds', 'random_seeds', 'duration'),
-                 'barn': ('worlds', 'nominal', 'jobs', 'limit'),
+                 'barn': ('worlds', 'nominal', 'jobs', 'limit', 'robot', 'speed'),
                  'dynamic': ('worlds', 'nominal', 'jobs', 'difficulty')}
 
 

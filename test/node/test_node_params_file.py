@@ -13,6 +13,7 @@ CONFIGS = {
     'drone_velocity': ('point_mass_3d', '100'),
     'crazyflie_thrust': ('quadrotor', '500'),
     'nav2_safety_filter': ('unicycle', '100'),
+    'jackal': ('unicycle', '100'),
 }
 
 

@@ -136,7 +136,8 @@ BAD = {
         'robots[1].goal: expected 3 numbers [x, y, z] for a crazyflie, got 2'),
     'unknown type': (
         lambda d: d['robots'][0].update(type='tank'),
-        "robots[0].type: expected one of quadruped, diff_drive, crazyflie, got 'tank'"),
+        "robots[0].type: expected one of quadruped, diff_drive, jackal, crazyflie, "
+        "got 'tank'"),
     'missing goal': (lambda d: d['robots'][0].pop('goal'), 'robots[0].goal: missing'),
     'typo key': (lambda d: d['robots'][0].update(raduis=0.3), 'robots[0].raduis: unknown key'),
     'text number': (lambda d: d.update(duration='long'),
