@@ -8,7 +8,7 @@ from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge import barn
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluation.barn_suite import run_world
-from sim_bridge.launcher import params_file
+from sim_bridge.launcher import closed_loop_plan, params_file
 from sim_bridge.lidar import lidar_settings
 from sim_bridge.plants import JACKAL_MAX_ACCEL, JACKAL_MAX_SPEED
 from sim_bridge.robots import JACKAL_RADIUS, JACKAL_SIZE, ROBOT_TYPES
@@ -85,12 +85,20 @@ def test_config_guards_the_footprint_and_the_lidar_is_barns():
 
 
 def test_the_cruise_speed_reaches_the_nominal():
-    """``speed`` 2.0 in the scenario: the go-to-goal nominal drives the open field at 2 m/s."""
+    """``speed`` 2.0 in the scenario: the go-to-goal nominal drives the open field at 2 m/s.
+
+    In process, and in the launcher's plan (the nominal node's ``gains.max_speed``), whose
+    filter takes ``config/jackal.yaml`` with no disc radius of its own.
+    """
     run = run_in_process(_scenario(speed=2.0), 'none', duration=2.0)
     speeds = run.robots['base'].states[:, 3]
     assert speeds.max() == pytest.approx(2.0, abs=0.01)
     slow = run_in_process(_scenario(), 'none', duration=2.0)
     assert slow.robots['base'].states[:, 3].max() == pytest.approx(1.0, abs=0.01)
+    plan = {p.executable: p for p in closed_loop_plan(_scenario(speed=2.0))}
+    assert plan['nominal_controller'].parameters['gains.max_speed'] == 2.0
+    assert plan['safety_filter'].params_file.name == 'jackal.yaml'
+    assert 'filter.robot_radius' not in plan['safety_filter'].parameters
 
 
 @pytest.mark.slow
