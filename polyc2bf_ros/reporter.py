@@ -28,7 +28,6 @@ from std_msgs.msg import Bool
 from visualization_msgs.msg import MarkerArray
 
 from polyc2bf_ros import diagnostics, filter_state, rviz_markers
-from polyc2bf_ros.core.geometry.footprint import parse_footprint
 from polyc2bf_ros.core.stats import LatencyRing
 
 _FALLBACKS = ('slack', 'brake', 'escape', 'backup', 'evade')
@@ -142,10 +141,9 @@ class Reporter:
         state = decision.state
         if state is not None:
             state = np.asarray(state)
-            config = decision.filter.safety_filter.config
+            geometry = decision.filter.safety_filter.geometry
             body = rviz_markers.body_outline(self._model.body_centre(state), decision.yaw,
-                                             parse_footprint(config.footprint),
-                                             config.body_radius)
+                                             geometry.footprint, geometry.robot_radius)
         if info is not None and state is not None and self._model.position_dim == 2:
             apex = self._model.reference(state).position
             cones = info.cones

@@ -176,7 +176,7 @@ class _Robot:
                                             settings.block_if_invalid, settings.max_extrapolation,
                                             settings.deadlock, settings.resolution,
                                             settings.route)
-        self.robot_radius = self.reference.safety_filter.config.body_radius
+        self.robot_radius = self.reference.safety_filter.geometry.robot_radius
         state = world.robot_state(spec.name)
         dim = 2 if robot.unicycle else 4
         inputs = self.reference.model.input_dim

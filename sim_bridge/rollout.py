@@ -80,7 +80,7 @@ def rollout(model, safety_filter, controller, x0, goal, obstacles, duration,
         nominal.append(u_nom)
         statuses.append(info.status)
         moved = obstacles.translated((age + period) * obstacles.velocities[:, :2])
-        clearances.append(clearance(model, x, moved, safety_filter.config.body_radius))
+        clearances.append(clearance(model, x, moved, safety_filter.geometry.robot_radius))
     return Rollout(states=np.array(states), inputs=np.array(inputs),
                    nominal=np.array(nominal), statuses=statuses,
                    clearances=np.array(clearances))

@@ -169,7 +169,10 @@ class FilterConfig:
 
     @property
     def body_radius(self):
-        """Return the radius of the disc guarded: ``robot_radius``, or the footprint's cover."""
+        """Return the radius of the disc guarded: ``robot_radius``, or the footprint's cover.
+
+        Parsed on each call: a filter's ``geometry.robot_radius`` holds it once.
+        """
         points = parse_footprint(self.footprint)
         return self.robot_radius if points is None else covering_radius(points)
 

@@ -12,6 +12,7 @@ the model's parameters; two are equal when they prepare the same views for the s
 import math
 
 from polyc2bf_ros.core.barrier.cone_models import make_cone_model
+from polyc2bf_ros.core.geometry.footprint import parse_footprint
 from polyc2bf_ros.core.geometry.views import prepare_views
 from polyc2bf_ros.core.obstacles.ground import grounded
 
@@ -25,8 +26,10 @@ class ObstacleGeometry:
         The guard radius is the body's radius (``FilterConfig.body_radius``: a footprint's
         covering disc, else ``robot_radius``) grown by the model's offset l: the guarded
         point keeps R + l, so the body around its centre keeps R (``guard_offset``).
+        ``footprint``: the parsed polygon (``geometry.footprint``), or None.
         """
         self.dim = model.position_dim
+        self.footprint = parse_footprint(config.footprint)
         self.robot_radius = float(config.body_radius)
         self.guard_radius = float(self.robot_radius + model.guard_offset)
         self.cone_model = make_cone_model(config.barrier, self.guard_radius,
