@@ -6,7 +6,8 @@
 ``quaternion_matrix`` reads a message quaternion as a rotation matrix;
 ``path_clearance_by_rows`` and ``min_h_along_by_rows`` are the braking check's kernels row
 by row, as they were before they pruned rows in groups (same arithmetic, so the kernels
-must agree with them bit for bit).
+must agree with them bit for bit); ``configuration_polygon`` and ``footprint_barrier`` are
+``barrier.footprint_cone``'s math for one part in plain numpy.
 """
 import math
 
@@ -124,12 +125,15 @@ def quaternion_matrix(q):
 
 
 def path_clearance_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offsets,
-                           age, path, period, cutoff, accel, velocity_errors, closing_only):
+                           age, path, period, cutoff, accel, velocity_errors, closing_only,
+                           footprint, cover):
     """Return ``kernels.braking.path_clearance`` measured at every row of every part.
 
     The parts whose bounding box stays out of reach of the path's are skipped, as the
-    kernel does; every other part is measured at every row.
+    kernel does; every other part is measured at every row.  A guarded point only
+    (``footprint`` (2, 0), ``cover`` 0).
     """
+    assert footprint.shape[1] == 0 and cover == 0.0
     rows = path.shape[0]
     if rows == 0:
         return cutoff, cutoff
@@ -198,3 +202,148 @@ def min_h_along_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, inv_horizon
             best = min(best, _value(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx, qy, vx,
                                     vy, inv_horizon, bisector, eps_sq))
     return best
+
+
+def planar_rotation(theta):
+    """Return the 2-D rotation matrix R(theta)."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+_J = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+
+def _lowest_vertex(points):
+    """Return the index of the lowest (then leftmost) point."""
+    return int(np.lexsort((points[:, 0], points[:, 1]))[0])
+
+
+def configuration_polygon(obstacle, footprint, theta):
+    """Return (C, i, j): the vertices of O + (-R(theta) F), CCW, and each one's o_i, f_j.
+
+    Both edge sequences, each from its lowest vertex, are merged by angle (parallel edges
+    together): ``kernels.footprint.configuration_polygon`` in numpy.
+    """
+    q = -footprint @ planar_rotation(theta).T  # a point reflection keeps the CCW order
+    n, m = len(obstacle), len(q)
+    a, b = _lowest_vertex(obstacle), _lowest_vertex(q)
+    vertices, owners, feet = [], [], []
+    i = j = 0
+    while i < n or j < m:
+        vertices.append(obstacle[a] + q[b])
+        owners.append(a)
+        feet.append(b)
+        ea = obstacle[(a + 1) % n] - obstacle[a]
+        eb = q[(b + 1) % m] - q[b]
+        cross = ea[0] * eb[1] - ea[1] * eb[0]
+        take_a = j == m or (i < n and cross >= 0.0)
+        take_b = i == n or (j < m and cross <= 0.0)
+        if take_a:
+            i, a = i + 1, (a + 1) % n
+        if take_b:
+            j, b = j + 1, (b + 1) % m
+    return np.array(vertices), np.array(owners), np.array(feet)
+
+
+def _silhouette_of(points):
+    """Return (A, B) indices of the silhouette of CCW ``points`` seen from the origin, or None.
+
+    Edge k faces the origin when the origin is strictly right of it; A ends the facing
+    chain, B starts it (as ``kernels.cones.silhouette``).
+    """
+    count = len(points)
+    nxt = np.roll(points, -1, axis=0)
+    edges = nxt - points
+    facing = edges[:, 0] * (-points[:, 1]) - edges[:, 1] * (-points[:, 0]) < 0.0
+    if not facing.any() or facing.all():
+        return None
+    a = b = None
+    for k in range(count):
+        incoming, outgoing = facing[k - 1], facing[k]
+        if incoming and not outgoing:
+            a = k
+        if outgoing and not incoming:
+            b = k
+    return a, b
+
+
+def _nearest_boundary(points):
+    """Return (k, t, w): the nearest point w of the polygon's boundary to the origin.
+
+    On edge k from P_k to P_k+1 at parameter t in [0, 1].
+    """
+    best = None
+    for k in range(len(points)):
+        p, e = points[k], points[(k + 1) % len(points)] - points[k]
+        t = float(np.clip(-(p @ e) / (e @ e), 0.0, 1.0))
+        w = p + t * e
+        if best is None or w @ w < best[2] @ best[2]:
+            best = (k, t, w)
+    return best
+
+
+def footprint_barrier(state, obstacle, velocity, footprint, tau=1.0, eps=0.05):
+    """Return (h, Lf h, Lg h) of one part for the unicycle [x, y, theta, v, omega]; numpy.
+
+    ``barrier.footprint_cone``'s math for one part, written plainly (loops, matrices):
+    the kernel ``kernels.footprint._footprint_plane`` must agree with it.  None when the
+    axle is inside or on C(theta) (no cone).
+    """
+    c, theta, speed, omega = state[:2], state[2], state[3], state[4]
+    rot = planar_rotation(theta)
+    vertices, _, feet = configuration_polygon(obstacle, footprint, theta)
+    points = vertices - c
+    sil = _silhouette_of(points)
+    if sil is None:
+        return None
+    k, t, w = _nearest_boundary(points)
+    count = len(points)
+    k1 = (k + 1) % count
+    f_foot = footprint[feet]  # f_j(k) for every C vertex
+    f_star = (1.0 - t) * f_foot[k] + t * f_foot[k1]
+    e = rot[:, 0]
+    c_dot = speed * e
+    v = velocity - c_dot - omega * (_J @ rot @ f_star)
+    # Each vertex's velocity relative to c.
+    deltas = omega * (_J @ rot @ (f_star - f_foot).T).T
+    rates = v + deltas
+    # Geometry.
+    ia, ib = sil
+    a, b = points[ia], points[ib]
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    ah, bh = a / na, b / nb
+    mvec = ah + bh
+    mn = np.linalg.norm(mvec)
+    uvec, cc = mvec / mn, 0.5 * mn
+    g = points.mean(axis=0)
+    length = np.linalg.norm(g)
+    d = np.linalg.norm(w)
+    sv = np.sqrt(v @ v + eps * eps)
+    inner = uvec @ v + sv * cc + (d / tau) * (1.0 - cc)
+    h = length * inner
+    # Partials.
+    dh_dv = length * (uvec + cc * v / sv)
+    dh_dm = length * ((v - (uvec @ v) * uvec) / mn + (sv - d / tau) * 0.5 * uvec)
+    grads = np.zeros_like(points)
+    grads += inner * (g / length) / count  # through L = |g|
+    grads[ia] += ((np.eye(2) - np.outer(ah, ah)) / na) @ dh_dm
+    grads[ib] += ((np.eye(2) - np.outer(bh, bh)) / nb) @ dh_dm
+    dh_dd = length * (1.0 - cc) / tau
+    if d > 0.0:
+        grads[k] += dh_dd * (1.0 - t) * w / d
+        grads[k1] += dh_dd * t * w / d
+    geometric = float(np.sum(grads * rates))
+    # f*_dot: t slides along the nearest edge while it is inside (0, 1).
+    t_dot = 0.0
+    if 0.0 < t < 1.0:
+        edge = points[k1] - points[k]
+        edge_rate = rates[k1] - rates[k]
+        square = edge @ edge
+        t_dot = (-(rates[k] @ edge) - (points[k] @ edge_rate)) / square \
+            - 2.0 * t * (edge @ edge_rate) / square
+    f_star_dot = t_dot * (f_foot[k1] - f_foot[k])
+    drift = -(speed * omega * (_J @ e)) + omega * omega * (rot @ f_star) \
+        - omega * (_J @ rot @ f_star_dot)
+    lf = geometric + dh_dv @ drift
+    lg = np.array([-(dh_dv @ e), -(dh_dv @ (_J @ rot @ f_star))])
+    return h, lf, lg

@@ -344,8 +344,7 @@ class _BrakingNow:
     @functools.cached_property
     def path(self):
         """Return B(x) (``RobotModel.braking_path``)."""
-        return self._filter.model.braking_path(self._state,
-                                               self._filter.config.control_period)
+        return self._filter.braking_path(self._state)
 
     @functools.cached_property
     def clearance(self):
@@ -388,10 +387,21 @@ class SafetyFilter:
         self._obstacle_accel = float(self.config.obstacle_accel) if planar else 0.0
         self._velocity_error = float(self.config.obstacle_velocity_error) if planar else 0.0
         self._braking = bool(self.config.braking_check) and model.position_dim == 2
-        self._barrier_check = self._braking and bool(self.config.braking_check_barrier)
-        # The braking check measures paths against the footprints themselves: the robot's
-        # disc keeps braking_margin, i.e. the guarded point guard_radius + braking_margin.
-        self._clearance = self.guard_radius + float(self.config.braking_margin)
+        # A turning footprint (``footprint_cone``): the check follows the axle with its
+        # heading and measures the bodies' distance apart; it has no barrier test (H).
+        self._turning = self.geometry.turning
+        self._barrier_check = (self._braking and bool(self.config.braking_check_barrier)
+                               and not self._turning)
+        # The braking check measures paths against the obstacles' own polygons: the robot
+        # keeps braking_margin, i.e. a guarded point guard_radius + braking_margin, a
+        # footprint braking_margin (its distance is 0 at contact: ``_contact``).
+        self._contact = 0.0 if self._turning else self.guard_radius
+        self._clearance = self._contact + float(self.config.braking_margin)
+        # The footprint the paths carry ((2, 0): a point), how far it reaches from its origin,
+        # and so how far beyond a path's points an obstacle can matter (``_far_from_all``).
+        self._body = self.cone_model.points if self._turning else np.zeros((2, 0))
+        self._cover = self.guard_radius if self._turning else 0.0
+        self._reach_margin = self._clearance + self._cover
         self._braking_accel = float(self.config.braking_obstacle_accel)
         # Evasion: inputs held over the look ahead, the input box's corners, edge midpoints
         # and centre (design.md 3.10, evasion).
@@ -399,6 +409,7 @@ class SafetyFilter:
         self._evasion_step = period * max(1, round(EVASION_STEP / period))
         self._evasion_rows = max(1, round(self.config.evasion_horizon / self._evasion_step))
         self._evasion = (self._braking and self.config.evasion_horizon > 0.0
+                         and not self._turning
                          and model.held_path(np.zeros(model.state_dim),
                                              np.zeros(model.input_dim), period, 1) is not None)
         self._evasion_commit = bool(self.config.evasion_commit)
@@ -530,12 +541,15 @@ class SafetyFilter:
         alone (a committed evasion, ``_evade``).
         """
         period = self.config.control_period
-        rows = self.model.braking_after(state, u, period)  # the point at x+, then B(x+)
+        # The point at x+, then B(x+); a turning footprint's axle, with its heading.
+        braking_after = (self.model.body_braking_after if self._turning
+                         else self.model.braking_after)
+        rows = braking_after(state, u, period)
         after_path = rows[1:]
         after, after_moving = self._path_clearance(after_path, prepared, age + period)
         # c(B(x)) is computed only where c(B(x+)) falls under the margin.
         if (after < self._clearance and after < now.clearance[0]
-                and now.clearance[0] > self.guard_radius):
+                and now.clearance[0] > self._contact):
             return True
         if not moving:
             return False
@@ -571,7 +585,7 @@ class SafetyFilter:
         return clear_around.unchecked(
             footprints.boxes, prepared.velocities, prepared.offsets, prepared.velocity_errors[0],
             self._braking_accel, max(abs(age), abs(age + duration)), float(state[0]),
-            float(state[1]), reach + self._clearance, False)
+            float(state[1]), reach + self._reach_margin, False)
 
     def _backup_input(self, state, u, prepared, age, now):
         """Return (input, message) once the braking check refused ``u``.
@@ -714,12 +728,19 @@ class SafetyFilter:
             footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
             prepared.offsets, float(age), np.ascontiguousarray(path, dtype=np.float64),
             self._evasion_step, self._clearance + EVASION_REACH, 0.0,
-            prepared.velocity_errors[1], False)
+            prepared.velocity_errors[1], False, self._body, self._cover)
+
+    def braking_path(self, state):
+        """Return B(x), the braking path the check measures (a turning footprint's axle's)."""
+        period = self.config.control_period
+        if self._turning:
+            return self.model.body_braking_path(state, period)
+        return self.model.braking_path(state, period)
 
     def _path_clearance(self, path, prepared, age):
         """Return c(B), capped at the margin, of a braking ``path``: (static, moving parts).
 
-        ``path_clearance``.
+        ``path_clearance``: of the guarded point, or of a turning footprint (``_body``).
 
         Unchecked kernel: the footprints, velocities and offsets are the filter's own and
         the path a fresh C-contiguous float64 array (``RobotModel.braking_path``).
@@ -729,7 +750,7 @@ class SafetyFilter:
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
             prepared.offsets, float(age), path, self.config.control_period, self._clearance,
-            self._braking_accel, prepared.velocity_errors[0], True)
+            self._braking_accel, prepared.velocity_errors[0], True, self._body, self._cover)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""
@@ -799,7 +820,7 @@ class SafetyFilter:
         """
         block, valid = self.cone_model.plane(view.prepared, view, prepared.velocities,
                                              prepared.offsets, age, ref, self._epsilon, False)
-        if self._obstacle_accel > 0.0 or self._velocity_error > 0.0:
+        if (self._obstacle_accel > 0.0 or self._velocity_error > 0.0) and not self._turning:
             tighten_for_obstacle_accel.unchecked(
                 block, PLANE_ROWS, view.projections, prepared.velocities, ref.velocity,
                 self._epsilon * self._epsilon, self._obstacle_accel, self._velocity_error,

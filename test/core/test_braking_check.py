@@ -15,6 +15,8 @@ from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFi
 from strategies import convex_polygons, examples, long_path
 
 PERIOD = 0.01
+POINT_BODY = (np.zeros((2, 0)), 0.0)
+"""``path_clearance``'s footprint and cover for a guarded point (no footprint)."""
 
 
 @pytest.mark.parametrize('speed', [0.0, 0.3, 1.0, 2.0])
@@ -100,7 +102,7 @@ def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                             prepared.inv_sq, prepared.counts, prepared.boxes, velocities,
                             np.zeros_like(velocities), age, path, PERIOD, cutoff, 0.0, errors,
-                            True)
+                            True, *POINT_BODY)
     expected = _clearance_by_brute_force(polygons, velocities, errors, path, age, cutoff)
     assert answer == pytest.approx(expected, abs=1e-9)
     assert not (velocities.any(axis=1) | (errors > 0.0)).all() or answer[0] == cutoff
@@ -130,7 +132,7 @@ def test_path_clearance_is_its_row_by_row_form_bit_for_bit(polygons, seed, cutof
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
     arguments = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
                  prepared.counts, prepared.boxes, velocities, offsets, age, path, period,
-                 cutoff, accel, error, closing_only)
+                 cutoff, accel, error, closing_only, *POINT_BODY)
     assert path_clearance(*arguments) == path_clearance_by_rows(*arguments)
 
 
@@ -155,19 +157,22 @@ def test_a_part_coming_at_a_robot_that_backs_away_does_not_count():
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
             prepared.counts, prepared.boxes, np.array([[-1.4, 0.0]]), np.zeros((1, 2)), 0.0)
     bounds, exact = np.array([0.5]), np.zeros(1)
-    assert path_clearance(*args, backing, PERIOD, 0.5, 2.0, bounds, True) == (0.5, 0.5)
-    assert path_clearance(*args, closing, PERIOD, 0.5, 0.0, exact, True)[1] < 0.0
+    assert path_clearance(*args, backing, PERIOD, 0.5, 2.0, bounds, True, *POINT_BODY) == (
+        0.5, 0.5)
+    assert path_clearance(*args, closing, PERIOD, 0.5, 0.0, exact, True, *POINT_BODY)[1] < 0.0
     # An evasion's look ahead counts every row: the box gains on the slower robot.
-    assert path_clearance(*args, backing, PERIOD, 0.5, 0.0, exact, False)[1] < 0.5
+    assert path_clearance(*args, backing, PERIOD, 0.5, 0.0, exact, False, *POINT_BODY)[1] < 0.5
     near = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box - [0.3, 0.0]]))
     static = (near.x, near.y, near.edge_x, near.edge_y, near.inv_sq, near.counts, near.boxes,
               np.zeros((1, 2)), np.zeros((1, 2)), 0.0)
-    assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, exact, True) == pytest.approx(
+    assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, exact, True,
+                          *POINT_BODY) == pytest.approx(
         (0.31, 0.5))
     # The same box standing, its velocity not known: it counts as moving where the path
     # closes on it, and not at all while the robot backs away.
-    assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, bounds, True) == (0.5, 0.5)
-    unknown = path_clearance(*static, closing, PERIOD, 0.5, 0.0, bounds, True)
+    assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, bounds, True,
+                          *POINT_BODY) == (0.5, 0.5)
+    unknown = path_clearance(*static, closing, PERIOD, 0.5, 0.0, bounds, True, *POINT_BODY)
     assert unknown[0] == 0.5 and unknown[1] < 0.0
 
 
@@ -179,8 +184,8 @@ def test_a_moving_part_may_stray_from_its_velocity_by_the_bounds():
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
             prepared.counts, prepared.boxes, np.array([[1.0, 0.0]]), np.zeros((1, 2)), 0.0,
             path, 0.5, 5.0)
-    _, plain = path_clearance(*args, 0.0, np.zeros(1), True)
-    _, robust = path_clearance(*args, 2.0, np.array([0.2]), True)
+    _, plain = path_clearance(*args, 0.0, np.zeros(1), True, *POINT_BODY)
+    _, robust = path_clearance(*args, 2.0, np.array([0.2]), True, *POINT_BODY)
     assert robust == pytest.approx(plain - 0.5 * (0.2 + 0.5 * 2.0 * 0.5))
 
 
@@ -270,11 +275,11 @@ def test_clear_around_promises_what_path_clearance_returns(polygons, seed, cutof
                  prepared.counts, prepared.boxes, velocities, offsets, age, path, PERIOD,
                  cutoff, accel, errors)
     if clear_around(*around, False):
-        assert path_clearance(*clearance, True) == (cutoff, cutoff)
+        assert path_clearance(*clearance, True, *POINT_BODY) == (cutoff, cutoff)
     # Moving parts only, their bounds with them (an evasion's look ahead, ``SafetyFilter``).
     errors[~velocities[:, :2].any(axis=1)] = 0.0  # the array both tuples hold
     if clear_around(*around, True):
-        assert path_clearance(*clearance, False)[1] == cutoff
+        assert path_clearance(*clearance, False, *POINT_BODY)[1] == cutoff
     far = PlanarPolygons.from_batch(PolygonBatch.from_polygons([p + 100.0 for p in polygons]))
     assert clear_around(far.boxes, np.zeros_like(velocities), np.zeros_like(offsets),
                         np.zeros_like(errors), 0.0, age, float(centre[0]), float(centre[1]),

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
+from polyc2bf_ros.core.barrier.footprint_cone import FootprintCone
 from polyc2bf_ros.core.geometry.footprint import (
     covering_radius,
     FootprintError,
@@ -66,11 +67,18 @@ def test_a_polygon_survives_its_own_string_and_its_cover_holds_every_vertex(poly
     assert np.any(np.isclose(np.hypot(again[:, 0], again[:, 1]), radius))
 
 
-def test_a_footprint_replaces_robot_radius_by_the_disc_that_covers_it():
-    """The filter guards the footprint's covering disc, whatever robot_radius says."""
+def test_a_footprint_replaces_robot_radius_turning_with_the_unicycle_else_by_its_cover():
+    """The unicycle guards the polygon itself; a model without a heading its covering disc.
+
+    Either way robot_radius no longer counts.
+    """
     config = FilterConfig(robot_radius=0.1, footprint=JACKAL).validate()
     assert config.body_radius == pytest.approx(math.hypot(0.254, 0.215))
     assert FilterConfig(robot_radius=0.1).validate().body_radius == 0.1
-    model = make_model('unicycle')
-    guarded = SafetyFilter(model, config)
-    assert guarded.guard_radius == pytest.approx(config.body_radius + model.guard_offset)
+    turning = SafetyFilter(make_model('unicycle'), config)
+    assert isinstance(turning.cone_model, FootprintCone)
+    assert turning.guard_radius == pytest.approx(config.body_radius)
+    holonomic = make_model('point_mass_2d')
+    covered = SafetyFilter(holonomic, config)
+    assert not isinstance(covered.cone_model, FootprintCone)
+    assert covered.guard_radius == pytest.approx(config.body_radius + holonomic.guard_offset)

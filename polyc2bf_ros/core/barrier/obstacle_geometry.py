@@ -12,7 +12,10 @@ the model's parameters; two are equal when they prepare the same views for the s
 import math
 
 from polyc2bf_ros.core.barrier.cone_models import make_cone_model
+from polyc2bf_ros.core.barrier.footprint_cone import FootprintCone
+from polyc2bf_ros.core.barrier.horizon_cone import HorizonCone
 from polyc2bf_ros.core.geometry.footprint import parse_footprint
+from polyc2bf_ros.core.geometry.polygons import convex_hull
 from polyc2bf_ros.core.geometry.views import prepare_views
 from polyc2bf_ros.core.obstacles.ground import grounded
 
@@ -26,19 +29,31 @@ class ObstacleGeometry:
         The guard radius is the body's radius (``FilterConfig.body_radius``: a footprint's
         covering disc, else ``robot_radius``) grown by the model's offset l: the guarded
         point keeps R + l, so the body around its centre keeps R (``guard_offset``).
-        ``footprint``: the parsed polygon (``geometry.footprint``), or None.
+        ``footprint``: the parsed polygon (``geometry.footprint``), or None.  ``turning``:
+        the footprint's convex hull is guarded itself (``footprint_cone``), for a model that
+        ``turns_footprint`` with the default barrier (``polyc2bf_horizon``, bisector axis);
+        else the covering disc is.
         """
         self.dim = model.position_dim
         self.footprint = parse_footprint(config.footprint)
         self.robot_radius = float(config.body_radius)
-        self.guard_radius = float(self.robot_radius + model.guard_offset)
-        self.cone_model = make_cone_model(config.barrier, self.guard_radius,
-                                          config.inflation_segments, config.horizon,
-                                          config.cone_axis)
+        self.turning = (self.footprint is not None and model.turns_footprint
+                        and config.barrier == HorizonCone.name and config.cone_axis == 'bisector')
+        if self.turning:
+            self.guard_radius = self.robot_radius
+            self.cone_model = FootprintCone(convex_hull(self.footprint), config.horizon,
+                                            config.obstacle_accel,
+                                            config.obstacle_velocity_error, config.gamma)
+        else:
+            self.guard_radius = float(self.robot_radius + model.guard_offset)
+            self.cone_model = make_cone_model(config.barrier, self.guard_radius,
+                                              config.inflation_segments, config.horizon,
+                                              config.cone_axis)
         self.ground = (float(config.ground_z) if self.dim == 3 and math.isfinite(config.ground_z)
                        else None)
-        self.key = (type(self.cone_model).__name__, tuple(sorted(vars(self.cone_model).items())),
-                    self.dim, self.guard_radius)
+        settings = sorted((name, value) for name, value in vars(self.cone_model).items()
+                          if not name.startswith('_'))
+        self.key = (type(self.cone_model).__name__, tuple(settings), self.dim, self.guard_radius)
 
     def __eq__(self, other):
         """Equal when both prepare the same views for the same body."""

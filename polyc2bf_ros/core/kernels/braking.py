@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from polyc2bf_ros.core.kernels.cones import nearest_edge
+from polyc2bf_ros.core.kernels.footprint import configuration_polygon, nearest_boundary
 from polyc2bf_ros.core.kernels.jit import F1, F2, I1, kernel, signature
 
 
@@ -109,10 +110,16 @@ def group_box(group, first_time, last_time, vx, vy, ox, oy):
 
 
 @kernel(signature('UniTuple(f8, 2)', F2, F2, F2, F2, F2, I1, F2, F2, F2, 'f8', F2, 'f8',
-                  'f8', 'f8', F1, 'b1'))
+                  'f8', 'f8', F1, 'b1', F2, 'f8'))
 def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offsets, age,
-                   path, period, cutoff, accel, velocity_errors, closing_only):
+                   path, period, cutoff, accel, velocity_errors, closing_only, footprint, cover):
     """Return min(cutoff, the smallest signed distance of a ``path`` row's x, y to a polygon).
+
+    Or, with a ``footprint`` (2, m > 0; ``barrier.footprint_cone``), of the footprint turned
+    to the row's heading (rows [x, y, vx, vy, theta] of its origin): the signed distance of
+    the row's x, y to the configuration polygon C(theta) (``footprint.configuration_polygon``),
+    the bodies' distance apart; ``cover`` is its covering radius, which the pruning below
+    subtracts from every gap (a footprint reaches no farther than that from its origin).
 
     Two values: over the static polygons, and over the moving ones.  Negative inside.
     Polygon n (CCW, rows of ``x``, ``y``, ``boxes`` as ``cones.PlanarPolygons``) has moved
@@ -137,51 +144,99 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
         return cutoff, cutoff
     size = group_size(rows)
     groups = path_groups(path, size, False)
-    low_x, high_x = groups[0, 0], groups[0, 1]
-    low_y, high_y = groups[0, 2], groups[0, 3]
-    for g in range(1, groups.shape[0]):
-        low_x, high_x = min(low_x, groups[g, 0]), max(high_x, groups[g, 1])
-        low_y, high_y = min(low_y, groups[g, 2]), max(high_y, groups[g, 3])
-    last = age + rows * period
+    bounds = path_box(groups)
+    width = x.shape[1] + footprint.shape[1]
+    cx, cy = np.empty((1, width)), np.empty((1, width))
+    feet = np.empty(width, dtype=np.int64)
     best, best_moving = cutoff, cutoff
     for n in range(counts.shape[0]):
-        vx, vy = velocities[n, 0], velocities[n, 1]
-        velocity_error = velocity_errors[n]
-        moving = vx != 0.0 or vy != 0.0 or velocity_error > 0.0
-        horizon = max(abs(age), abs(last))
-        reach = cutoff + horizon * math.sqrt(vx * vx + vy * vy)
-        if moving:
-            reach += horizon * (velocity_error + 0.5 * accel * horizon)
-        ox, oy = offsets[n, 0], offsets[n, 1]
-        if (low_x - ox - reach > boxes[n, 1] or high_x - ox + reach < boxes[n, 0]
-                or low_y - oy - reach > boxes[n, 3] or high_y - oy + reach < boxes[n, 2]):
+        moving, far = part_prospect(boxes, velocities, offsets, velocity_errors, n, accel, age,
+                                    age + rows * period, cutoff + cover, bounds)
+        if far:
             continue
+        vx, vy, ox, oy = velocities[n, 0], velocities[n, 1], offsets[n, 0], offsets[n, 1]
         for g in range(groups.shape[0]):
-            first = g * size
-            end = min(first + size, rows)
-            first_time, last_time = age + (first + 1) * period, age + end * period
-            low_qx, high_qx, low_qy, high_qy = group_box(groups[g], first_time, last_time,
-                                                         vx, vy, ox, oy)
-            gap = box_gap(low_qx, high_qx, low_qy, high_qy, boxes[n])
-            if moving:
-                bound = gap - max(first_time * (velocity_error + 0.5 * accel * first_time),
-                                  last_time * (velocity_error + 0.5 * accel * last_time))
-            else:
-                bound = gap
-            if gap > 0.0 and bound - SLACK >= (best_moving if moving else best):
+            first, end = g * size, min((g + 1) * size, rows)
+            if group_skipped(groups[g], boxes, velocities, offsets, velocity_errors, n, moving,
+                             accel, age + (first + 1) * period, age + end * period, cover,
+                             best_moving if moving else best):
                 continue
             for k in range(first, end):
                 t = age + (k + 1) * period
-                distance, dx, dy = _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n],
-                                                    n, path[k, 0] - t * vx - ox,
-                                                    path[k, 1] - t * vy - oy)
+                qx, qy = path[k, 0] - t * vx - ox, path[k, 1] - t * vy - oy
+                if footprint.shape[1]:
+                    count = configuration_polygon(x, y, counts[n], n, footprint,
+                                                  math.cos(path[k, 4]), math.sin(path[k, 4]),
+                                                  cx, cy, feet)
+                    _, _, wx, wy, inside = nearest_boundary(cx, cy, count, qx, qy)
+                    distance, dx, dy = math.hypot(wx, wy), -wx, -wy
+                    if inside:
+                        distance = -distance
+                else:
+                    distance, dx, dy = _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n],
+                                                        n, qx, qy)
                 if not moving:
                     best = min(best, distance)
                 elif (not closing_only or distance <= 0.0
                       or path[k, 2] * dx + path[k, 3] * dy < 0.0):
                     best_moving = min(best_moving,
-                                      distance - t * (velocity_error + 0.5 * accel * t))
+                                      distance - t * (velocity_errors[n] + 0.5 * accel * t))
     return best, best_moving
+
+
+
+@kernel
+def path_box(groups):
+    """Return [low x, high x, low y, high y] of every row of a path's ``path_groups``."""
+    low_x, high_x = groups[0, 0], groups[0, 1]
+    low_y, high_y = groups[0, 2], groups[0, 3]
+    for g in range(1, groups.shape[0]):
+        low_x, high_x = min(low_x, groups[g, 0]), max(high_x, groups[g, 1])
+        low_y, high_y = min(low_y, groups[g, 2]), max(high_y, groups[g, 3])
+    return low_x, high_x, low_y, high_y
+
+
+
+@kernel
+def part_prospect(boxes, velocities, offsets, velocity_errors, n, accel, age, last, reach,
+                  bounds):
+    """Return (moving, far) of part n for a path ``path_box`` ``bounds`` over [age, last].
+
+    Moving: it moves or may stray (``velocity_errors[n]`` > 0); far: its box, grown by how
+    far it moves and strays by then, stays farther than ``reach`` from the path's box.
+    """
+    vx, vy = velocities[n, 0], velocities[n, 1]
+    moving = vx != 0.0 or vy != 0.0 or velocity_errors[n] > 0.0
+    horizon = max(abs(age), abs(last))
+    reach += horizon * math.sqrt(vx * vx + vy * vy)
+    if moving:
+        reach += horizon * (velocity_errors[n] + 0.5 * accel * horizon)
+    low_x, high_x, low_y, high_y = bounds
+    ox, oy = offsets[n, 0], offsets[n, 1]
+    return moving, (low_x - ox - reach > boxes[n, 1] or high_x - ox + reach < boxes[n, 0]
+                    or low_y - oy - reach > boxes[n, 3] or high_y - oy + reach < boxes[n, 2])
+
+
+
+@kernel
+def group_skipped(group, boxes, velocities, offsets, velocity_errors, n, moving, accel,
+                  first_time, last_time, cover, best):
+    """Return True when no row of a group can bring part n's distance below ``best``.
+
+    The group's box relative to the part over its times (``group_box``) lies a gap g > 0
+    from the part's box less ``cover`` (a body within that of each row), and g less the
+    part's straying at the group's end times (convex in t) is ``SLACK`` above ``best``.
+    """
+    vx, vy = velocities[n, 0], velocities[n, 1]
+    low_qx, high_qx, low_qy, high_qy = group_box(group, first_time, last_time, vx, vy,
+                                                 offsets[n, 0], offsets[n, 1])
+    gap = box_gap(low_qx, high_qx, low_qy, high_qy, boxes[n]) - cover
+    bound = gap
+    if moving:
+        error = velocity_errors[n]
+        bound -= max(first_time * (error + 0.5 * accel * first_time),
+                     last_time * (error + 0.5 * accel * last_time))
+    return gap > 0.0 and bound - SLACK >= best
 
 
 

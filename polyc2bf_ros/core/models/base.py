@@ -14,7 +14,7 @@ Relative quantities follow (obstacles translate at constant velocity c_dot)::
 """
 import abc
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
@@ -33,13 +33,16 @@ class ReferenceKinematics:
     """Position, velocity and acceleration r_ddot = drift + input_matrix @ u of the point.
 
     ``position``, ``velocity`` and ``drift`` are (d,), ``input_matrix`` is (d, m), all
-    float64 and C-contiguous (the barrier kernel reads them directly).
+    float64 and C-contiguous (the barrier kernel reads them directly).  ``state``: the
+    state x they were computed at, where the model's footprint turns with it
+    (``turns_footprint``; the footprint cone reads the heading there), else empty.
     """
 
     position: np.ndarray
     velocity: np.ndarray
     drift: np.ndarray
     input_matrix: np.ndarray
+    state: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     @classmethod
     def empty(cls, dim, inputs):
@@ -85,6 +88,11 @@ class RobotModel(abc.ABC):
     #: an obstacle's band can still turn away from it (``SafetyFilter``, design.md 3.10).
     steering_inputs = ()
 
+    #: True when x[2] is the heading a footprint turns with and x[3:5] its speed and turn
+    #: rate (the unicycle): the filter then guards a footprint polygon exactly
+    #: (``barrier.footprint_cone``, ``body_braking_path``), else by its covering disc.
+    turns_footprint = False
+
     @property
     def input_weights(self):
         """Return W (input_dim,): the filter minimises sum_j W_j (u_j - u_nom_j)^2.
@@ -112,6 +120,20 @@ class RobotModel(abc.ABC):
         apply to it.
         """
         return None
+
+    def body_braking_path(self, x, period):
+        """Return ``braking_path``'s rows for the body's origin, [x, y, vx, vy, theta].
+
+        Models that ``turns_footprint`` only.
+        """
+        raise NotImplementedError(f'{self.name} has no heading to turn a footprint with')
+
+    def body_braking_after(self, x, u, period):
+        """Return ``braking_after``'s rows for the body's origin, [x, y, vx, vy, theta].
+
+        Models that ``turns_footprint`` only.
+        """
+        raise NotImplementedError(f'{self.name} has no heading to turn a footprint with')
 
     def point_row(self, x):
         """Return the reference point's position, then velocity, at x: a path's row."""

@@ -44,6 +44,7 @@ class Unicycle(RobotModel):
     input_dim = 2
     position_dim = 2
     steering_inputs = (1,)   # alpha
+    turns_footprint = True
 
     def __init__(self, offset_l=0.2, max_accel=2.0, max_angular_accel=4.0,
                  brake_time_constant=0.05, steering_weight=1.0):
@@ -91,7 +92,8 @@ class Unicycle(RobotModel):
         """Return the kinematics of the point l ahead of the axle (in ``out`` if given)."""
         ref = ReferenceKinematics.empty(2, 2) if out is None else out
         # Unchecked: as_state and ReferenceKinematics.empty give C-contiguous float64.
-        _offset_point.unchecked(self.as_state(x), self.offset_l, ref.position, ref.velocity,
+        ref.state = self.as_state(x)
+        _offset_point.unchecked(ref.state, self.offset_l, ref.position, ref.velocity,
                                 ref.drift, ref.input_matrix)
         return ref
 
@@ -102,14 +104,22 @@ class Unicycle(RobotModel):
 
     def braking_path(self, x, period):
         """Return the reference point's path under the brake (``RobotModel.braking_path``)."""
+        return self._brake_rows(x, period, self.offset_l, 4)
+
+    def body_braking_path(self, x, period):
+        """Return the axle's rows [x, y, vx, vy, theta] under the brake (``RobotModel``)."""
+        return self._brake_rows(x, period, 0.0, 5)
+
+    def _brake_rows(self, x, period, offset, columns):
+        """Return the rows of the point ``offset`` ahead (``columns`` 5: with theta)."""
         x = self.as_state(x)
         limits = self.braking_limits
         stop = abs(x[3]) / limits[0] + abs(x[4]) / limits[1]
         time_constant = self.brake_time_constant / self.braking_share
-        out = np.empty((int(stop / period) + int(8 * time_constant / period) + 2, 4))
+        out = np.empty((int(stop / period) + int(8 * time_constant / period) + 2, columns))
         # Unchecked: as_state, braking_limits and out are C-contiguous float64.
-        rows = _braking_path.unchecked(x, self.offset_l, limits, time_constant,
-                                       self.braking_coast, float(period), out)
+        rows = _braking_path.unchecked(x, offset, limits, time_constant, self.braking_coast,
+                                       float(period), out)
         return out[:rows]
 
     def braking_after(self, x, u, period):
@@ -120,19 +130,27 @@ class Unicycle(RobotModel):
         from x+; one more for row 0, three for rounding.  Should it not, the kernel says how
         many rows it needs, and a second call writes them.
         """
+        return self._brake_after_rows(x, u, period, self.offset_l, 4)
+
+    def body_braking_after(self, x, u, period):
+        """Return ``braking_after``'s rows for the axle, [x, y, vx, vy, theta] (``RobotModel``)."""
+        return self._brake_after_rows(x, u, period, 0.0, 5)
+
+    def _brake_after_rows(self, x, u, period, offset, columns):
+        """Return the rows of the point ``offset`` ahead (``columns`` 5: with theta)."""
         x, u = self.as_state(x), np.ascontiguousarray(u, dtype=np.float64)
         limits = self.braking_limits
         time_constant = self.brake_time_constant / self.braking_share
         stop = ((abs(float(x[3])) + period * abs(float(u[0]))) / limits[0]
                 + (abs(float(x[4])) + period * abs(float(u[1]))) / limits[1])
-        out = np.empty((int(stop / period) + int(8 * time_constant / period) + 6, 4))
+        out = np.empty((int(stop / period) + int(8 * time_constant / period) + 6, columns))
         while True:
             # Unchecked: as_state, the input, braking_limits and out are C-contiguous float64.
-            rows = _braking_after.unchecked(x, u, self.offset_l, limits, time_constant,
+            rows = _braking_after.unchecked(x, u, offset, limits, time_constant,
                                             self.braking_coast, float(period), out)
             if rows >= 0:
                 return out[:rows]
-            out = np.empty((-rows, 4))
+            out = np.empty((-rows, columns))
 
     def held_path(self, x, u, step, rows):
         """Return the reference point's path with ``u`` held (``RobotModel.held_path``)."""

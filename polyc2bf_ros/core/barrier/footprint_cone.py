@@ -1,0 +1,92 @@
+"""The horizon cone of a footprint polygon that turns with the robot (design.md 3.11).
+
+For a model whose footprint turns with its heading (``RobotModel.turns_footprint``: the
+unicycle [x, y, theta, v, omega]) and a ``FilterConfig.footprint``, the filter guards the
+polygon itself instead of a disc that covers it.  The footprint F (convex, CCW, body frame
+about the axle c) at heading theta overlaps the obstacle part O (convex, CCW, translating
+at o_dot) exactly when c lies inside the configuration polygon
+
+    C(theta) = O + (-R(theta) F),     vertices V_k = o_i(k) - R f_j(k)
+
+(``kernels.footprint.configuration_polygon``: the two edge sequences merged by angle, n + m
+vertices at most).  So the bisector horizon cone of ``horizon_cone`` is taken on C(theta)
+seen from c, with its vertices relative to c, P_k = V_k - c.  Unlike an inflated polygon's
+they do not move alike when the robot turns:
+
+    P_k_dot = o_dot - c_dot - omega J R f_j(k) = v + omega J R (f* - f_j(k)),
+    v = o_dot - c_dot - omega J R f*,
+
+v the relative velocity of the touching points: f* is the footprint point behind C's
+boundary point nearest c, w = (1 - t) P_k + t P_k+1 = o* - (c + R f*), f* = (1 - t) f_j(k)
++ t f_j(k+1).  The barrier is ``horizon_cone``'s with that v:
+
+    h = L [<u, v> + |v|_e cc + (d / tau)(1 - cc)],    d = |w|,
+
+m = a_hat + b_hat over the silhouette rays a, b, u = m / |m|, cc = |m| / 2, L = |g|, g the
+mean of the P_k.  Its rate is
+
+    h_dot = sum_k dh/dP_k . P_k_dot + dh/dv . v_dot,
+    v_dot = -(a e + v omega J e) - alpha J R f* + omega^2 R f* - omega J R f*_dot,
+
+e = (cos theta, sin theta); f*_dot = t_dot (f_j(k+1) - f_j(k)) while t is inside (0, 1), 0
+at a vertex.  dh/dP_k is inner g_hat / count for every vertex (through L), plus, at the
+silhouette vertices, (I - a_hat a_hat^T) / |a| dh/dm, and at the nearest edge's ends
+(1 - t) and t times L (1 - cc) w / (tau d) (through d).  alpha enters through v: Lg h's
+steering column is -dh/dv . J R f*, nonzero wherever the touching point is off the
+heading's line through c, so the filter may turn the body away as well as brake.
+
+Why h >= 0 excludes contact: the bodies touch first when c reaches C's boundary (d = 0).
+There h = L [<u, v> + |v|_e cc] is eq. 7 with v the velocity of the touching body point
+relative to the obstacle's, so h >= 0 forbids every such velocity into C (its silhouette
+rays bound the tangent cone of C at the touching point), as in ``horizon_cone``.  Turning
+is accounted for: a corner that sweeps towards a post is a touching point whose velocity
+omega J R f* is in v.  A non-convex footprint is guarded by its convex hull
+(``geometry.footprint``).
+
+The braking check measures the footprint along the brake the same way: the signed
+distance of the axle to C(theta_k) at each row is the bodies' distance
+(``kernels.footprint.footprint_path_clearance``).  The moving parts' rows are made robust
+to ``obstacle_accel`` and ``obstacle_velocity_error`` in the same pass, with dh/do (rows
+7-8 of the block: every vertex moved alike) in place of ``cone_barrier``'s dh/dp.
+"""
+import numpy as np
+
+from polyc2bf_ros.core.barrier.cones import InflatedCone
+from polyc2bf_ros.core.kernels.footprint import _footprint_plane
+
+
+class FootprintCone(InflatedCone):
+    """The bisector horizon cone of a turning footprint polygon (module docstring).
+
+    ``footprint`` (m, 2) CCW about the axle, ``horizon`` tau; ``obstacle_accel``,
+    ``velocity_error`` and ``gamma`` as ``FilterConfig``'s.  The prepared polygons are the
+    parts themselves; ``fill`` and ``exits`` see them without the body (the escape leaves a
+    part along the shortest way out of it, seen from the axle).
+    """
+
+    name = 'polyc2bf_footprint'
+
+    def __init__(self, footprint, horizon=1.0, obstacle_accel=0.0, velocity_error=0.0,
+                 gamma=1.0):
+        """Keep the polygon (as pairs: the settings key the prepared views) and tau."""
+        super().__init__(0.0)
+        if not horizon > 0.0:
+            raise ValueError(f'horizon must be positive (math.inf: none), got {horizon!r}')
+        self.footprint = tuple((float(x), float(y)) for x, y in footprint)
+        self.horizon, self.obstacle_accel = float(horizon), float(obstacle_accel)
+        self.velocity_error, self.gamma = float(velocity_error), float(gamma)
+        self._points = np.ascontiguousarray(np.array(self.footprint).T)
+
+    @property
+    def points(self):
+        """Return the footprint as a (2, m) C-contiguous array (the kernels' layout)."""
+        return self._points
+
+    def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
+                   velocity_epsilon, block, valid, checked):
+        """Run the footprint kernel at the state the reference was computed at."""
+        kernel = _footprint_plane if checked else _footprint_plane.unchecked
+        kernel(prepared.x, prepared.y, prepared.counts, self._points, reference.state,
+               velocities, offsets, age, 1.0 / self.horizon,
+               velocity_epsilon * velocity_epsilon, self.obstacle_accel, self.velocity_error,
+               self.gamma, block, valid)
