@@ -24,10 +24,11 @@ is built once per case, as the node does once per obstacle message.  Layouts:
 Filter configurations (``--barrier NAME``, repeatable; default: ``default``):
 ``default`` is the node's default filter (``FilterConfig()``: the horizon barrier
 with the braking check, what ``filter_parameters.build_filter`` gives without
-overrides); ``eq7`` the paper's eq. 7, configured as ``bench_node.py``'s
-``command_eq7`` (``polyc2bf_inflated``, midpoint axis, no braking check); a
-``filter.barrier`` value (the rest at its default, the braking check on); or
-such a value with ``:no_braking`` (the braking check off).  ``eq7`` is always
+overrides); ``footprint`` the ``polyc2bf_footprint`` barrier guarding a 0.508 x 0.430 m
+box footprint turning with the unicycle instead of the 0.3 m disc; ``eq7`` the paper's
+eq. 7, configured as ``bench_node.py``'s ``command_eq7`` (``polyc2bf_inflated``, midpoint
+axis, no braking check); a ``filter.barrier`` value (the rest at its default, the braking
+check on); or such a value with ``:no_braking`` (the braking check off).  ``eq7`` is always
 measured too: the configurations of a case step interleaved (each its own
 rollout, the order rotating every step), and each row gives its p50 and p99 as
 ratios to eq. 7's of the same repeat.  ``check`` is the share of steps on which
@@ -151,11 +152,16 @@ CASES = {
 }
 
 DEFAULT, EQ7, NO_BRAKING = 'default', 'eq7', ':no_braking'
+FOOTPRINT = 'footprint'
 # Filter configurations by name: FilterConfig fields over its defaults.  eq7 is
 # bench_node.py's command_eq7 (FILTER_SUBJECTS): eq. 7 on inflated polygons, midpoint axis,
-# no braking check.
+# no braking check; footprint the Jackal's 4-vertex box turning with the unicycle
+# (``barrier.footprint_cone``).
 CONFIGURATIONS = {
     DEFAULT: {},
+    FOOTPRINT: {'barrier': 'polyc2bf_footprint',
+                'footprint': '[[0.254, 0.215], [-0.254, 0.215], [-0.254, -0.215], '
+                             '[0.254, -0.215]]'},
     EQ7: {'barrier': 'polyc2bf_inflated', 'cone_axis': 'midpoint', 'braking_check': False},
     **{name: {'barrier': name} for name in CONE_MODELS},
     **{name + NO_BRAKING: {'barrier': name, 'braking_check': False} for name in CONE_MODELS},

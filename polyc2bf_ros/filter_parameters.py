@@ -145,11 +145,14 @@ NODE_PARAMETERS = {
 FILTER_PARAMETERS = {
     'barrier': (None, "cone construction: 'polyc2bf_paper' (segment extended by w/2), "
                 "'polyc2bf_inflated' (polygon inflated by the radius), 'c3bf' (circles) or "
-                "'polyc2bf_horizon' (inflated, only what is reachable within the horizon)"),
+                "'polyc2bf_horizon' (inflated, only what is reachable within the horizon) or "
+                "'polyc2bf_footprint' (the footprint polygon turning with the unicycle, "
+                'horizon as polyc2bf_horizon)'),
     'robot_radius': ((0.0, 10.0), 'robot radius w/2 [m]'),
     'footprint': (None, 'the body as a polygon "[[x, y], ...]" [m] in the odometry child '
                   "frame (Nav2's footprint); '[]': the disc of robot_radius.  Set, it "
-                  'replaces robot_radius: the disc about the origin covering it is guarded'),
+                  'replaces robot_radius: the disc about the origin covering it is guarded, '
+                  'or with barrier polyc2bf_footprint the polygon itself'),
     'gamma': ((0.0, 1000.0), 'class-K gain in h_dot + gamma h >= margin [1/s], > 0'),
     'margin_gain': ((0.0, 1000.0), 'sample-and-hold margin = margin_gain * T'),
     'solver': (None, "QP solver: 'daqp' or 'proxsuite'"),

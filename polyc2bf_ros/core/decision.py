@@ -145,7 +145,7 @@ class ControlDecision:
             self.circulation = Circulation()
         elif resolution == 'route':
             safety = command_filter.safety_filter
-            free = safety.guard_radius + safety.config.braking_margin + ROUTE_MARGIN
+            free = safety.geometry.passage_radius + safety.config.braking_margin + ROUTE_MARGIN
             holonomic = model != 'unicycle'
             options = {'ahead': float(route[0]), 'window': float(route[1])}
             if not (isinstance(self.circulation, RouteEscape)

@@ -95,6 +95,7 @@ import numpy as np
 from polyc2bf_ros.core.barrier.cone_barrier import BarrierTerms
 from polyc2bf_ros.core.barrier.cone_models import CONE_AXES, CONE_MODELS
 from polyc2bf_ros.core.barrier.cones import Cones, PlanarPolygons, PLANE_CONES, PLANE_K
+from polyc2bf_ros.core.barrier.footprint_cone import FootprintCone
 from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.geometry.footprint import covering_radius, NO_FOOTPRINT, parse_footprint
 from polyc2bf_ros.core.geometry.views import choose_planes
@@ -108,6 +109,8 @@ from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp.backends import make_solver, SOLVERS
 from polyc2bf_ros.core.qp.solver import QPStatus, solve_with_shared_slack
 
+BARRIERS = (*CONE_MODELS, FootprintCone.name)
+"""``FilterConfig.barrier``'s values: a cone model, or the turning footprint's cone."""
 EVASION_STEP = 0.05
 """s between the points of an evasion's look ahead (rounded to whole control periods)."""
 EVASION_REACH = 0.5
@@ -183,8 +186,11 @@ class FilterConfig:
 
     def validate(self):
         """Raise ValueError naming the first invalid field and why."""
-        if self.barrier not in CONE_MODELS:
-            raise ValueError(f'barrier must be one of {sorted(CONE_MODELS)}, got {self.barrier!r}')
+        if self.barrier not in BARRIERS:
+            raise ValueError(f'barrier must be one of {sorted(BARRIERS)}, got {self.barrier!r}')
+        if self.barrier == FootprintCone.name and parse_footprint(self.footprint) is None:
+            raise ValueError(f"barrier {FootprintCone.name} guards a footprint polygon: set "
+                             "footprint to '[[x, y], ...]'")
         if self.solver not in SOLVERS:
             raise ValueError(f'solver must be one of {sorted(SOLVERS)}, got {self.solver!r}')
         positive = ('gamma', 'control_period', 'velocity_epsilon', 'slack_weight',
@@ -354,7 +360,7 @@ class _BrakingNow:
     @functools.cached_property
     def min_h(self):
         """Return H(x), the smallest h at x and along B(x)."""
-        return self._filter._min_h_along(self._filter.model.point_row(self._state),
+        return self._filter._min_h_along(self._filter._paths.point_row(self._state),
                                          self.path, self._prepared, self._age)
 
 
@@ -388,10 +394,12 @@ class SafetyFilter:
         self._velocity_error = float(self.config.obstacle_velocity_error) if planar else 0.0
         self._braking = bool(self.config.braking_check) and model.position_dim == 2
         # A turning footprint (``footprint_cone``): the check follows the axle with its
-        # heading and measures the bodies' distance apart; it has no barrier test (H).
+        # heading and measures the bodies' distance apart.
         self._turning = self.geometry.turning
-        self._barrier_check = (self._braking and bool(self.config.braking_check_barrier)
-                               and not self._turning)
+        # What the check and the evasion measure along: the guarded point's paths (the
+        # model's), or the axle's with its heading (``RobotModel.body_paths``).
+        self._paths = model.body_paths() if self._turning else model
+        self._barrier_check = self._braking and bool(self.config.braking_check_barrier)
         # The braking check measures paths against the obstacles' own polygons: the robot
         # keeps braking_margin, i.e. a guarded point guard_radius + braking_margin, a
         # footprint braking_margin (its distance is 0 at contact: ``_contact``).
@@ -409,9 +417,9 @@ class SafetyFilter:
         self._evasion_step = period * max(1, round(EVASION_STEP / period))
         self._evasion_rows = max(1, round(self.config.evasion_horizon / self._evasion_step))
         self._evasion = (self._braking and self.config.evasion_horizon > 0.0
-                         and not self._turning
-                         and model.held_path(np.zeros(model.state_dim),
-                                             np.zeros(model.input_dim), period, 1) is not None)
+                         and self._paths.held_path(np.zeros(model.state_dim),
+                                                   np.zeros(model.input_dim), period, 1)
+                         is not None)
         self._evasion_commit = bool(self.config.evasion_commit)
         self._evasion_inputs = np.array(list(itertools.product(*zip(
             self._lower, np.clip(0.0, self._lower, self._upper), self._upper))))
@@ -484,7 +492,8 @@ class SafetyFilter:
             if not self._far_from_all(state, prepared, obstacle_age):
                 now = _BrakingNow(self, state, prepared, obstacle_age)
                 if self._must_brake(state, u, prepared, obstacle_age, now):
-                    u, message = self._backup_input(state, u, prepared, obstacle_age, now)
+                    u, message = self._backup_input(state, u, prepared, obstacle_age, now,
+                                                    count)
                     status = FilterStatus.BACKUP
             if self._evasion and self._moving_near(state, prepared, obstacle_age):
                 now = now or _BrakingNow(self, state, prepared, obstacle_age)
@@ -541,10 +550,7 @@ class SafetyFilter:
         alone (a committed evasion, ``_evade``).
         """
         period = self.config.control_period
-        # The point at x+, then B(x+); a turning footprint's axle, with its heading.
-        braking_after = (self.model.body_braking_after if self._turning
-                         else self.model.braking_after)
-        rows = braking_after(state, u, period)
+        rows = self._paths.braking_after(state, u, period)  # the point at x+, then B(x+)
         after_path = rows[1:]
         after, after_moving = self._path_clearance(after_path, prepared, age + period)
         # c(B(x)) is computed only where c(B(x+)) falls under the margin.
@@ -587,19 +593,24 @@ class SafetyFilter:
             self._braking_accel, max(abs(age), abs(age + duration)), float(state[0]),
             float(state[1]), reach + self._reach_margin, False)
 
-    def _backup_input(self, state, u, prepared, age, now):
+    def _backup_input(self, state, u, prepared, age, now, count):
         """Return (input, message) once the braking check refused ``u``.
 
         The brake with the model's steering inputs taken from ``u``, if the check keeps
         that, else with them reversed (a unicycle at rest at the band's edge turns away
-        instead of standing for good); otherwise the brake.
+        instead of standing for good); otherwise the brake.  A turning footprint steers
+        only where the step's ``count`` QP rows hold too: its corners sweep as it turns,
+        which the check's clearance test alone lets come to the margin and past h = 0.
         """
         brake = self.model.clip_input(self.model.braking_input(state))
         steering = list(self.model.steering_inputs)
+        rows_a, rows_b = prepared.rows_a[:count], prepared.rows_b[:count]
         if steering:
             for sign, how in ((1.0, 'keeping'), (-1.0, 'reversing')):
                 steered = brake.copy()
                 steered[steering] = sign * u[steering]
+                if self._turning and np.any(rows_a @ steered < rows_b - ACTIVE_TOLERANCE):
+                    continue
                 if not self._must_brake(state, steered, prepared, age, now):
                     return steered, f'braking check: braking the speed, {how} the steering'
         return brake, 'braking check: the input leaves no clear way to stop; braking'
@@ -636,18 +647,19 @@ class SafetyFilter:
             position[1], reach, False)
 
     def _evasion_reach(self, state):
-        """Return (reference position, reach, horizon H) of an evasion's look ahead.
+        """Return (position, reach, horizon H) of an evasion's look ahead.
 
-        The reach is how far any held input moves the reference point over H,
-        |r_dot| H + a H^2 / 2 (a the largest input bound, the model's input matrix at most
-        1 per unit), plus the look ahead's cutoff.
+        The reach is how far any held input moves the point the look ahead follows (the
+        reference point, or a turning footprint's axle) over H, |r_dot| H + a H^2 / 2 (a the
+        largest input bound, the model's input matrix at most 1 per unit), plus the look
+        ahead's cutoff and the footprint's covering radius.
         """
         horizon = self._evasion_rows * self._evasion_step
-        ref = self.model.reference(state)
-        reach = (float(np.linalg.norm(ref.velocity)) * horizon
+        row = self._paths.point_row(state)
+        reach = (math.hypot(row[2], row[3]) * horizon
                  + 0.5 * float(np.max(self._upper)) * horizon ** 2
-                 + self._clearance + EVASION_REACH)
-        return (float(ref.position[0]), float(ref.position[1])), reach, horizon
+                 + self._reach_margin + EVASION_REACH)
+        return (float(row[0]), float(row[1])), reach, horizon
 
     def _evade(self, state, u, prepared, age, now):
         """Return (input, message) of an evasion when ``u`` runs into a moving part, or None.
@@ -664,7 +676,7 @@ class SafetyFilter:
         whose velocity is not known comes near (``_untrusted_near``).
         """
         static, moving = self._look_ahead(
-            self._then_brake(np.zeros((0, 4)),
+            self._then_brake(np.zeros((0, self._paths.columns)),
                              self.model.one_period(state, u, self.config.control_period), 1),
             prepared, age)
         if moving >= self._clearance:
@@ -693,10 +705,10 @@ class SafetyFilter:
         """Return the look aheads of ``candidate``: held for H / 2 then the brake, and for H."""
         rows, step = self._evasion_rows, self._evasion_step
         half = max(rows // 2, 1)
-        first, middle = self.model.held_path(state, candidate, step, half)
+        first, middle = self._paths.held_path(state, candidate, step, half)
         paths = [self._then_brake(first, middle, 0)]
         if rows > half:  # the rest of the hold goes on from where half of it ends
-            paths.append(np.vstack([first, self.model.held_path(middle, candidate, step,
+            paths.append(np.vstack([first, self._paths.held_path(middle, candidate, step,
                                                                 rows - half)[0]]))
         return paths
 
@@ -707,13 +719,14 @@ class SafetyFilter:
         last of ``rows`` (or past the start), then at rest where the brake ends.
         """
         ratio = round(self._evasion_step / self.config.control_period)
-        brake = self.model.braking_path(after, self.config.control_period)
+        brake = self._paths.braking_path(after, self.config.control_period)
         first = ratio - 1 - periods
         if first < 0:  # a step of one period: ``after`` itself is the next row
-            rows, first = np.vstack([rows, self.model.point_row(after)]), 0
+            rows, first = np.vstack([rows, self._paths.point_row(after)]), 0
         ahead = np.vstack([rows, brake[first::ratio]])[:self._evasion_rows]
-        rest = np.tile(np.concatenate((brake[-1, :2], np.zeros(2))),
-                       (self._evasion_rows - len(ahead), 1))
+        at_rest = brake[-1].copy()
+        at_rest[2:4] = 0.0
+        rest = np.tile(at_rest, (self._evasion_rows - len(ahead), 1))
         return np.vstack([ahead, rest])
 
     def _look_ahead(self, path, prepared, age):
@@ -732,10 +745,7 @@ class SafetyFilter:
 
     def braking_path(self, state):
         """Return B(x), the braking path the check measures (a turning footprint's axle's)."""
-        period = self.config.control_period
-        if self._turning:
-            return self.model.body_braking_path(state, period)
-        return self.model.braking_path(state, period)
+        return self._paths.braking_path(state, self.config.control_period)
 
     def _path_clearance(self, path, prepared, age):
         """Return c(B), capped at the margin, of a braking ``path``: (static, moving parts).

@@ -67,15 +67,16 @@ def test_a_polygon_survives_its_own_string_and_its_cover_holds_every_vertex(poly
     assert np.any(np.isclose(np.hypot(again[:, 0], again[:, 1]), radius))
 
 
-def test_a_footprint_replaces_robot_radius_turning_with_the_unicycle_else_by_its_cover():
-    """The unicycle guards the polygon itself; a model without a heading its covering disc.
+def test_a_footprint_replaces_robot_radius_by_its_cover_or_turning_with_the_unicycle():
+    """The covering disc by default; the polygon itself with the footprint barrier.
 
     Either way robot_radius no longer counts.
     """
     config = FilterConfig(robot_radius=0.1, footprint=JACKAL).validate()
     assert config.body_radius == pytest.approx(math.hypot(0.254, 0.215))
     assert FilterConfig(robot_radius=0.1).validate().body_radius == 0.1
-    turning = SafetyFilter(make_model('unicycle'), config)
+    turning = SafetyFilter(make_model('unicycle'), FilterConfig(
+        robot_radius=0.1, footprint=JACKAL, barrier=FootprintCone.name))
     assert isinstance(turning.cone_model, FootprintCone)
     assert turning.guard_radius == pytest.approx(config.body_radius)
     holonomic = make_model('point_mass_2d')

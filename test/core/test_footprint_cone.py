@@ -19,11 +19,15 @@ JACKAL = np.array([[0.254, 0.215], [-0.254, 0.215], [-0.254, -0.215], [0.254, -0
 
 
 def _filter(footprint=JACKAL, **config):
-    """Return the unicycle's filter guarding ``footprint`` (Jackal-like limits and gamma)."""
+    """Return the unicycle's filter guarding ``footprint`` (Jackal-like limits and gamma).
+
+    None: the default barrier guarding the 0.333 m disc that covers the Jackal.
+    """
     model = make_model('unicycle', offset_l=0.01, max_accel=2.0, max_angular_accel=4.0)
     settings_ = {'gamma': 5.0, 'robot_radius': 0.333, **config}
-    text = '[]' if footprint is None else format_footprint(footprint)
-    return SafetyFilter(model, FilterConfig(footprint=text, **settings_))
+    if footprint is not None:
+        settings_.update(barrier=FootprintCone.name, footprint=format_footprint(footprint))
+    return SafetyFilter(model, FilterConfig(**settings_))
 
 
 def _separation(first, second):
@@ -214,3 +218,16 @@ def test_the_braking_clearance_is_the_bodies_signed_distance_along_the_path(obst
         assert static >= min(gaps) - 1e-9
     elif min(gaps) < -1e-9:
         assert static < 0.0
+
+
+def test_the_footprint_barrier_needs_a_footprint_and_a_heading():
+    """Each misuse gets one clear error; the default barrier guards the covering disc."""
+    with pytest.raises(ValueError, match='set footprint'):
+        FilterConfig(barrier=FootprintCone.name).validate()
+    config = FilterConfig(barrier=FootprintCone.name, footprint=format_footprint(JACKAL))
+    with pytest.raises(ValueError, match='no heading'):
+        SafetyFilter(make_model('point_mass_2d'), config)
+    covered = SafetyFilter(make_model('unicycle'),
+                           FilterConfig(footprint=format_footprint(JACKAL)))
+    assert not isinstance(covered.cone_model, FootprintCone)
+    assert covered.guard_radius == pytest.approx(np.hypot(0.254, 0.215) + 0.2)

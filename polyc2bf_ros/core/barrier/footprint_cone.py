@@ -45,7 +45,8 @@ omega J R f* is in v.  A non-convex footprint is guarded by its convex hull
 
 The braking check measures the footprint along the brake the same way: the signed
 distance of the axle to C(theta_k) at each row is the bodies' distance
-(``kernels.footprint.footprint_path_clearance``).  The moving parts' rows are made robust
+(``kernels.braking.path_clearance`` with a footprint), and its barrier test takes this h
+at each row (``kernels.horizon.footprint_min_h_along``).  The moving parts' rows are made robust
 to ``obstacle_accel`` and ``obstacle_velocity_error`` in the same pass, with dh/do (rows
 7-8 of the block: every vertex moved alike) in place of ``cone_barrier``'s dh/dp.
 """
@@ -53,6 +54,7 @@ import numpy as np
 
 from polyc2bf_ros.core.barrier.cones import InflatedCone
 from polyc2bf_ros.core.kernels.footprint import _footprint_plane
+from polyc2bf_ros.core.kernels.horizon import footprint_min_h_along
 
 
 class FootprintCone(InflatedCone):
@@ -76,6 +78,7 @@ class FootprintCone(InflatedCone):
         self.horizon, self.obstacle_accel = float(horizon), float(obstacle_accel)
         self.velocity_error, self.gamma = float(velocity_error), float(gamma)
         self._points = np.ascontiguousarray(np.array(self.footprint).T)
+        self._cover = float(np.max(np.hypot(*self._points)))
 
     @property
     def points(self):
@@ -90,3 +93,11 @@ class FootprintCone(InflatedCone):
                velocities, offsets, age, 1.0 / self.horizon,
                velocity_epsilon * velocity_epsilon, self.obstacle_accel, self.velocity_error,
                self.gamma, block, valid)
+
+    def min_h_along(self, prepared, velocities, offsets, age, start, path, period,
+                    velocity_epsilon, checked=True):
+        """Return h's minimum along an axle's braking path (``footprint_min_h_along``)."""
+        kernel = footprint_min_h_along if checked else footprint_min_h_along.unchecked
+        return kernel(prepared.x, prepared.y, prepared.counts, prepared.boxes, self._points,
+                      self._cover, 1.0 / self.horizon, velocity_epsilon * velocity_epsilon,
+                      velocities, offsets, float(age), start, path, float(period))

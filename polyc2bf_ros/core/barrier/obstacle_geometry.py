@@ -11,13 +11,25 @@ the model's parameters; two are equal when they prepare the same views for the s
 """
 import math
 
+import numpy as np
+
 from polyc2bf_ros.core.barrier.cone_models import make_cone_model
 from polyc2bf_ros.core.barrier.footprint_cone import FootprintCone
-from polyc2bf_ros.core.barrier.horizon_cone import HorizonCone
 from polyc2bf_ros.core.geometry.footprint import parse_footprint
 from polyc2bf_ros.core.geometry.polygons import convex_hull
 from polyc2bf_ros.core.geometry.views import prepare_views
 from polyc2bf_ros.core.obstacles.ground import grounded
+
+
+def half_width(polygon):
+    """Return half the least width of a convex polygon: min over edge normals n of the extent.
+
+    A convex polygon's width across a direction is least across one of its edges' normals.
+    """
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    normals = np.column_stack((edges[:, 1], -edges[:, 0])) / np.hypot(*edges.T)[:, None]
+    extents = polygon @ normals.T
+    return float(0.5 * np.min(extents.max(axis=0) - extents.min(axis=0)))
 
 
 class ObstacleGeometry:
@@ -30,17 +42,24 @@ class ObstacleGeometry:
         covering disc, else ``robot_radius``) grown by the model's offset l: the guarded
         point keeps R + l, so the body around its centre keeps R (``guard_offset``).
         ``footprint``: the parsed polygon (``geometry.footprint``), or None.  ``turning``:
-        the footprint's convex hull is guarded itself (``footprint_cone``), for a model that
-        ``turns_footprint`` with the default barrier (``polyc2bf_horizon``, bisector axis);
-        else the covering disc is.
+        the footprint's convex hull is guarded itself with ``barrier`` ``polyc2bf_footprint``
+        (``footprint_cone``; a model that ``turns_footprint`` only), else the covering
+        disc is.  ``passage_radius``: half the narrowest gap the guarded
+        body passes, the guard radius for a disc, half the footprint's least width for a
+        turning one (``half_width``; it passes aligned with the gap).
         """
         self.dim = model.position_dim
         self.footprint = parse_footprint(config.footprint)
         self.robot_radius = float(config.body_radius)
-        self.turning = (self.footprint is not None and model.turns_footprint
-                        and config.barrier == HorizonCone.name and config.cone_axis == 'bisector')
+        self.turning = config.barrier == FootprintCone.name
+        if self.turning and not model.turns_footprint:
+            raise ValueError(f'barrier {FootprintCone.name}: the {model.name} model has no '
+                             'heading to turn a footprint with; use polyc2bf_horizon (the '
+                             "footprint's covering disc)")
+        self.passage_radius = self.robot_radius + model.guard_offset
         if self.turning:
             self.guard_radius = self.robot_radius
+            self.passage_radius = half_width(convex_hull(self.footprint))
             self.cone_model = FootprintCone(convex_hull(self.footprint), config.horizon,
                                             config.obstacle_accel,
                                             config.obstacle_velocity_error, config.gamma)

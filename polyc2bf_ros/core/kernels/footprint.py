@@ -215,3 +215,4 @@ def _rate_x(vx, omega, cos, sin, dfx, dfy):
 def _rate_y(vy, omega, cos, sin, dfx, dfy):
     """Return the y of v + omega J R df."""
     return vy + omega * (cos * dfx - sin * dfy)
+

@@ -1,8 +1,12 @@
 """Kernels of ``barrier.horizon_cone``, whose docstring has the math.
 
+``footprint_min_h_along`` is ``min_h_along`` for ``barrier.footprint_cone``.
+
 The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_sources``).
 """
 import math
+
+import numpy as np
 
 from polyc2bf_ros.core.kernels.barrier import barrier_column, plane_motion, store_input_column
 from polyc2bf_ros.core.kernels.braking import (
@@ -17,6 +21,11 @@ from polyc2bf_ros.core.kernels.cones import (
     nearest_edge,
     PLANE_ROWS,
     silhouette,
+)
+from polyc2bf_ros.core.kernels.footprint import (
+    _footprint_column,
+    configuration_polygon,
+    nearest_boundary,
 )
 from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, kernel, signature
 from polyc2bf_ros.core.kernels.views import viewpoint
@@ -349,3 +358,71 @@ def _point_h(x, y, edge_x, edge_y, inv_sq, count, n, box, px, py, pvx, pvy, t, o
         return math.inf
     return _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon,
                   bisector, eps_sq)
+
+
+
+@kernel
+def _value_at(x, y, count, n, footprint, row, t, ovx, ovy, ox, oy, inv_horizon, eps_sq, cx,
+              cy, feet, scratch):
+    """Return h of part n at a path ``row`` [x, y, vx, vy, theta, omega] at time t; inf: none.
+
+    The part moved by (ox, oy) and moving at (ovx, ovy); ``_footprint_column`` into the
+    one-column ``scratch``.
+    """
+    qx, qy = row[0] - t * ovx - ox, row[1] - t * ovy - oy
+    cos, sin = math.cos(row[4]), math.sin(row[4])
+    vertices = configuration_polygon(x, y, count, n, footprint, cos, sin, cx, cy, feet)
+    ia, ib, seen = silhouette(cx, cy, vertices, 0, qx, qy)
+    k, near_t, wx, wy, _ = nearest_boundary(cx, cy, vertices, qx, qy)
+    if not _footprint_column(cx, cy, vertices, feet, footprint, ia, ib, seen, k, near_t, wx,
+                             wy, qx, qy, cos, sin, row[2] * cos + row[3] * sin, row[5], ovx,
+                             ovy, inv_horizon, eps_sq, 0.0, 0.0, 0.0, scratch, 0):
+        return math.inf
+    return scratch[PLANE_ROWS, 0]
+
+
+
+@kernel
+def _far_from_box(box, cover, row, t, ovx, ovy, ox, oy, obstacle_speed, inv_horizon):
+    """Return True when h >= 0 at ``row`` surely: tau |v| <= the footprint's distance.
+
+    The footprint lies within ``cover`` of the axle, so its distance to the part is at
+    least g - cover, g the axle's distance to the part's box; the touching points'
+    relative speed |v| is at most |o_dot| + |c_dot| + |omega| cover; and h >= L (1 - cc)
+    (d / tau - |v|) (``horizon_cone``'s bound with v the touching points').
+    """
+    qx, qy = row[0] - t * ovx - ox, row[1] - t * ovy - oy
+    speed = obstacle_speed + math.hypot(row[2], row[3]) + abs(row[5]) * cover
+    return inv_horizon * (box_gap(qx, qx, qy, qy, box) - cover) >= speed
+
+
+
+@kernel(signature('f8', F2, F2, I1, F2, F2, 'f8', 'f8', 'f8', F2, F2, 'f8', F1, F2, 'f8'))
+def footprint_min_h_along(x, y, counts, boxes, footprint, cover, inv_horizon, eps_sq,
+                          velocities, offsets, age, start, path, period):
+    """Return the smallest h of any part at ``start`` and every ``path`` row (footprint cone).
+
+    ``horizon.min_h_along`` for a turning footprint: rows [x, y, vx, vy, theta, omega] of
+    the axle (``unicycle.AxlePaths``), ``start`` at ``age`` and row k at age + (k + 1)
+    period.  A row where the footprint overlaps a part (no cone) is left out, as the filter
+    leaves such a part out of its rows.  Pruning (``_far_from_box``) skips only rows where
+    h >= 0, so the value is exact where negative, else only >= 0 (+inf: nothing
+    evaluated).
+    """
+    width = x.shape[1] + footprint.shape[1]
+    cx, cy = np.empty((1, width)), np.empty((1, width))
+    feet = np.empty(width, dtype=np.int64)
+    scratch = np.empty((PLANE_ROWS + 4, 1))
+    best = math.inf
+    for n in range(counts.shape[0]):
+        ovx, ovy, ox, oy = velocities[n, 0], velocities[n, 1], offsets[n, 0], offsets[n, 1]
+        obstacle_speed = math.hypot(ovx, ovy)
+        box = boxes[n]
+        for k in range(-1, path.shape[0]):
+            row = start if k < 0 else path[k]
+            t = age + (k + 1) * period
+            if _far_from_box(box, cover, row, t, ovx, ovy, ox, oy, obstacle_speed, inv_horizon):
+                continue
+            best = min(best, _value_at(x, y, counts[n], n, footprint, row, t, ovx, ovy, ox,
+                                       oy, inv_horizon, eps_sq, cx, cy, feet, scratch))
+    return best

@@ -117,13 +117,13 @@ def _held_step(px, py, theta, v, omega, a, alpha, period):
 def _point_row(px, py, theta, v, omega, offset, row):
     """Write the reference point's [x, y, vx, vy] at state (px, py, theta, v, omega) to ``row``.
 
-    A row of five also gets theta (``Unicycle.body_braking_path``).
+    A longer row also gets theta, then omega (``unicycle.AxlePaths``).
     """
     c, s = math.cos(theta), math.sin(theta)
     row[0], row[1] = px + offset * c, py + offset * s
     row[2], row[3] = v * c - offset * omega * s, v * s + offset * omega * c
-    if row.shape[0] > 4:
-        row[4] = theta
+    if row.shape[0] > 5:
+        row[4], row[5] = theta, omega
 
 
 

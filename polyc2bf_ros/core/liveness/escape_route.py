@@ -14,11 +14,16 @@ Grid.  A square window of side ``window`` about the reference point p, cells of 
 ``cell``.  Each cell centre q gets its clearance c(q) = min over parts n of the signed
 distance from q to footprint n (negative inside; ``grid_clearance``).  A cell is free when
 c >= c_min = guard radius + braking margin (+ 2 cm), the distance the filter's braking
-check keeps (``core.barrier.braking_check``).  The held robot stands closer than that, so cells
-within ``START_CELLS`` of p need only c >= min(c_min, c(p)): no closer to any part than p
-is.  A step that loses clearance there points into the cone of the part it nears, which
-the filter refuses from the boundary (measured: BARN robots turned onto such a first leg
-and stood).
+check keeps (``core.barrier.braking_check``).  A robot guarded by its footprint polygon
+(``barrier.footprint_cone``) is planned as the disc of half its least width
+(``ObstacleGeometry.passage_radius``): the route's gaps are those the body passes aligned
+with them.  That is the approximation's price: where the route turns near a part the
+body's corners reach farther (up to its covering radius), the filter holds them off, and
+the robot may stand there until the route is planned again, wider.  The held robot
+stands closer than c_min, so cells within ``START_CELLS`` of p need only
+c >= min(c_min, c(p)): no closer to any part than p is.  A step that loses clearance
+there points into the cone of the part it nears, which the filter refuses from the
+boundary (measured: BARN robots turned onto such a first leg and stood).
 
 Route.  Dijkstra over the 8-connected free cells from p's cell (``route_search``), each
 step costing its length times 1 + w max(0, c_pref - c) / (c_pref - c_min) with

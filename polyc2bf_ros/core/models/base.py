@@ -90,7 +90,7 @@ class RobotModel(abc.ABC):
 
     #: True when x[2] is the heading a footprint turns with and x[3:5] its speed and turn
     #: rate (the unicycle): the filter then guards a footprint polygon exactly
-    #: (``barrier.footprint_cone``, ``body_braking_path``), else by its covering disc.
+    #: (``barrier.footprint_cone``, ``body_paths``), else by its covering disc.
     turns_footprint = False
 
     @property
@@ -121,17 +121,15 @@ class RobotModel(abc.ABC):
         """
         return None
 
-    def body_braking_path(self, x, period):
-        """Return ``braking_path``'s rows for the body's origin, [x, y, vx, vy, theta].
+    #: Columns of a row of the paths below: the point's position, then its velocity.
+    columns = 4
 
-        Models that ``turns_footprint`` only.
-        """
-        raise NotImplementedError(f'{self.name} has no heading to turn a footprint with')
+    def body_paths(self):
+        """Return the body origin's paths, rows [x, y, vx, vy, theta, omega] (``turns_footprint``).
 
-    def body_braking_after(self, x, u, period):
-        """Return ``braking_after``'s rows for the body's origin, [x, y, vx, vy, theta].
-
-        Models that ``turns_footprint`` only.
+        An object with this model's ``point_row``, ``braking_path``, ``braking_after`` and
+        ``held_path`` and ``columns`` 6, whose rows follow the origin of the footprint with
+        its heading and turn rate: the filter measures a turning footprint along them.
         """
         raise NotImplementedError(f'{self.name} has no heading to turn a footprint with')
 

@@ -106,12 +106,8 @@ class Unicycle(RobotModel):
         """Return the reference point's path under the brake (``RobotModel.braking_path``)."""
         return self._brake_rows(x, period, self.offset_l, 4)
 
-    def body_braking_path(self, x, period):
-        """Return the axle's rows [x, y, vx, vy, theta] under the brake (``RobotModel``)."""
-        return self._brake_rows(x, period, 0.0, 5)
-
     def _brake_rows(self, x, period, offset, columns):
-        """Return the rows of the point ``offset`` ahead (``columns`` 5: with theta)."""
+        """Return the rows of the point ``offset`` ahead (``columns`` 6: theta, omega too)."""
         x = self.as_state(x)
         limits = self.braking_limits
         stop = abs(x[3]) / limits[0] + abs(x[4]) / limits[1]
@@ -132,12 +128,8 @@ class Unicycle(RobotModel):
         """
         return self._brake_after_rows(x, u, period, self.offset_l, 4)
 
-    def body_braking_after(self, x, u, period):
-        """Return ``braking_after``'s rows for the axle, [x, y, vx, vy, theta] (``RobotModel``)."""
-        return self._brake_after_rows(x, u, period, 0.0, 5)
-
     def _brake_after_rows(self, x, u, period, offset, columns):
-        """Return the rows of the point ``offset`` ahead (``columns`` 5: with theta)."""
+        """Return the rows of the point ``offset`` ahead (``columns`` 6: theta, omega too)."""
         x, u = self.as_state(x), np.ascontiguousarray(u, dtype=np.float64)
         limits = self.braking_limits
         time_constant = self.brake_time_constant / self.braking_share
@@ -154,11 +146,19 @@ class Unicycle(RobotModel):
 
     def held_path(self, x, u, step, rows):
         """Return the reference point's path with ``u`` held (``RobotModel.held_path``)."""
-        out, end = np.empty((int(rows), 4)), np.empty(5)
+        return self._held_rows(x, u, step, rows, self.offset_l, 4)
+
+    def _held_rows(self, x, u, step, rows, offset, columns):
+        """Return the point's rows ``offset`` ahead (``columns`` 6: theta, omega too), the end."""
+        out, end = np.empty((int(rows), columns)), np.empty(5)
         # Unchecked: as_state, the input, out and end are C-contiguous float64.
-        _held_path.unchecked(self.as_state(x), self.offset_l,
+        _held_path.unchecked(self.as_state(x), offset,
                              np.ascontiguousarray(u, dtype=np.float64), float(step), out, end)
         return out, end
+
+    def body_paths(self):
+        """Return the axle's paths with the heading (``RobotModel.body_paths``)."""
+        return AxlePaths(self)
 
     def braking_reach(self, x, period):
         """Return (rho, t) of ``RobotModel.braking_reach``; (inf, inf) when T > tau.
@@ -180,3 +180,36 @@ class Unicycle(RobotModel):
             + int(8 * self.brake_time_constant / share / period) + 2
         duration = (rows + 1) * period + self.braking_coast
         return self.guard_offset + (speed + self.guard_offset * turn) * duration, duration
+
+
+class AxlePaths:
+    """The unicycle's axle's paths, rows [x, y, vx, vy, theta, omega] (``body_paths``).
+
+    The same kernels as the reference point's, at offset 0 with the heading and turn rate
+    in two more columns: where a footprint polygon about the axle is at each row, and how
+    it turns there.
+    """
+
+    columns = 6
+
+    def __init__(self, model):
+        """Follow ``model``'s state."""
+        self.model = model
+
+    def point_row(self, x):
+        """Return the axle's row at x."""
+        x = self.model.as_state(x)
+        c, s = math.cos(x[2]), math.sin(x[2])
+        return np.array([x[0], x[1], x[3] * c, x[3] * s, x[2], x[4]])
+
+    def braking_path(self, x, period):
+        """Return the axle's rows under the brake (``Unicycle.braking_path`` at offset 0)."""
+        return self.model._brake_rows(x, period, 0.0, self.columns)
+
+    def braking_after(self, x, u, period):
+        """Return the axle at x+, then its rows under the brake (``braking_after``)."""
+        return self.model._brake_after_rows(x, u, period, 0.0, self.columns)
+
+    def held_path(self, x, u, step, rows):
+        """Return the axle's rows with ``u`` held, and the last state (``held_path``)."""
+        return self.model._held_rows(x, u, step, rows, 0.0, self.columns)
