@@ -16,6 +16,7 @@ import numpy as np
 from polyc2bf_ros import cdr_reader, marker_obstacles
 from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.decision import ObstacleSnapshot
+from polyc2bf_ros.core.geometry.polygons import convex_hull
 from polyc2bf_ros.core.obstacles.marker_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.obstacles.scan_conversion import pose_at, scan_to_obstacles, ScanSettings
@@ -101,7 +102,7 @@ class ObstaclePipeline:
         for data in job.transforms:
             self._static.update(data)
         for scan in job.scans:
-            self._take_scan(*scan, settings, job.geometry.robot_radius)
+            self._take_scan(*scan, settings, job.geometry)
         marker_obstacles.apply_markers(
             tracker, cdr_reader.MarkerArrayView(tuple(marker_obstacles.conflate_markers(markers))),
             job.now, settings.wall_thickness, settings.cylinder_sides,
@@ -141,11 +142,15 @@ class ObstaclePipeline:
                              f'({settings.max_obstacles})')
         return result, t_ref, wrong_frame
 
-    def _take_scan(self, topic, data, received, odometry, base_frame, settings, radius):
-        """Convert one serialized LaserScan of ``topic``; a bad one is counted, not used."""
+    def _take_scan(self, topic, data, received, odometry, base_frame, settings, geometry):
+        """Convert one serialized LaserScan of ``topic``; a bad one is counted, not used.
+
+        The robot's body is the filter's ``geometry``: its footprint, else its radius.
+        """
         status = self.scan_status.get(topic, ScanStatus())
         try:
-            scan = read_scan(data, odometry, base_frame, settings, radius, self._static)
+            scan = read_scan(data, odometry, base_frame, settings, geometry.robot_radius,
+                             self._static, geometry.footprint)
         except ValueError as exc:
             self.scan_status[topic] = status._replace(
                 received=received, rejected=status.rejected + 1, reason=str(exc))
@@ -180,7 +185,8 @@ def _moved(obstacle, dt):
     return dataclasses.replace(obstacle, polygon=obstacle.polygon + velocity[:2] * dt)
 
 
-def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=None):
+def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=None,
+              footprint=None):
     """Return the ``ScanObstacles`` of a serialized LaserScan; ValueError says why it is unusable.
 
     ``odometry``: samples ``(stamp [s], x, y, yaw)`` of the base in the odometry frame,
@@ -188,7 +194,10 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
     ``header.stamp`` (``pose_at``).  A scan in another frame than ``base_frame`` (the
     odometry child frame) was taken where the ``StaticTransforms`` ``transforms`` put that
     frame, else at ``settings.sensor_pose``; a non-finite transform on the way refuses the
-    scan.  Every range NaN is refused (no measurement at all).
+    scan.  Every range NaN is refused (no measurement at all).  Endpoints on the robot are
+    dropped: within ``settings.scan_footprint_radius`` of the base when that is >= 0, else
+    inside ``footprint`` (the filter's CCW polygon in the base frame; a non-convex one: its
+    convex hull) placed at the scan's pose, or without one within ``robot_radius``.
     """
     # Imported on the first scan: a worker without scan input does not pay for them.
     from rclpy.serialization import deserialize_message
@@ -213,9 +222,12 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
     sensor_pose = _sensor_pose(scan.header.frame_id.lstrip('/'), base_frame, settings,
                                transforms)
     radius = settings.scan_footprint_radius
+    if radius >= 0 or footprint is None:
+        body = {'footprint_radius': float(robot_radius if radius < 0 else radius)}
+    else:
+        body = {'footprint': convex_hull(footprint)}
     scan_settings = ScanSettings(cluster_tolerance=float(settings.scan_cluster_tolerance),
-                                 footprint_radius=float(robot_radius if radius < 0 else radius),
-                                 depth=float(settings.scan_obstacle_depth))
+                                 depth=float(settings.scan_obstacle_depth), **body)
     obstacles, owner, clusters = scan_to_obstacles(
         ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max,
         sensor_pose, robot_pose, scan_settings, with_clusters=True)

@@ -12,11 +12,14 @@ from polyc2bf_ros.core.geometry.polygons import (
     clean_polygon,
     convex_hull,
     decompose_convex,
+    farthest_edge_normals,
     InvalidPolygonError,
     is_convex,
     minimum_enclosing_circle,
     point_in_polygon,
+    points_in_convex,
     PolygonBatch,
+    segments_meet_convex,
     signed_area,
     signed_distance,
     signed_distance_batch,
@@ -321,6 +324,39 @@ def test_boundary_points_count_as_inside():
         assert point_in_polygon(q, ell) and signed_distance(q, ell) == 0
     for q in [(1.5, 1.5), (3, 0), (-1, 1)]:
         assert not point_in_polygon(q, ell)
+
+
+@SETTINGS
+@given(float_convex_polygons(), st.data())
+def test_convex_queries_match_point_in_polygon_and_edge_crossings(polygon, data):
+    """The vectorised convex queries agree with point_in_polygon and edge crossings.
+
+    A segment meets the polygon iff an end lies in it or it touches an edge (orientation
+    signs); an outside point lies farthest beyond the line of the edge whose normal is
+    returned, and the half-plane beyond it along that normal holds no vertex.
+    """
+    starts, ends = sample_points(data, polygon), sample_points(data, polygon)
+    inside = points_in_convex(starts[:, 0], starts[:, 1], polygon)
+    assert inside.tolist() == [point_in_polygon(p, polygon) for p in starts]
+    edge_start, edge_end = polygon, np.roll(polygon, -1, axis=0)
+    for start, end in zip(starts, ends):
+        o1, o2 = np.sign(cross(end - start, edge_start - start)), np.sign(
+            cross(end - start, edge_end - start))
+        o3, o4 = np.sign(cross(edge_end - edge_start, start - edge_start)), np.sign(
+            cross(edge_end - edge_start, end - edge_start))
+        touches = ((o1 * o2 <= 0) & (o3 * o4 <= 0)).any()
+        expected = point_in_polygon(start, polygon) or point_in_polygon(end, polygon) or touches
+        meets = segments_meet_convex(start[:1], start[1:], end[:1] - start[0],
+                                     end[1:] - start[1], polygon)
+        assert meets.tolist() == [expected]
+    outside = starts[~inside]
+    nx, ny = farthest_edge_normals(outside[:, 0], outside[:, 1], polygon)
+    assert np.allclose(np.hypot(nx, ny), 1.0)
+    beyond = ((outside[:, 0, None] - polygon[:, 0]) * nx[:, None]
+              + (outside[:, 1, None] - polygon[:, 1]) * ny[:, None]).min(axis=1)
+    edges = edge_end - edge_start
+    farthest = (-cross(edges, outside[:, None] - edge_start) / np.hypot(*edges.T)).max(axis=1)
+    assert (beyond > 0).all() and np.allclose(beyond, farthest)
 
 
 @SETTINGS

@@ -64,15 +64,37 @@ def test_returns_inside_the_footprint_are_the_robot_itself():
     A wall 0.28 m ahead: behind its nearest point no polygon of a 0.3 m robot, one of a
     0.2 m robot.
     """
-    behind = np.array([0.285, 0.0])
-
-    def covers(polygon):
-        edges, rel = np.roll(polygon, -1, axis=0) - polygon, behind - polygon
-        return (edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0] >= 0).all()
     for radius, seen in ((0.3, False), (0.2, True)):
         obstacles = _obstacles(_data(wall_x=0.28), ODOMETRY, 'base_link', IntakeSettings(),
                                    radius)
-        assert obstacles and any(covers(o.polygon) for o in obstacles) is seen
+        assert obstacles and any(_covers(o.polygon, (0.285, 0.0)) for o in obstacles) is seen
+
+
+def _covers(polygon, point):
+    """Return True when a CCW convex polygon contains the point (or has it on its boundary)."""
+    edges, rel = np.roll(polygon, -1, axis=0) - polygon, np.asarray(point) - polygon
+    return bool((edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0] >= 0).all())
+
+def test_the_filter_footprint_is_the_robot_unless_scan_footprint_radius_is_set():
+    """A Jackal (box 0.508 x 0.430 m) 2.6 cm behind a wall: the wall is seen before its nose.
+
+    The job's geometry carries the filter's footprint, and only hits inside the box are the
+    robot; its covering disc (0.333 m), or an explicit ``scan_footprint_radius`` of 0.3 m,
+    would take the wall's middle for the robot.
+    """
+    jackal = '[[-0.254, -0.215], [0.254, -0.215], [0.254, 0.215], [-0.254, 0.215]]'
+    geometry = ObstacleGeometry(make_model('unicycle'), FilterConfig(footprint=jackal))
+    assert geometry.robot_radius > 0.33
+
+    def nose_covered(settings):
+        snapshot = ObstaclePipeline().run(ObstacleJob([], 'odom', settings, geometry, 1.0, (
+            ('scan', _data(wall_x=0.28), 1.0, ODOMETRY, 'base_link'),)))
+        polygons = snapshot.obstacles.footprints.vertices  # padded: repeated corners
+        assert len(polygons)
+        return any(_covers(polygon, (0.285, 0.0)) for polygon in polygons)
+    assert nose_covered(IntakeSettings())
+    assert not nose_covered(IntakeSettings(scan_footprint_radius=0.3))
+
 
 @pytest.mark.parametrize('depth', [0.05, 0.3])
 def test_scan_obstacle_depth_sets_how_far_obstacles_reach_behind_the_wall(depth):

@@ -270,6 +270,44 @@ def _segment_square_distances(rx, ry, ex, ey, inv_sq):
     return dx * dx + dy * dy
 
 
+def _edge_sides(x, y, polygon):
+    """Return the (..., n) ``cross(e_k, p - v_k)`` of points (x, y) to every edge of a polygon."""
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    return (edges[:, 0] * (np.asarray(y)[..., None] - polygon[:, 1])
+            - edges[:, 1] * (np.asarray(x)[..., None] - polygon[:, 0]))
+
+
+def points_in_convex(x, y, polygon) -> np.ndarray:
+    """Return where points (x, y) lie inside or on a convex CCW polygon: left of or on edges."""
+    return (_edge_sides(x, y, polygon) >= 0).all(axis=-1)
+
+
+def segments_meet_convex(ax, ay, ex, ey, polygon) -> np.ndarray:
+    """Return where the segments ``[a, a + e]`` touch or cross a convex CCW polygon.
+
+    Separating axes: a segment misses the polygon iff both its ends lie strictly right of one
+    edge, or every vertex lies strictly on one side of its line (never for ``e = 0``).
+    """
+    beyond_edge = ((_edge_sides(ax, ay, polygon) < 0)
+                   & (_edge_sides(ax + ex, ay + ey, polygon) < 0)).any(axis=-1)
+    side = (ex[..., None] * (polygon[:, 1] - ay[..., None])
+            - ey[..., None] * (polygon[:, 0] - ax[..., None]))
+    beside = (side > 0).all(axis=-1) | (side < 0).all(axis=-1)
+    return ~(beyond_edge | beside)
+
+
+def farthest_edge_normals(x, y, polygon) -> tuple[np.ndarray, np.ndarray]:
+    """Return the outward unit normal of the edge whose line each point lies farthest beyond.
+
+    For a point outside a convex CCW polygon that distance is positive, and the polygon lies
+    behind the parallel line through the point: the half-plane beyond it misses the polygon.
+    """
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    lengths = np.hypot(edges[:, 0], edges[:, 1])
+    farthest = np.argmin(_edge_sides(x, y, polygon) / lengths, axis=-1)
+    return edges[farthest, 1] / lengths[farthest], -edges[farthest, 0] / lengths[farthest]
+
+
 def point_in_polygon(point, polygon) -> bool:
     """Return True when the point is inside or on the boundary of a simple polygon.
 
