@@ -57,7 +57,9 @@ CONFIG_DIR = SCENARIO_DIR.parent
 # Children import the same code as this process: the directory holding sim_bridge/.
 SOURCE_ROOT = Path(__file__).resolve().parents[1]
 BARRIERS = ('polyc2bf_paper', 'polyc2bf_inflated', 'c3bf', 'polyc2bf_horizon')
-FILTER_CHOICES = BARRIERS + ('none',)
+SUITE_FILTERS = BARRIERS + ('none',)   # what a suite runs unless told: any robot takes them
+# ``polyc2bf_footprint`` only for a unicycle robot whose parameters give a footprint.
+FILTER_CHOICES = BARRIERS + ('polyc2bf_footprint', 'none')
 OBSTACLE_SOURCES = ('markers', 'scan')
 LOCKSTEP_FILTER = {'trigger': 'command', 'match_stamps': True, 'odom_timeout': 10.0,
                    'cmd_timeout': 10.0, 'obstacles_timeout': 0.0}

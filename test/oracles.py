@@ -303,10 +303,17 @@ def footprint_barrier(state, obstacle, velocity, footprint, tau=1.0, eps=0.05):
     f_star = (1.0 - t) * f_foot[k] + t * f_foot[k1]
     e = rot[:, 0]
     c_dot = speed * e
-    v = velocity - c_dot - omega * (_J @ rot @ f_star)
+    turning = omega * (_J @ rot @ f_star)
+    touching = velocity - c_dot - turning  # the touching points' relative velocity
     # Each vertex's velocity relative to c.
     deltas = omega * (_J @ rot @ (f_star - f_foot).T).T
-    rates = v + deltas
+    rates = touching + deltas
+    # The barrier's v: the turning share sigma fades out at the covering radius.
+    cover = np.max(np.linalg.norm(footprint, axis=1))
+    d = np.linalg.norm(w)
+    sigma = max(0.0, 1.0 - d / cover)
+    sigma_dot = -(w @ touching) / (d * cover) if 0.0 < d < cover else 0.0
+    v = velocity - c_dot - sigma * turning
     # Geometry.
     ia, ib = sil
     a, b = points[ia], points[ib]
@@ -317,7 +324,6 @@ def footprint_barrier(state, obstacle, velocity, footprint, tau=1.0, eps=0.05):
     uvec, cc = mvec / mn, 0.5 * mn
     g = points.mean(axis=0)
     length = np.linalg.norm(g)
-    d = np.linalg.norm(w)
     sv = np.sqrt(v @ v + eps * eps)
     inner = uvec @ v + sv * cc + (d / tau) * (1.0 - cc)
     h = length * inner
@@ -342,8 +348,8 @@ def footprint_barrier(state, obstacle, velocity, footprint, tau=1.0, eps=0.05):
         t_dot = (-(rates[k] @ edge) - (points[k] @ edge_rate)) / square \
             - 2.0 * t * (edge @ edge_rate) / square
     f_star_dot = t_dot * (f_foot[k1] - f_foot[k])
-    drift = -(speed * omega * (_J @ e)) + omega * omega * (rot @ f_star) \
-        - omega * (_J @ rot @ f_star_dot)
+    drift = -(speed * omega * (_J @ e)) + sigma * (
+        omega * omega * (rot @ f_star) - omega * (_J @ rot @ f_star_dot)) - sigma_dot * turning
     lf = geometric + dh_dv @ drift
-    lg = np.array([-(dh_dv @ e), -(dh_dv @ (_J @ rot @ f_star))])
+    lg = np.array([-(dh_dv @ e), -sigma * (dh_dv @ (_J @ rot @ f_star))])
     return h, lf, lg

@@ -145,14 +145,19 @@ class ControlDecision:
             self.circulation = Circulation()
         elif resolution == 'route':
             safety = command_filter.safety_filter
-            free = safety.geometry.passage_radius + safety.config.braking_margin + ROUTE_MARGIN
+            geometry = safety.geometry
+            free = geometry.passage_radius + safety.config.braking_margin + ROUTE_MARGIN
             holonomic = model != 'unicycle'
+            # A turning footprint backs out to where its corners clear (escape_route).
+            backing = (geometry.robot_radius - geometry.passage_radius + ROUTE_MARGIN
+                       if geometry.turning else 0.0)
             options = {'ahead': float(route[0]), 'window': float(route[1])}
             if not (isinstance(self.circulation, RouteEscape)
                     and self.circulation.free_clearance == free
                     and self.circulation.holonomic == holonomic
+                    and self.circulation.backing == backing
                     and self.circulation.route_options == options):
-                self.circulation = RouteEscape(free, holonomic, **options)
+                self.circulation = RouteEscape(free, holonomic, backing=backing, **options)
         self.filter = command_filter
         for name, timeout in timeouts.items():
             self.watchdog.set_timeout(name, timeout)

@@ -51,7 +51,7 @@ from sim_bridge.evaluation.barn_suite import main_barn
 from sim_bridge.evaluation.dynamic_suite import main_dynamic
 from sim_bridge.evaluation.reports import findings, markdown_table, write_outputs
 from sim_bridge.evaluation.scenario_suite import DEFAULT_RANDOM_SEEDS, run_suite
-from sim_bridge.launcher import FILTER_CHOICES, OBSTACLE_SOURCES
+from sim_bridge.launcher import FILTER_CHOICES, OBSTACLE_SOURCES, SUITE_FILTERS
 from sim_bridge.lidar import PARAMETER_FIELDS as LIDAR_FIELDS
 from sim_bridge.scenario import scenario_names
 
@@ -173,7 +173,7 @@ def main(argv=None):
     out = args.out or 'runs/eval'
     settings = run_settings(parser, args)
     records, runs = run_or_exit(parser, run_suite, scenarios,
-                                args.filters or list(FILTER_CHOICES), args.seeds, random_seeds,
+                                args.filters or list(SUITE_FILTERS), args.seeds, random_seeds,
                                 args.duration, **settings)
     rows = write_outputs(out, records, runs, command, not args.no_plots)
     print(markdown_table(rows))

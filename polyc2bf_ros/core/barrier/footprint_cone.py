@@ -18,26 +18,34 @@ they do not move alike when the robot turns:
 
 v the relative velocity of the touching points: f* is the footprint point behind C's
 boundary point nearest c, w = (1 - t) P_k + t P_k+1 = o* - (c + R f*), f* = (1 - t) f_j(k)
-+ t f_j(k+1).  The barrier is ``horizon_cone``'s with that v:
++ t f_j(k+1).  The barrier is ``horizon_cone``'s with the turning share of v faded out
+over the covering radius r:
 
-    h = L [<u, v> + |v|_e cc + (d / tau)(1 - cc)],    d = |w|,
+    h = L [<u, v_s> + |v_s|_e cc + (d / tau)(1 - cc)],    d = |w|,
+    v_s = o_dot - c_dot - s omega J R f*,    s = max(0, 1 - d / r),
 
 m = a_hat + b_hat over the silhouette rays a, b, u = m / |m|, cc = |m| / 2, L = |g|, g the
-mean of the P_k.  Its rate is
+mean of the P_k.  (With s = 1 everywhere, measured on BARN with a Jackal, a turn made
+every far part's row swing: the filter spun the box at its turn-rate limit and its QP
+turned infeasible.  A part farther than r from the body cannot be reached by turning in
+place.)  Its rate is
 
-    h_dot = sum_k dh/dP_k . P_k_dot + dh/dv . v_dot,
-    v_dot = -(a e + v omega J e) - alpha J R f* + omega^2 R f* - omega J R f*_dot,
+    h_dot = sum_k dh/dP_k . P_k_dot + dh/dv . v_s_dot,
+    v_s_dot = -(a e + v omega J e) + s (-alpha J R f* + omega^2 R f* - omega J R f*_dot)
+              - s_dot omega J R f*,
 
 e = (cos theta, sin theta); f*_dot = t_dot (f_j(k+1) - f_j(k)) while t is inside (0, 1), 0
-at a vertex.  dh/dP_k is inner g_hat / count for every vertex (through L), plus, at the
-silhouette vertices, (I - a_hat a_hat^T) / |a| dh/dm, and at the nearest edge's ends
-(1 - t) and t times L (1 - cc) w / (tau d) (through d).  alpha enters through v: Lg h's
-steering column is -dh/dv . J R f*, nonzero wherever the touching point is off the
-heading's line through c, so the filter may turn the body away as well as brake.
+at a vertex; s_dot = -d_dot / r inside (0, r), d_dot = <w, v> / d (the nearest point moves
+with the touching points).  dh/dP_k is inner g_hat / count for every vertex (through L),
+plus, at the silhouette vertices, (I - a_hat a_hat^T) / |a| dh/dm, and at the nearest
+edge's ends (1 - t) and t times L (1 - cc) w / (tau d) (through d).  alpha enters through
+v_s: Lg h's steering column is -s dh/dv . J R f*, nonzero near a part wherever the touching
+point is off the heading's line through c, so the filter may turn the body away as well
+as brake.
 
 Why h >= 0 excludes contact: the bodies touch first when c reaches C's boundary (d = 0).
-There h = L [<u, v> + |v|_e cc] is eq. 7 with v the velocity of the touching body point
-relative to the obstacle's, so h >= 0 forbids every such velocity into C (its silhouette
+There s = 1 and h = L [<u, v> + |v|_e cc] is eq. 7 with v the velocity of the touching body
+point relative to the obstacle's, so h >= 0 forbids every such velocity into C (its silhouette
 rays bound the tangent cone of C at the touching point), as in ``horizon_cone``.  Turning
 is accounted for: a corner that sweeps towards a post is a touching point whose velocity
 omega J R f* is in v.  A non-convex footprint is guarded by its convex hull

@@ -97,6 +97,9 @@ def _footprint_plane(x, y, counts, footprint, state, velocities, offsets, age, i
     feet = np.empty(width, dtype=np.int64)
     theta, speed, omega = state[2], state[3], state[4]
     cos, sin = math.cos(theta), math.sin(theta)
+    cover = 0.0
+    for j in range(footprint.shape[1]):
+        cover = max(cover, math.hypot(footprint[0, j], footprint[1, j]))
     for n in range(counts.shape[0]):
         ovx, ovy = velocities[n, 0], velocities[n, 1]
         qx = state[0] - age * ovx - offsets[n, 0]
@@ -108,15 +111,19 @@ def _footprint_plane(x, y, counts, footprint, state, velocities, offsets, age, i
         valid[n] = _footprint_column(cx, cy, count, feet, footprint, ia, ib, seen, k, t, wx,
                                      wy, qx, qy, cos, sin, speed, omega, ovx, ovy,
                                      inv_horizon, eps_sq, accel, velocity_error, gamma,
-                                     block, n)
+                                     cover, block, n)
 
 
 
 @kernel
 def _footprint_column(cx, cy, count, feet, footprint, ia, ib, seen, k, t, wx, wy, qx, qy, cos,
                       sin, speed, omega, ovx, ovy, inv_horizon, eps_sq, accel, velocity_error,
-                      gamma, block, n):
-    """Write column n of ``_footprint_plane``'s block; return False where no cone exists."""
+                      gamma, cover, block, n):
+    """Write column n of ``_footprint_plane``'s block; return False where no cone exists.
+
+    ``cover``: the footprint's covering radius, over which the turning share sigma of v
+    fades (``footprint_cone``).
+    """
     ax, ay, bx, by = cx[0, ia] - qx, cy[0, ia] - qy, cx[0, ib] - qx, cy[0, ib] - qy
     a_norm = max(math.sqrt(ax * ax + ay * ay), _TINY)
     b_norm = max(math.sqrt(bx * bx + by * by), _TINY)
@@ -143,10 +150,17 @@ def _footprint_column(cx, cy, count, feet, footprint, ia, ib, seen, k, t, wx, wy
     fk1x, fk1y = footprint[0, feet[k1]], footprint[1, feet[k1]]
     fsx, fsy = (1.0 - t) * fkx + t * fk1x, (1.0 - t) * fky + t * fk1y
     rfx, rfy = cos * fsx - sin * fsy, sin * fsx + cos * fsy  # R f*
-    vx, vy = ovx - speed * cos + omega * rfy, ovy - speed * sin - omega * rfx
+    # The touching points' velocity (the vertices' rates build on it) and the barrier's v,
+    # whose turning share sigma = 1 - d / r fades out at the covering radius r.
+    true_x, true_y = ovx - speed * cos + omega * rfy, ovy - speed * sin - omega * rfx
+    distance = math.sqrt(wx * wx + wy * wy)
+    sigma = max(0.0, 1.0 - distance / cover)
+    vx, vy = ovx - speed * cos + sigma * omega * rfy, ovy - speed * sin - sigma * omega * rfx
+    # sigma_dot = -d_dot / r inside (0, r): d_dot = <w, v_true> / d.
+    sigma_dot = (-(wx * true_x + wy * true_y) / (distance * cover)
+                 if 0.0 < distance < cover else 0.0)
     along = ux * vx + uy * vy
     norm_v = math.sqrt(vx * vx + vy * vy + eps_sq)
-    distance = math.sqrt(wx * wx + wy * wy)
     inner = along + norm_v * c + inv_horizon * distance * (1.0 - c)
     dh_dvx, dh_dvy = length * (ux + c * vx / norm_v), length * (uy + c * vy / norm_v)
     scale = 0.5 * (norm_v - inv_horizon * distance)
@@ -163,30 +177,33 @@ def _footprint_column(cx, cy, count, feet, footprint, ia, ib, seen, k, t, wx, wy
     dk1_x, dk1_y = dd * t * wx, dd * t * wy
     common_x, common_y = inner * gx / length, inner * gy / length
     # Vertex rates P_j_dot = v + omega J R (f* - f_j): only f_j differs between vertices.
-    geometric = (common_x * _rate_x(vx, omega, cos, sin, fsx - mean_fx, fsy - mean_fy)
-                 + common_y * _rate_y(vy, omega, cos, sin, fsx - mean_fx, fsy - mean_fy))
+    geometric = (common_x * _rate_x(true_x, omega, cos, sin, fsx - mean_fx, fsy - mean_fy)
+                 + common_y * _rate_y(true_y, omega, cos, sin, fsx - mean_fx, fsy - mean_fy))
     for vertex, gx_, gy_ in ((ia, da_x, da_y), (ib, db_x, db_y), (k, dk_x, dk_y),
                              (k1, dk1_x, dk1_y)):
         dfx, dfy = fsx - footprint[0, feet[vertex]], fsy - footprint[1, feet[vertex]]
-        geometric += (gx_ * _rate_x(vx, omega, cos, sin, dfx, dfy)
-                      + gy_ * _rate_y(vy, omega, cos, sin, dfx, dfy))
+        geometric += (gx_ * _rate_x(true_x, omega, cos, sin, dfx, dfy)
+                      + gy_ * _rate_y(true_y, omega, cos, sin, dfx, dfy))
     # f*_dot: t slides along the nearest edge while inside (0, 1); f* stays at a vertex.
     t_dot = 0.0
     if 0.0 < t < 1.0:
         px, py = cx[0, k] - qx, cy[0, k] - qy
         ex, ey = cx[0, k1] - cx[0, k], cy[0, k1] - cy[0, k]
-        rkx = _rate_x(vx, omega, cos, sin, fsx - fkx, fsy - fky)
-        rky = _rate_y(vy, omega, cos, sin, fsx - fkx, fsy - fky)
-        erx = _rate_x(vx, omega, cos, sin, fsx - fk1x, fsy - fk1y) - rkx
-        ery = _rate_y(vy, omega, cos, sin, fsx - fk1x, fsy - fk1y) - rky
+        rkx = _rate_x(true_x, omega, cos, sin, fsx - fkx, fsy - fky)
+        rky = _rate_y(true_y, omega, cos, sin, fsx - fkx, fsy - fky)
+        erx = _rate_x(true_x, omega, cos, sin, fsx - fk1x, fsy - fk1y) - rkx
+        ery = _rate_y(true_y, omega, cos, sin, fsx - fk1x, fsy - fk1y) - rky
         square = ex * ex + ey * ey
         t_dot = (-(rkx * ex + rky * ey) - (px * erx + py * ery)
                  - 2.0 * t * (ex * erx + ey * ery)) / square
     fdx, fdy = t_dot * (fk1x - fkx), t_dot * (fk1y - fky)
     rdx, rdy = cos * fdx - sin * fdy, sin * fdx + cos * fdy  # R f*_dot
-    # v_dot = -(a e + v omega J e) - alpha J R f* + omega^2 R f* - omega J R f*_dot.
-    drift_x = speed * omega * sin + omega * omega * rfx + omega * rdy
-    drift_y = -speed * omega * cos + omega * omega * rfy - omega * rdx
+    # v_dot = -(a e + v omega J e) + sigma (-alpha J R f* + omega^2 R f* - omega J R f*_dot)
+    #         - sigma_dot omega J R f*.
+    drift_x = (speed * omega * sin + sigma * (omega * omega * rfx + omega * rdy)
+               + sigma_dot * omega * rfy)
+    drift_y = (-speed * omega * cos + sigma * (omega * omega * rfy - omega * rdx)
+               - sigma_dot * omega * rfx)
     lf = geometric + dh_dvx * drift_x + dh_dvy * drift_y
     shift_x = common_x + da_x + db_x + dk_x + dk1_x
     shift_y = common_y + da_y + db_y + dk_y + dk1_y
@@ -199,7 +216,7 @@ def _footprint_column(cx, cy, count, feet, footprint, ia, ib, seen, k, t, wx, wy
     block[6, n], block[7, n], block[8, n] = length * c, shift_x, shift_y
     block[PLANE_ROWS, n], block[PLANE_ROWS + 1, n] = length * inner, lf
     block[PLANE_ROWS + 2, n] = -(dh_dvx * cos + dh_dvy * sin)
-    block[PLANE_ROWS + 3, n] = -(dh_dvx * -rfy + dh_dvy * rfx)  # -dh/dv . J R f*
+    block[PLANE_ROWS + 3, n] = -sigma * (dh_dvx * -rfy + dh_dvy * rfx)  # -sigma dh/dv.J R f*
     return True
 
 

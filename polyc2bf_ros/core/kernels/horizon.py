@@ -362,8 +362,8 @@ def _point_h(x, y, edge_x, edge_y, inv_sq, count, n, box, px, py, pvx, pvy, t, o
 
 
 @kernel
-def _value_at(x, y, count, n, footprint, row, t, ovx, ovy, ox, oy, inv_horizon, eps_sq, cx,
-              cy, feet, scratch):
+def _value_at(x, y, count, n, footprint, cover, row, t, ovx, ovy, ox, oy, inv_horizon, eps_sq,
+              cx, cy, feet, scratch):
     """Return h of part n at a path ``row`` [x, y, vx, vy, theta, omega] at time t; inf: none.
 
     The part moved by (ox, oy) and moving at (ovx, ovy); ``_footprint_column`` into the
@@ -376,7 +376,7 @@ def _value_at(x, y, count, n, footprint, row, t, ovx, ovy, ox, oy, inv_horizon, 
     k, near_t, wx, wy, _ = nearest_boundary(cx, cy, vertices, qx, qy)
     if not _footprint_column(cx, cy, vertices, feet, footprint, ia, ib, seen, k, near_t, wx,
                              wy, qx, qy, cos, sin, row[2] * cos + row[3] * sin, row[5], ovx,
-                             ovy, inv_horizon, eps_sq, 0.0, 0.0, 0.0, scratch, 0):
+                             ovy, inv_horizon, eps_sq, 0.0, 0.0, 0.0, cover, scratch, 0):
         return math.inf
     return scratch[PLANE_ROWS, 0]
 
@@ -423,6 +423,6 @@ def footprint_min_h_along(x, y, counts, boxes, footprint, cover, inv_horizon, ep
             t = age + (k + 1) * period
             if _far_from_box(box, cover, row, t, ovx, ovy, ox, oy, obstacle_speed, inv_horizon):
                 continue
-            best = min(best, _value_at(x, y, counts[n], n, footprint, row, t, ovx, ovy, ox,
-                                       oy, inv_horizon, eps_sq, cx, cy, feet, scratch))
+            best = min(best, _value_at(x, y, counts[n], n, footprint, cover, row, t, ovx, ovy,
+                                       ox, oy, inv_horizon, eps_sq, cx, cy, feet, scratch))
     return best

@@ -53,6 +53,14 @@ route.  When no route exists in the window (every way blocked, or none ``ahead``
 enough), the resolution falls back to circulation, and a deadlock that outlasts that plans
 again only ``max_time`` later (not on every held step).  A nominal stop passes unchanged.
 
+Backing.  A robot guarded by its footprint polygon (``barrier.footprint_cone``) that drove
+nose-in up to a part cannot always turn in place there: its corners sweep a circle of its
+covering radius r.  Its route starts ``backing`` = r - (half its least width) + 2 cm behind
+it along the heading, so the route's first leg backs it out to where it can turn, and a
+route point behind the robot (cos e < 0) is driven to in reverse: v* = -v_n max(0,
+cos e'), omega* = clip(k_theta e', +-omega_max), e' = wrap(e - pi).  A disc robot turns in
+place anywhere, and keeps ``backing`` 0 (the rule above).
+
 Holonomic bases (``point_mass_2d``, body-frame commands [vx, vy] at the odometry yaw psi)
 take d = Rz(psi) [vx, vy] / |[vx, vy]| and follow with the velocity v_n (target - p) /
 |target - p|, turned back into the body frame; v_n = |[vx, vy]|.  Without a route they
@@ -112,11 +120,13 @@ class RouteEscape:
     """The rule of the module docstring; ``ControlDecision`` drives it like ``Circulation``."""
 
     def __init__(self, free_clearance, holonomic=False, max_time=10.0, turn_gain=2.0,
-                 max_turn_rate=1.5, lookahead=0.25, **route):
+                 max_turn_rate=1.5, lookahead=0.25, backing=0.0, **route):
         """Follow routes keeping ``free_clearance`` [m]; ``route``: ``plan_route``'s options.
 
         ``holonomic``: commands are body-frame velocities [vx, vy] (``point_mass_2d``), not
-        unicycle [v, omega]; there is no circulation to fall back on.
+        unicycle [v, omega]; there is no circulation to fall back on.  ``backing`` [m]: a
+        unicycle first backs this far along its heading, and drives in reverse to route
+        points behind it (module docstring, "Backing").
         """
         if not (free_clearance > 0.0 and max_time > 0.0 and turn_gain > 0.0
                 and max_turn_rate > 0.0 and lookahead > 0.0):
@@ -124,6 +134,7 @@ class RouteEscape:
                              'max_turn_rate and lookahead must be positive')
         self.free_clearance = float(free_clearance)
         self.holonomic = bool(holonomic)
+        self.backing = 0.0 if self.holonomic else float(backing)
         self.max_time, self.lookahead = float(max_time), float(lookahead)
         self.turn_gain, self.max_turn_rate = float(turn_gain), float(max_turn_rate)
         self.route_options = route
@@ -179,8 +190,12 @@ class RouteEscape:
         direction = (math.cos(bearing), math.sin(bearing))
         route = None
         if obstacles is not None and len(obstacles) and self.blocked <= MAX_WIDEN:
-            route = plan_route(obstacles, position, direction,
+            start = np.asarray(position, dtype=float)
+            backed = start - self.backing * np.array([math.cos(yaw), math.sin(yaw)])
+            route = plan_route(obstacles, backed, direction,
                                self.free_clearance + WIDEN * self.blocked, **self.route_options)
+            if route is not None and self.backing > 0.0:
+                route = np.vstack((start, route))
         self.engagements += 1
         if route is None:
             self.blocked = 0
@@ -233,6 +248,10 @@ class RouteEscape:
         speed = max(self._speed_of(nominal), self._speed)
         if self.holonomic:   # the velocity towards the target, in the body frame
             return speed * np.array([math.cos(bearing - yaw), math.sin(bearing - yaw)])
+        if self.backing > 0.0 and math.cos(bearing - yaw) < 0.0:   # behind: in reverse
+            v, omega = steer_towards(bearing + math.pi, yaw, speed, self.turn_gain,
+                                     self.max_turn_rate)
+            return np.array([-v, omega])
         return steer_towards(bearing, yaw, speed, self.turn_gain, self.max_turn_rate)
 
     def _speed_of(self, nominal):
