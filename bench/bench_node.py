@@ -14,6 +14,8 @@ Three processes per measurement, so the driver cannot be the bottleneck:
   ``EventsExecutor``) and ``command_events`` (``command``, same parameters, spun by
   ``EventsExecutor`` instead of ``LeanExecutor``: bench/events_executor_subject.py,
   which says what the pinned rclpy needs for it); not run unless named;
+  ``command_footprint`` (``command`` guarding the Jackal's 4-vertex footprint with
+  ``polyc2bf_footprint``), not run unless named either;
 - the **sender** (this file, ``--role sender``): publishes odometry and a
   stamped command, both serialized in advance, every ``1/rate`` s on a fixed
   schedule; the command's ``header.frame_id`` is its sequence number and both
@@ -103,6 +105,7 @@ SEQ_DIGITS = 10  # fixed-width sequence numbers keep the serialized layout fixed
 STAMP = struct.Struct('<iI')
 SUBJECTS = ('echo', 'echo_rclpy', 'command', 'timer', 'command_eq7')  # the default
 EVENTS_SUBJECTS = ('echo_events', 'command_events')  # rclpy's EventsExecutor, on request
+ON_REQUEST = EVENTS_SUBJECTS + ('command_footprint',)  # run only when named
 EVENTS_NODE = Path(__file__).with_name('events_executor_subject.py')
 #: subject -> (trigger, extra node parameters)
 FILTER_SUBJECTS = {
@@ -111,6 +114,9 @@ FILTER_SUBJECTS = {
     'timer': ('timer', ()),
     'command_eq7': ('command', ('filter.barrier:=polyc2bf_inflated', 'filter.cone_axis:=midpoint',
                                 'filter.braking_check:=false')),
+    'command_footprint': ('command', ('filter.barrier:=polyc2bf_footprint',
+                                      'filter.footprint:="[[0.254, 0.215], [-0.254, 0.215], '
+                                      '[-0.254, -0.215], [0.254, -0.215]]"')),
 }
 CDF_PERCENTILES = np.linspace(0.0, 100.0, 201)  # the latency distribution kept per record
 TARGET_P50_MS, TARGET_P99_MS = 0.5, 1.5
@@ -596,7 +602,7 @@ def main(argv=None):
                         help='where the obstacles lie (module docstring)')
     parser.add_argument('--duration', type=float, default=10.0, help='measured seconds')
     parser.add_argument('--warmup', type=float, default=2.0, help='seconds before measuring')
-    parser.add_argument('--subjects', nargs='+', choices=SUBJECTS + EVENTS_SUBJECTS,
+    parser.add_argument('--subjects', nargs='+', choices=SUBJECTS + ON_REQUEST,
                         default=list(SUBJECTS))
     parser.add_argument('--out', type=Path, help=f'default {RESULTS}, or '
                         f'{OBSTACLE_RESULTS} with --obstacle-updates')

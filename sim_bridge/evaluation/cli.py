@@ -12,8 +12,9 @@ Usage::
              [--no-plots] [--obstacle-source ...]
     every suite also: [--latency S] [--actuator-tau S] [--odom-noise M] [-p NAME:=VALUE ...]
 
-``--filters`` takes ``polyc2bf_paper``, ``polyc2bf_inflated``, ``c3bf``, ``none``
-and ``default`` (the barrier the robot type's shipped parameter file runs).  The
+``--filters`` takes ``polyc2bf_paper``, ``polyc2bf_inflated``, ``c3bf``, ``none``,
+``polyc2bf_footprint`` (a robot given a footprint) and ``default`` (the barrier the robot
+type's shipped parameter file runs).  The
 BARN suite (``sim_bridge.barn``, ``barn_suite``) runs the worlds of
 ``--worlds`` (default: the shipped ``bench/data/barn/barn_worlds.json``; ``--limit``:
 the first K) with each nominal (default ``path``) and filter (default

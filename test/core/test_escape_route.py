@@ -10,6 +10,7 @@ from polyc2bf_ros.core.barrier.cones import PlanarPolygons
 from polyc2bf_ros.core.geometry.polygons import signed_distance
 from polyc2bf_ros.core.kernels.route import grid_clearance
 from polyc2bf_ros.core.liveness.escape_route import (
+    BACKING_SPEED,
     MAX_WIDEN,
     PATIENCE,
     plan_route,
@@ -132,6 +133,33 @@ def test_following_turns_onto_the_route_then_drives_and_releases_at_its_end():
     for point in route[len(route) // 2:]:                   # drive on along it
         escape.release_if_done(2.0, point, lambda: False)
     assert not escape.active
+
+
+@pytest.mark.parametrize('backing', [0.0, 0.14])
+def test_a_box_backs_out_first_and_drives_to_points_behind_in_reverse(backing):
+    """Nose-in at a wall: the route of a box starts ``backing`` behind it, driven in reverse.
+
+    A disc (backing 0) plans from where it stands and never reverses.
+    """
+    wall = box(2.0, -1.5, 2.3, 1.5)
+    escape = RouteEscape(FREE, lookahead=0.1, backing=backing)
+    escape.engage(0.0, (1.45, 0.2), 0.0, (0.7, 0.0), obstacle_set(wall))
+    route = escape._route
+    assert route[0].tolist() == [1.45, 0.2]
+    v, omega = escape.command(0.0, (0.7, 0.0), (1.45, 0.2))
+    if backing:
+        assert route[1, 0] <= 1.45 - backing + 0.1  # the backed point's cell, then on
+        assert -BACKING_SPEED <= v < 0.0 and abs(omega) < 0.5  # straight back, slowly
+    else:
+        assert v >= 0.0
+    # Facing away from a point behind, forward is never asked of a box in reverse.
+    v, _ = escape.command(math.pi, (0.7, 0.0), (1.45, 0.2))
+    assert v >= 0.0
+    # Past the backing leg a point behind is turned to, never reversed to.
+    far = int(np.searchsorted(escape._arc, backing + 0.3))
+    ahead = route[min(far + 2, len(route) - 1)] - route[far]
+    v, _ = escape.command(math.atan2(ahead[1], ahead[0]) + math.pi, (0.7, 0.0), route[far])
+    assert v >= 0.0
 
 
 def test_a_route_ends_after_its_time_limit_and_a_second_report_replans():

@@ -56,10 +56,13 @@ again only ``max_time`` later (not on every held step).  A nominal stop passes u
 Backing.  A robot guarded by its footprint polygon (``barrier.footprint_cone``) that drove
 nose-in up to a part cannot always turn in place there: its corners sweep a circle of its
 covering radius r.  Its route starts ``backing`` = r - (half its least width) + 2 cm behind
-it along the heading, so the route's first leg backs it out to where it can turn, and a
-route point behind the robot (cos e < 0) is driven to in reverse: v* = -v_n max(0,
-cos e'), omega* = clip(k_theta e', +-omega_max), e' = wrap(e - pi).  A disc robot turns in
-place anywhere, and keeps ``backing`` 0 (the rule above).
+it along the heading, so the route's first leg backs it out to where it can turn: while
+on that leg, a route point behind the robot (cos e < 0) is driven to in reverse at no more
+than ``BACKING_SPEED``, v* = -min(v_n, v_b) max(0, cos e'), omega* = clip(k_theta e',
++-omega_max), e' = wrap(e - pi); past it the rule above (turn, then forward).  Reversing
+no farther keeps a robot whose laser faces forward from driving blind: the filter keeps
+no memory of what a scan no longer shows.  A disc robot turns in place anywhere, and
+keeps ``backing`` 0.
 
 Holonomic bases (``point_mass_2d``, body-frame commands [vx, vy] at the odometry yaw psi)
 take d = Rz(psi) [vx, vy] / |[vx, vy]| and follow with the velocity v_n (target - p) /
@@ -74,6 +77,8 @@ from polyc2bf_ros.core.barrier.cones import PlanarPolygons
 from polyc2bf_ros.core.kernels.route import grid_clearance, route_search
 from polyc2bf_ros.core.liveness.circulation import Circulation, steer_towards
 
+BACKING_SPEED = 0.25  # m/s: a box backs out of its nose-in stand no faster (its laser may
+#                       face forward only)
 PATIENCE = 3.0   # s: a route the robot has not moved 0.1 m along in this long is blocked
 #                  (longer than a half turn in place at 1.5 rad/s)
 WIDEN = 0.1      # m: each blocked route in a row plans the next this much wider ...
@@ -248,9 +253,10 @@ class RouteEscape:
         speed = max(self._speed_of(nominal), self._speed)
         if self.holonomic:   # the velocity towards the target, in the body frame
             return speed * np.array([math.cos(bearing - yaw), math.sin(bearing - yaw)])
-        if self.backing > 0.0 and math.cos(bearing - yaw) < 0.0:   # behind: in reverse
-            v, omega = steer_towards(bearing + math.pi, yaw, speed, self.turn_gain,
-                                     self.max_turn_rate)
+        if (self.backing > 0.0 and self._arc[self._progress] < self.backing
+                and math.cos(bearing - yaw) < 0.0):   # backing out: in reverse, slowly
+            v, omega = steer_towards(bearing + math.pi, yaw, min(speed, BACKING_SPEED),
+                                     self.turn_gain, self.max_turn_rate)
             return np.array([-v, omega])
         return steer_towards(bearing, yaw, speed, self.turn_gain, self.max_turn_rate)
 
