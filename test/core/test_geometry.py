@@ -20,6 +20,7 @@ from polyc2bf_ros.core.geometry.polygons import (
     points_in_convex,
     PolygonBatch,
     segments_meet_convex,
+    shrunk_convex,
     signed_area,
     signed_distance,
     signed_distance_batch,
@@ -27,7 +28,7 @@ from polyc2bf_ros.core.geometry.polygons import (
     thin_axis,
     vertical_shadow,
 )
-from strategies import examples
+from strategies import convex_polygons, examples
 
 SETTINGS = settings(max_examples=examples(100), deadline=None)
 SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
@@ -523,3 +524,23 @@ def test_vertical_shadow_rejects_bad_arguments():
         vertical_shadow(SQUARE, 0.0, 1.0, (0.0, 0.0))
     with pytest.raises(ValueError):
         vertical_shadow(SQUARE, 1.0, 0.0, (1.0, 0.0))
+
+
+@given(convex_polygons(), st.floats(0.001, 0.5))
+def test_a_shrunk_polygon_keeps_the_margin_from_every_edge(polygon, margin):
+    """Every vertex of the shrunk polygon lies ``margin`` inside each edge's line, or None.
+
+    None only when the margin is of the polygon's size (at least its inradius, which is at
+    most any edge's distance from the vertex mean).
+    """
+    shrunk = shrunk_convex(polygon, margin)
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    normals = np.column_stack((edges[:, 1], -edges[:, 0])) / np.hypot(*edges.T)[:, None]
+    if shrunk is None:
+        centre = polygon.mean(axis=0)
+        assert margin >= np.min(np.einsum('ij,ij->i', normals, polygon - centre)) - 1e-9
+        return
+    depth = np.einsum('ij,kj->ki', normals, shrunk) - np.einsum('ij,ij->i', normals, polygon)
+    assert np.all(depth <= -margin + 1e-9)
+    # Every vertex lies on moved lines: at least three edges keep one, exactly margin in.
+    assert np.sum(np.isclose(np.max(depth, axis=0), -margin)) >= 3

@@ -10,7 +10,12 @@ from node_harness import markers, wall
 from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from polyc2bf_ros.obstacle_pipeline import ObstacleJob, ObstaclePipeline, read_scan
+from polyc2bf_ros.obstacle_pipeline import (
+    ObstacleJob,
+    ObstaclePipeline,
+    read_scan,
+    SCAN_BODY_MARGIN,
+)
 from polyc2bf_ros.obstacle_settings import IntakeSettings
 from test_node_scan import _scan
 
@@ -94,6 +99,22 @@ def test_the_filter_footprint_is_the_robot_unless_scan_footprint_radius_is_set()
         return any(_covers(polygon, (0.285, 0.0)) for polygon in polygons)
     assert nose_covered(IntakeSettings())
     assert not nose_covered(IntakeSettings(scan_footprint_radius=0.3))
+
+
+@pytest.mark.parametrize('inside, seen', [(0.01, True), (0.025, True), (0.05, False)])
+def test_hits_just_inside_the_footprint_are_still_obstacles(inside, seen):
+    """A wall ``inside`` m into the Jackal's nose: within ``SCAN_BODY_MARGIN`` it is seen.
+
+    A scan placed at a pose a moment stale puts an obstacle the polygon-guarded robot
+    stands 2 mm from a little inside its footprint; deeper hits are the robot's own.
+    """
+    assert 0.025 < SCAN_BODY_MARGIN < 0.05
+    jackal = '[[-0.254, -0.215], [0.254, -0.215], [0.254, 0.215], [-0.254, 0.215]]'
+    wall_x = 0.254 - inside
+    obstacles = _obstacles(_data(wall_x=wall_x), ODOMETRY, 'base_link', IntakeSettings(),
+                           0.333, None, ObstacleGeometry(make_model('unicycle'),
+                                                         FilterConfig(footprint=jackal)).footprint)
+    assert any(_covers(o.polygon, (wall_x + 0.005, 0.0)) for o in obstacles) is seen
 
 
 @pytest.mark.parametrize('depth', [0.05, 0.3])

@@ -161,6 +161,35 @@ def convex_hull(points) -> np.ndarray:
     return np.array(lower[:-1] + upper[:-1], dtype=np.float64)
 
 
+def shrunk_convex(polygon, margin) -> np.ndarray:
+    """Return a convex CCW polygon with every edge moved ``margin`` inwards, or None if gone.
+
+    Each edge's line n_k . x = c_k becomes n_k . x = c_k - margin (n_k the outward unit
+    normal); vertex k is where the lines of the edges before and at k now meet.  An edge
+    whose two vertices come out in the wrong order has shrunk away: its line is dropped and
+    the vertices met again.  None when fewer than three lines keep an edge (the margin
+    reaches the polygon's inradius).
+    """
+    points = np.asarray(polygon, dtype=np.float64)
+    edges = np.roll(points, -1, axis=0) - points
+    normals = np.column_stack((edges[:, 1], -edges[:, 0])) / np.hypot(*edges.T)[:, None]
+    offsets = np.einsum('ij,ij->i', normals, points) - margin
+    while len(normals) >= 3:
+        before, before_offsets = np.roll(normals, 1, axis=0), np.roll(offsets, 1)
+        determinant = before[:, 0] * normals[:, 1] - before[:, 1] * normals[:, 0]
+        if np.any(determinant <= 0.0):
+            return None  # two lines meet the wrong way round: nothing is left between them
+        starts = np.column_stack(
+            (before_offsets * normals[:, 1] - offsets * before[:, 1],
+             offsets * before[:, 0] - before_offsets * normals[:, 0])) / determinant[:, None]
+        directions = np.column_stack((-normals[:, 1], normals[:, 0]))
+        kept = np.einsum('ij,ij->i', np.roll(starts, -1, axis=0) - starts, directions) > 0.0
+        if kept.all():
+            return starts
+        normals, offsets = normals[kept], offsets[kept]
+    return None
+
+
 def _left_turning(pts):
     """Return True when the boundary of ``pts`` never turns right (up to tolerance)."""
     turn, tol = _turns(pts)
