@@ -123,9 +123,9 @@ NODE_PARAMETERS = {
                                'endpoints of one obstacle '
                                '(core/obstacles/scan_conversion.py)', False),
     'scan_footprint_radius': (-1.0, (-1.0, 10.0), 'scan endpoints this close [m] to the base '
-                              'are the robot itself; negative: those inside filter.footprint '
-                              "(its convex hull) at the scan's pose, without one those within "
-                              'filter.robot_radius', False),
+                              'are the robot itself; negative: filter.robot_radius (with '
+                              "filter.footprint: its covering disc's radius; guarded as a "
+                              'polygon: the disc inside it, less 3 cm)', False),
     'scan_obstacle_depth': (0.10, (0.02, 10.0), 'how far [m] each scan obstacle reaches behind '
                             'the surface the beams lit (the unseen body behind it)', False),
     'scan_tracking': (True, None, 'track scan clusters from scan to scan '

@@ -16,7 +16,6 @@ import numpy as np
 from polyc2bf_ros import cdr_reader, marker_obstacles
 from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.decision import ObstacleSnapshot
-from polyc2bf_ros.core.geometry.polygons import convex_hull, shrunk_convex
 from polyc2bf_ros.core.obstacles.marker_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.obstacles.scan_conversion import pose_at, scan_to_obstacles, ScanSettings
@@ -102,7 +101,7 @@ class ObstaclePipeline:
         for data in job.transforms:
             self._static.update(data)
         for scan in job.scans:
-            self._take_scan(*scan, settings, job.geometry)
+            self._take_scan(*scan, settings, job.geometry.own_radius)
         marker_obstacles.apply_markers(
             tracker, cdr_reader.MarkerArrayView(tuple(marker_obstacles.conflate_markers(markers))),
             job.now, settings.wall_thickness, settings.cylinder_sides,
@@ -142,15 +141,11 @@ class ObstaclePipeline:
                              f'({settings.max_obstacles})')
         return result, t_ref, wrong_frame
 
-    def _take_scan(self, topic, data, received, odometry, base_frame, settings, geometry):
-        """Convert one serialized LaserScan of ``topic``; a bad one is counted, not used.
-
-        The robot's body is the filter's ``geometry``: its footprint, else its radius.
-        """
+    def _take_scan(self, topic, data, received, odometry, base_frame, settings, radius):
+        """Convert one serialized LaserScan of ``topic``; a bad one is counted, not used."""
         status = self.scan_status.get(topic, ScanStatus())
         try:
-            scan = read_scan(data, odometry, base_frame, settings, geometry.robot_radius,
-                             self._static, geometry.footprint)
+            scan = read_scan(data, odometry, base_frame, settings, radius, self._static)
         except ValueError as exc:
             self.scan_status[topic] = status._replace(
                 received=received, rejected=status.rejected + 1, reason=str(exc))
@@ -185,32 +180,18 @@ def _moved(obstacle, dt):
     return dataclasses.replace(obstacle, polygon=obstacle.polygon + velocity[:2] * dt)
 
 
-SCAN_BODY_MARGIN = 0.03
-"""m inside the footprint's edge up to which a scan's endpoints are still obstacles.
-
-A robot guarded by its polygon comes to ``braking_margin`` of an obstacle, so a scan
-placed at a pose a moment stale puts the obstacle's near side a few millimetres inside the
-footprint: dropped as the robot's own, the obstacle vanished (a Jackal in BARN from its
-laser, first 50 worlds: 7 and 1 runs of 50 collided with the go-to-goal and path
-nominals, by 1-2 mm; bench/README.md).  A disc robot keeps its guard offset beyond its
-self-filter disc.
-"""
-
-
-def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=None,
-              footprint=None):
+def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=None):
     """Return the ``ScanObstacles`` of a serialized LaserScan; ValueError says why it is unusable.
+
+    Endpoints within ``robot_radius`` of the base (``ObstacleGeometry.own_radius``), or
+    ``scan_footprint_radius`` when that is >= 0, are the robot's own.
 
     ``odometry``: samples ``(stamp [s], x, y, yaw)`` of the base in the odometry frame,
     oldest first (empty: no odometry yet); the scan is taken at the one stamped nearest its
     ``header.stamp`` (``pose_at``).  A scan in another frame than ``base_frame`` (the
     odometry child frame) was taken where the ``StaticTransforms`` ``transforms`` put that
     frame, else at ``settings.sensor_pose``; a non-finite transform on the way refuses the
-    scan.  Every range NaN is refused (no measurement at all).  Endpoints on the robot are
-    dropped: within ``settings.scan_footprint_radius`` of the base when that is >= 0, else
-    inside ``footprint`` (the filter's CCW polygon in the base frame; a non-convex one: its
-    convex hull) shrunk by ``SCAN_BODY_MARGIN`` and placed at the scan's pose (none when
-    nothing is left of it), or without one within ``robot_radius``.
+    scan.  Every range NaN is refused (no measurement at all).
     """
     # Imported on the first scan: a worker without scan input does not pay for them.
     from rclpy.serialization import deserialize_message
@@ -235,17 +216,9 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
     sensor_pose = _sensor_pose(scan.header.frame_id.lstrip('/'), base_frame, settings,
                                transforms)
     radius = settings.scan_footprint_radius
-    own = None
-    if radius < 0 and footprint is not None:
-        own = shrunk_convex(convex_hull(footprint), SCAN_BODY_MARGIN)
-    if own is not None:
-        body = {'footprint': own}
-    elif radius >= 0 or footprint is None:
-        body = {'footprint_radius': float(robot_radius if radius < 0 else radius)}
-    else:
-        body = {'footprint_radius': 0.0}  # a footprint too small to shrink: no own body
     scan_settings = ScanSettings(cluster_tolerance=float(settings.scan_cluster_tolerance),
-                                 depth=float(settings.scan_obstacle_depth), **body)
+                                 footprint_radius=float(robot_radius if radius < 0 else radius),
+                                 depth=float(settings.scan_obstacle_depth))
     obstacles, owner, clusters = scan_to_obstacles(
         ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max,
         sensor_pose, robot_pose, scan_settings, with_clusters=True)

@@ -20,7 +20,7 @@ class IntakeSettings(NamedTuple):
     max_obstacles: int = MAX_OBSTACLES
     sensor_pose: tuple = (0.0, 0.0, 0.0)
     scan_cluster_tolerance: float = 0.15
-    scan_footprint_radius: float = -1.0  # negative: the filter's footprint, else robot_radius
+    scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
     scan_obstacle_depth: float = 0.10
     scan_tracking: bool = True
     scan_unknown_speed: float = 2.0

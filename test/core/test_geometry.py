@@ -12,15 +12,11 @@ from polyc2bf_ros.core.geometry.polygons import (
     clean_polygon,
     convex_hull,
     decompose_convex,
-    farthest_edge_normals,
     InvalidPolygonError,
     is_convex,
     minimum_enclosing_circle,
     point_in_polygon,
-    points_in_convex,
     PolygonBatch,
-    segments_meet_convex,
-    shrunk_convex,
     signed_area,
     signed_distance,
     signed_distance_batch,
@@ -28,7 +24,7 @@ from polyc2bf_ros.core.geometry.polygons import (
     thin_axis,
     vertical_shadow,
 )
-from strategies import convex_polygons, examples
+from strategies import examples
 
 SETTINGS = settings(max_examples=examples(100), deadline=None)
 SQUARE = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
@@ -328,39 +324,6 @@ def test_boundary_points_count_as_inside():
 
 
 @SETTINGS
-@given(float_convex_polygons(), st.data())
-def test_convex_queries_match_point_in_polygon_and_edge_crossings(polygon, data):
-    """The vectorised convex queries agree with point_in_polygon and edge crossings.
-
-    A segment meets the polygon iff an end lies in it or it touches an edge (orientation
-    signs); an outside point lies farthest beyond the line of the edge whose normal is
-    returned, and the half-plane beyond it along that normal holds no vertex.
-    """
-    starts, ends = sample_points(data, polygon), sample_points(data, polygon)
-    inside = points_in_convex(starts[:, 0], starts[:, 1], polygon)
-    assert inside.tolist() == [point_in_polygon(p, polygon) for p in starts]
-    edge_start, edge_end = polygon, np.roll(polygon, -1, axis=0)
-    for start, end in zip(starts, ends):
-        o1, o2 = np.sign(cross(end - start, edge_start - start)), np.sign(
-            cross(end - start, edge_end - start))
-        o3, o4 = np.sign(cross(edge_end - edge_start, start - edge_start)), np.sign(
-            cross(edge_end - edge_start, end - edge_start))
-        touches = ((o1 * o2 <= 0) & (o3 * o4 <= 0)).any()
-        expected = point_in_polygon(start, polygon) or point_in_polygon(end, polygon) or touches
-        meets = segments_meet_convex(start[:1], start[1:], end[:1] - start[0],
-                                     end[1:] - start[1], polygon)
-        assert meets.tolist() == [expected]
-    outside = starts[~inside]
-    nx, ny = farthest_edge_normals(outside[:, 0], outside[:, 1], polygon)
-    assert np.allclose(np.hypot(nx, ny), 1.0)
-    beyond = ((outside[:, 0, None] - polygon[:, 0]) * nx[:, None]
-              + (outside[:, 1, None] - polygon[:, 1]) * ny[:, None]).min(axis=1)
-    edges = edge_end - edge_start
-    farthest = (-cross(edges, outside[:, None] - edge_start) / np.hypot(*edges.T)).max(axis=1)
-    assert (beyond > 0).all() and np.allclose(beyond, farthest)
-
-
-@SETTINGS
 @given(st.lists(float_convex_polygons(), min_size=1, max_size=5), st.data())
 def test_signed_distance_batch_matches_signed_distance(polygons, data):
     """The batched signed distance equals the single-polygon one."""
@@ -524,23 +487,3 @@ def test_vertical_shadow_rejects_bad_arguments():
         vertical_shadow(SQUARE, 0.0, 1.0, (0.0, 0.0))
     with pytest.raises(ValueError):
         vertical_shadow(SQUARE, 1.0, 0.0, (1.0, 0.0))
-
-
-@given(convex_polygons(), st.floats(0.001, 0.5))
-def test_a_shrunk_polygon_keeps_the_margin_from_every_edge(polygon, margin):
-    """Every vertex of the shrunk polygon lies ``margin`` inside each edge's line, or None.
-
-    None only when the margin is of the polygon's size (at least its inradius, which is at
-    most any edge's distance from the vertex mean).
-    """
-    shrunk = shrunk_convex(polygon, margin)
-    edges = np.roll(polygon, -1, axis=0) - polygon
-    normals = np.column_stack((edges[:, 1], -edges[:, 0])) / np.hypot(*edges.T)[:, None]
-    if shrunk is None:
-        centre = polygon.mean(axis=0)
-        assert margin >= np.min(np.einsum('ij,ij->i', normals, polygon - centre)) - 1e-9
-        return
-    depth = np.einsum('ij,kj->ki', normals, shrunk) - np.einsum('ij,ij->i', normals, polygon)
-    assert np.all(depth <= -margin + 1e-9)
-    # Every vertex lies on moved lines: at least three edges keep one, exactly margin in.
-    assert np.sum(np.isclose(np.max(depth, axis=0), -margin)) >= 3

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polyc2bf_ros.core.geometry.footprint import covering_radius, parse_footprint
 from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.obstacles.scan_conversion import (
     beam_endpoints,
@@ -20,12 +19,10 @@ from polyc2bf_ros.core.obstacles.scan_conversion import (
     scan_wraps,
     ScanSettings,
 )
-from scan_simulator import box, sensor_pose_in_world, simulate_ranges
 from strategies import examples
 
 SETTINGS = settings(max_examples=examples(100), deadline=None)
 ORIGIN = (0.0, 0.0, 0.0)
-JACKAL = parse_footprint('[[-0.254, -0.215], [0.254, -0.215], [0.254, 0.215], [-0.254, 0.215]]')
 ROOM = [((2.0, -2.0), (2.0, 2.0)), ((2.0, 2.0), (-2.0, 2.0)), ((-2.0, 2.0), (-2.0, -2.0)),
         ((-2.0, -2.0), (2.0, -2.0))]
 
@@ -125,12 +122,11 @@ def _line_ranges(scan, count, offset, direction):
 
 
 @st.composite
-def scans(draw, boxed=False):
+def scans(draw):
     """Draw a scan, poses and settings with a robot body.
 
     Ranges are a random walk with jumps, or hits on a line passing through the footprint
     (whose beams straddle the body), with NaN, inf, negative and out-of-range values mixed in.
-    ``boxed``: the body is a box footprint about a point near the base, not a disc.
     """
     rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
     count = draw(st.integers(1, 400))
@@ -142,11 +138,6 @@ def scans(draw, boxed=False):
     thickness = rng.uniform(0.005, 0.1)
     cluster_tolerance = rng.uniform(thickness, 0.4)
     footprint_radius = rng.uniform(0.01, 0.6) if walk else rng.uniform(0.01, 0.15)
-    body = {'footprint_radius': footprint_radius}
-    if boxed:
-        half = rng.uniform(0.05, 0.5, 2)
-        body = {'footprint': box(rng.uniform(-0.9, 0.9, 2) * half, *half)}
-        footprint_radius = covering_radius(body['footprint'])
     scan = {
         'angle_min': rng.uniform(-math.pi, math.pi),
         'angle_increment': increment * rng.choice([-1.0, 1.0]),
@@ -157,11 +148,10 @@ def scans(draw, boxed=False):
             cluster_tolerance=cluster_tolerance, segment_thickness=thickness,
             depth=rng.uniform(thickness, 0.3),
             split_tolerance=rng.uniform(0.0, cluster_tolerance - thickness / 2),
-            max_obstacles=100_000, **body),
+            footprint_radius=footprint_radius, max_obstacles=100_000),
     }
     if walk:
-        level = rng.uniform(0.1, 1.5 if boxed else 5.0)  # a box: mostly near it
-        roughness = rng.choice([0.002, 0.03, 0.3])
+        level, roughness = rng.uniform(0.1, 5.0), rng.choice([0.002, 0.03, 0.3])
         ranges = np.abs(level + np.cumsum(rng.normal(0.0, roughness, count)))
         jumps = rng.random(count) < 0.05
         ranges[jumps] = rng.uniform(0.05, 6.0, jumps.sum())
@@ -173,75 +163,9 @@ def scans(draw, boxed=False):
     return {'ranges': ranges, **scan}
 
 
-def _placed(footprint, robot_pose):
-    """Return a base-frame footprint at ``robot_pose`` (x, y, yaw), in the odometry frame."""
-    x, y, yaw = robot_pose
-    rotation = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
-    return np.asarray(footprint) @ rotation.T + (x, y)
-
-
-@st.composite
-def scans_near_a_box(draw):
-    """Draw a scan of posts and boxes 0-10 cm outside a box footprint, with range noise.
-
-    The laser sits in the box: 1081 beams over 270 degrees, or 1440 round; the settings are
-    drawn as in ``scans``.
-    """
-    rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
-    half = rng.uniform(0.05, 0.5, 2)
-    centre = rng.uniform(-0.9, 0.9, 2) * half
-    footprint = box(centre, *half)
-    robot_pose = (*rng.uniform(-20.0, 20.0, 2), rng.uniform(-math.pi, math.pi))
-    sensor_pose = (*(centre + rng.uniform(-1.0, 1.0, 2) * half), rng.uniform(-math.pi, math.pi))
-    placed = _placed(footprint, robot_pose)
-    posts, boxes = [], []
-    for _ in range(rng.integers(1, 8)):
-        side = rng.integers(4)
-        start, end = placed[side], placed[(side + 1) % 4]
-        outward = np.array([end[1] - start[1], start[0] - end[0]]) / np.linalg.norm(end - start)
-        near = start + rng.uniform(-0.2, 1.2) * (end - start) + rng.uniform(0.0, 0.1) * outward
-        size = rng.uniform(0.02, 0.3)
-        if rng.random() < 0.5:
-            posts.append((near + size * outward, size))
-        else:  # a square of half side size, turned: its corners reach size sqrt(2)
-            boxes.append(box(near + size * math.sqrt(2) * outward, size, size,
-                             rng.uniform(0.0, math.pi)))
-    count, increment = (1081, math.radians(0.25)) if rng.random() < 0.5 else (1440,
-                                                                               math.pi / 720)
-    angle_min = -increment * (count - 1) / 2
-    ranges = simulate_ranges(sensor_pose_in_world(robot_pose, sensor_pose), count, angle_min,
-                             increment, 8.0, boxes, posts, rng.choice([0.0, 0.005, 0.02]), rng)
-    thickness = rng.uniform(0.005, 0.1)
-    cluster_tolerance = rng.uniform(thickness, 0.4)
-    return {'ranges': ranges, 'angle_min': angle_min, 'angle_increment': increment,
-            'range_min': 0.0, 'range_max': 8.0, 'sensor_pose': sensor_pose,
-            'robot_pose': robot_pose, 'settings': ScanSettings(
-                cluster_tolerance=cluster_tolerance, segment_thickness=thickness,
-                depth=rng.uniform(thickness, 0.3),
-                split_tolerance=rng.uniform(0.0, cluster_tolerance - thickness / 2),
-                footprint=footprint)}
-
-
 def _obstacles(scan):
     """Return scan_to_obstacles of a drawn scan."""
     return scan_to_obstacles(**scan)
-
-
-
-
-def _penetration(polygon, other):
-    """Return how deep two convex polygons overlap: the least overlap of their projections.
-
-    Separating axes: the edge normals of both; not positive when an axis separates them.
-    """
-    depth = np.inf
-    for outline in (polygon, other):
-        edges = np.roll(outline, -1, axis=0) - outline
-        for normal in np.column_stack([edges[:, 1], -edges[:, 0]]):
-            normal = normal / np.linalg.norm(normal)
-            first, second = polygon @ normal, other @ normal
-            depth = min(depth, min(first.max(), second.max()) - max(first.min(), second.min()))
-    return depth
 
 
 # -- properties ------------------------------------------------------------------------------
@@ -293,30 +217,6 @@ def test_polygons_are_convex_ccw_finite_and_not_degenerate(scan):
     assert [o.key for o in obstacles] == [f'scan/{i}' for i in range(len(obstacles))]
 
 
-@SETTINGS
-@given(st.one_of(scans(boxed=True), scans_near_a_box()))
-def test_a_box_footprint_is_neither_entered_nor_hides_what_lies_outside_it(scan):
-    """No polygon overlaps the box at the robot pose; endpoints outside it stay covered.
-
-    Every valid endpoint outside the box lies within split_tolerance + t / 2 (at most
-    cluster_tolerance) of a polygon.
-    """
-    setup = scan['settings']
-    footprint = _placed(setup.footprint, scan['robot_pose'])
-    ranges = scan['ranges']
-    with np.errstate(invalid='ignore'):
-        valid = (np.isfinite(ranges) & (ranges > 0) & (ranges >= scan['range_min'])
-                 & (ranges <= scan['range_max']))
-    points = _endpoints(scan)[valid]
-    points = points[_distances(points, footprint) > 1e-9]
-    obstacles = _obstacles(scan)
-    for obstacle in obstacles:
-        assert _penetration(obstacle.polygon, footprint) <= 1e-9, obstacle.key
-    bound = setup.split_tolerance + setup.segment_thickness / 2
-    gaps = _nearest_polygon_distances(points, obstacles)
-    assert (gaps <= bound + 1e-9).all(), f'uncovered endpoints {points[gaps > bound + 1e-9]}'
-
-
 # -- endpoints -------------------------------------------------------------------------------
 
 def test_nan_inf_negative_and_out_of_range_beams_are_dropped():
@@ -351,16 +251,15 @@ def test_empty_and_all_nan_scans_give_no_obstacles():
 
 # -- clustering and pieces -------------------------------------------------------------------
 
-def _scene(walls, setup=ScanSettings()):
+def _scene(walls):
     """Return the obstacles of walls seen by 181 beams over 180 degrees from the origin."""
     ranges = _cast(walls, 181, 0.0, math.pi / 180)
-    return scan_to_obstacles(ranges, 0.0, math.pi / 180, 0.05, 10.0, ORIGIN, ORIGIN, setup)
+    return scan_to_obstacles(ranges, 0.0, math.pi / 180, 0.05, 10.0, ORIGIN, ORIGIN)
 
 
-@pytest.mark.parametrize('setup', [ScanSettings(), ScanSettings(footprint=JACKAL)])
-def test_a_straight_wall_becomes_one_thin_rectangle_behind_it(setup):
+def test_a_straight_wall_becomes_one_thin_rectangle_behind_it():
     """A wall at y = 2: one rectangle from the first to the last hit, D deep, beyond y = 2."""
-    obstacles = _scene([((-1.0, 2.0), (1.0, 2.0))], setup)
+    obstacles = _scene([((-1.0, 2.0), (1.0, 2.0))])
     assert len(obstacles) == 1
     polygon = obstacles[0].polygon
     assert len(polygon) == 4
@@ -386,10 +285,9 @@ def test_beams_without_return_break_a_cluster():
     assert len(obstacles) == 2
 
 
-@pytest.mark.parametrize('setup', [ScanSettings(), ScanSettings(footprint=JACKAL)])
-def test_an_l_shaped_wall_becomes_two_pieces(setup):
+def test_an_l_shaped_wall_becomes_two_pieces():
     """A corner at (1, 2): one rectangle along each wall (ending at the hits nearest it)."""
-    obstacles = _scene([((-1.0, 2.0), (1.0, 2.0)), ((1.0, 2.0), (1.0, 0.5))], setup)
+    obstacles = _scene([((-1.0, 2.0), (1.0, 2.0)), ((1.0, 2.0), (1.0, 0.5))])
     assert len(obstacles) == 2
     flat, upright = sorted((o.polygon for o in obstacles), key=lambda p: np.ptp(p[:, 1]))
     depth = ScanSettings().depth
@@ -455,49 +353,6 @@ def test_footprint_hits_are_ignored():
     assert len(obstacles) == 1 and obstacles[0].polygon[:, 0].min() > 2.0
     assert len(scan_to_obstacles(ranges, 0.0, math.pi, 0.05, 10.0, (0.3, 0.0, 0.0),
                                  ORIGIN)) == 2
-
-
-def test_endpoints_on_the_footprint_are_dropped_and_those_beside_it_kept():
-    """Hits inside or on the Jackal's box are its body; one 3.5 cm beside it is an obstacle.
-
-    The disc of the box's covering radius (0.333 m) would drop that one too.
-    """
-    pose = (2.0, -1.0, math.pi / 2)
-    inside, corner, beside, far = _placed([[0.1, 0.1], [0.254, -0.215], [0.0, 0.25],
-                                           [1.0, 0.0]], pose)
-    points = np.array([inside, corner, beside, far])
-    footprint = scan_obstacles(points, pose[:2], ScanSettings(footprint=JACKAL),
-                               heading=pose[2])
-    assert len(footprint) == 2
-    assert _nearest_polygon_distances(np.array([beside, far]), footprint).max() <= 1e-9
-    assert _nearest_polygon_distances(np.array([inside, corner]), footprint).min() > 0.1
-    disc = ScanSettings(footprint_radius=covering_radius(JACKAL))
-    assert len(scan_obstacles(points, pose[:2], disc)) == 1
-    assert len(scan_obstacles(points, pose[:2])) == 4
-
-
-def test_a_post_beside_a_jackal_is_seen_though_it_is_within_the_covering_disc():
-    """A post of 7.5 cm radius 2 cm beside the box's long side: seen, and the box kept clear.
-
-    Its lit side lies within the covering disc (0.333 m), which drops all of it: the
-    filter guarding the box would not know the post.
-    """
-    pose, sensor = (1.0, 2.0, 0.4), (0.12, 0.0, 0.0)
-    post = _placed([[0.05, 0.215 + 0.02 + 0.075]], pose)[0]
-    increment = math.radians(0.25)
-    ranges = simulate_ranges(sensor_pose_in_world(pose, sensor), 1081, -math.radians(135.0),
-                             increment, 30.0, circles=[(post, 0.075)])
-    args = (ranges, -math.radians(135.0), increment, 0.05, 30.0, sensor, pose)
-    body = _placed(JACKAL, pose)
-    seen = scan_to_obstacles(*args, ScanSettings(footprint=JACKAL))
-    assert seen
-    for obstacle in seen:
-        assert _penetration(obstacle.polygon, body) <= 1e-9, obstacle.key
-    gap = min(min(_distances(o.polygon, body).min(), _distances(body, o.polygon).min())
-              for o in seen)
-    assert gap <= 0.03
-    assert np.isfinite(ranges).sum() > 50
-    assert scan_to_obstacles(*args, ScanSettings(footprint_radius=covering_radius(JACKAL))) == []
 
 
 def test_a_link_across_the_footprint_is_cut():
@@ -608,28 +463,6 @@ def test_bad_settings_raise_naming_the_field(field, value):
     """ScanSettings refuses out-of-range fields, naming them (split_tolerance: coverage)."""
     with pytest.raises(ValueError, match=field):
         ScanSettings(**{field: value})
-
-
-@pytest.mark.parametrize('footprint, message', [
-    (JACKAL[::-1], 'counter-clockwise'), ([[0.0, 0.0], [1.0, 0.0]], 'convex'),
-    ([[0.0, 0.0], [1.0, 0.0], [0.2, 0.2], [0.0, 1.0]], 'convex'),
-    ([[0.0, 0.0], [1.0, 0.0], [np.nan, 1.0]], 'finite'), ([1.0, 2.0, 3.0], 'pairs'),
-])
-def test_bad_footprints_are_refused(footprint, message):
-    """A footprint must be a convex CCW polygon of finite points (parse_footprint's)."""
-    with pytest.raises(ValueError, match=message):
-        ScanSettings(footprint=footprint)
-
-
-def test_a_footprint_is_kept_as_pairs_and_replaces_the_disc():
-    """Settings with a footprint compare and hash by its pairs; footprint_radius must be 0."""
-    setup = ScanSettings(footprint=JACKAL)
-    assert setup == ScanSettings(footprint=JACKAL.tolist())
-    assert hash(setup) == hash(ScanSettings(footprint=tuple(map(tuple, JACKAL))))
-    np.testing.assert_array_equal(setup.footprint_polygon, JACKAL)
-    assert setup.body_radius == covering_radius(JACKAL)
-    with pytest.raises(ValueError, match='footprint_radius must be 0'):
-        ScanSettings(footprint=JACKAL, footprint_radius=0.3)
 
 
 def test_default_settings_are_valid():

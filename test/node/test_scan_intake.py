@@ -7,15 +7,10 @@ from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
 
 from node_harness import markers, wall
-from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
+from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry, SCAN_BODY_MARGIN
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from polyc2bf_ros.obstacle_pipeline import (
-    ObstacleJob,
-    ObstaclePipeline,
-    read_scan,
-    SCAN_BODY_MARGIN,
-)
+from polyc2bf_ros.obstacle_pipeline import ObstacleJob, ObstaclePipeline, read_scan
 from polyc2bf_ros.obstacle_settings import IntakeSettings
 from test_node_scan import _scan
 
@@ -69,52 +64,42 @@ def test_returns_inside_the_footprint_are_the_robot_itself():
     A wall 0.28 m ahead: behind its nearest point no polygon of a 0.3 m robot, one of a
     0.2 m robot.
     """
+    behind = np.array([0.285, 0.0])
+
+    def covers(polygon):
+        edges, rel = np.roll(polygon, -1, axis=0) - polygon, behind - polygon
+        return (edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0] >= 0).all()
     for radius, seen in ((0.3, False), (0.2, True)):
         obstacles = _obstacles(_data(wall_x=0.28), ODOMETRY, 'base_link', IntakeSettings(),
                                    radius)
-        assert obstacles and any(_covers(o.polygon, (0.285, 0.0)) for o in obstacles) is seen
-
+        assert obstacles and any(covers(o.polygon) for o in obstacles) is seen
 
 def _covers(polygon, point):
     """Return True when a CCW convex polygon contains the point (or has it on its boundary)."""
     edges, rel = np.roll(polygon, -1, axis=0) - polygon, np.asarray(point) - polygon
     return bool((edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0] >= 0).all())
 
-def test_the_filter_footprint_is_the_robot_unless_scan_footprint_radius_is_set():
-    """A Jackal (box 0.508 x 0.430 m) 2.6 cm behind a wall: the wall is seen before its nose.
 
-    The job's geometry carries the filter's footprint, and only hits inside the box are the
-    robot; its covering disc (0.333 m), or an explicit ``scan_footprint_radius`` of 0.3 m,
-    would take the wall's middle for the robot.
+@pytest.mark.parametrize('barrier, wall_x, seen', [
+    ('polyc2bf_footprint', 0.244, True), ('polyc2bf_footprint', 0.19, True),
+    ('polyc2bf_footprint', 0.18, False), ('polyc2bf_horizon', 0.3, False)])
+def test_a_box_guarded_as_itself_drops_only_returns_well_inside_it(barrier, wall_x, seen):
+    """A wall ``wall_x`` ahead of a Jackal's centre (its nose at 0.254 m).
+
+    Guarded as its box, only returns within the disc inside it less ``SCAN_BODY_MARGIN``
+    (0.185 m) are the robot's own: a scan placed at a pose a moment stale puts an obstacle
+    the box stands 2 mm from a little inside it, and a wall 1 cm inside its nose is seen.
+    Guarded as its covering disc, everything within 0.333 m is the robot.
     """
     jackal = '[[-0.254, -0.215], [0.254, -0.215], [0.254, 0.215], [-0.254, 0.215]]'
-    geometry = ObstacleGeometry(make_model('unicycle'), FilterConfig(footprint=jackal))
-    assert geometry.robot_radius > 0.33
-
-    def nose_covered(settings):
-        snapshot = ObstaclePipeline().run(ObstacleJob([], 'odom', settings, geometry, 1.0, (
-            ('scan', _data(wall_x=0.28), 1.0, ODOMETRY, 'base_link'),)))
-        polygons = snapshot.obstacles.footprints.vertices  # padded: repeated corners
-        assert len(polygons)
-        return any(_covers(polygon, (0.285, 0.0)) for polygon in polygons)
-    assert nose_covered(IntakeSettings())
-    assert not nose_covered(IntakeSettings(scan_footprint_radius=0.3))
-
-
-@pytest.mark.parametrize('inside, seen', [(0.01, True), (0.025, True), (0.05, False)])
-def test_hits_just_inside_the_footprint_are_still_obstacles(inside, seen):
-    """A wall ``inside`` m into the Jackal's nose: within ``SCAN_BODY_MARGIN`` it is seen.
-
-    A scan placed at a pose a moment stale puts an obstacle the polygon-guarded robot
-    stands 2 mm from a little inside its footprint; deeper hits are the robot's own.
-    """
-    assert 0.025 < SCAN_BODY_MARGIN < 0.05
-    jackal = '[[-0.254, -0.215], [0.254, -0.215], [0.254, 0.215], [-0.254, 0.215]]'
-    wall_x = 0.254 - inside
-    obstacles = _obstacles(_data(wall_x=wall_x), ODOMETRY, 'base_link', IntakeSettings(),
-                           0.333, None, ObstacleGeometry(make_model('unicycle'),
-                                                         FilterConfig(footprint=jackal)).footprint)
-    assert any(_covers(o.polygon, (wall_x + 0.005, 0.0)) for o in obstacles) is seen
+    geometry = ObstacleGeometry(make_model('unicycle'),
+                                FilterConfig(footprint=jackal, barrier=barrier))
+    assert geometry.own_radius == pytest.approx(
+        0.215 - SCAN_BODY_MARGIN if barrier == 'polyc2bf_footprint' else np.hypot(0.254, 0.215))
+    snapshot = ObstaclePipeline().run(ObstacleJob([], 'odom', IntakeSettings(), geometry, 1.0, (
+        ('scan', _data(wall_x=wall_x), 1.0, ODOMETRY, 'base_link'),)))
+    polygons = snapshot.obstacles.footprints.vertices  # padded: repeated corners
+    assert any(_covers(polygon, (wall_x + 0.005, 0.0)) for polygon in polygons) is seen
 
 
 @pytest.mark.parametrize('depth', [0.05, 0.3])

@@ -161,35 +161,6 @@ def convex_hull(points) -> np.ndarray:
     return np.array(lower[:-1] + upper[:-1], dtype=np.float64)
 
 
-def shrunk_convex(polygon, margin) -> np.ndarray:
-    """Return a convex CCW polygon with every edge moved ``margin`` inwards, or None if gone.
-
-    Each edge's line n_k . x = c_k becomes n_k . x = c_k - margin (n_k the outward unit
-    normal); vertex k is where the lines of the edges before and at k now meet.  An edge
-    whose two vertices come out in the wrong order has shrunk away: its line is dropped and
-    the vertices met again.  None when fewer than three lines keep an edge (the margin
-    reaches the polygon's inradius).
-    """
-    points = np.asarray(polygon, dtype=np.float64)
-    edges = np.roll(points, -1, axis=0) - points
-    normals = np.column_stack((edges[:, 1], -edges[:, 0])) / np.hypot(*edges.T)[:, None]
-    offsets = np.einsum('ij,ij->i', normals, points) - margin
-    while len(normals) >= 3:
-        before, before_offsets = np.roll(normals, 1, axis=0), np.roll(offsets, 1)
-        determinant = before[:, 0] * normals[:, 1] - before[:, 1] * normals[:, 0]
-        if np.any(determinant <= 0.0):
-            return None  # two lines meet the wrong way round: nothing is left between them
-        starts = np.column_stack(
-            (before_offsets * normals[:, 1] - offsets * before[:, 1],
-             offsets * before[:, 0] - before_offsets * normals[:, 0])) / determinant[:, None]
-        directions = np.column_stack((-normals[:, 1], normals[:, 0]))
-        kept = np.einsum('ij,ij->i', np.roll(starts, -1, axis=0) - starts, directions) > 0.0
-        if kept.all():
-            return starts
-        normals, offsets = normals[kept], offsets[kept]
-    return None
-
-
 def _left_turning(pts):
     """Return True when the boundary of ``pts`` never turns right (up to tolerance)."""
     turn, tol = _turns(pts)
@@ -297,44 +268,6 @@ def _segment_square_distances(rx, ry, ex, ey, inv_sq):
     dx = rx - t * ex
     dy = ry - t * ey
     return dx * dx + dy * dy
-
-
-def _edge_sides(x, y, polygon):
-    """Return the (..., n) ``cross(e_k, p - v_k)`` of points (x, y) to every edge of a polygon."""
-    edges = np.roll(polygon, -1, axis=0) - polygon
-    return (edges[:, 0] * (np.asarray(y)[..., None] - polygon[:, 1])
-            - edges[:, 1] * (np.asarray(x)[..., None] - polygon[:, 0]))
-
-
-def points_in_convex(x, y, polygon) -> np.ndarray:
-    """Return where points (x, y) lie inside or on a convex CCW polygon: left of or on edges."""
-    return (_edge_sides(x, y, polygon) >= 0).all(axis=-1)
-
-
-def segments_meet_convex(ax, ay, ex, ey, polygon) -> np.ndarray:
-    """Return where the segments ``[a, a + e]`` touch or cross a convex CCW polygon.
-
-    Separating axes: a segment misses the polygon iff both its ends lie strictly right of one
-    edge, or every vertex lies strictly on one side of its line (never for ``e = 0``).
-    """
-    beyond_edge = ((_edge_sides(ax, ay, polygon) < 0)
-                   & (_edge_sides(ax + ex, ay + ey, polygon) < 0)).any(axis=-1)
-    side = (ex[..., None] * (polygon[:, 1] - ay[..., None])
-            - ey[..., None] * (polygon[:, 0] - ax[..., None]))
-    beside = (side > 0).all(axis=-1) | (side < 0).all(axis=-1)
-    return ~(beyond_edge | beside)
-
-
-def farthest_edge_normals(x, y, polygon) -> tuple[np.ndarray, np.ndarray]:
-    """Return the outward unit normal of the edge whose line each point lies farthest beyond.
-
-    For a point outside a convex CCW polygon that distance is positive, and the polygon lies
-    behind the parallel line through the point: the half-plane beyond it misses the polygon.
-    """
-    edges = np.roll(polygon, -1, axis=0) - polygon
-    lengths = np.hypot(edges[:, 0], edges[:, 1])
-    farthest = np.argmin(_edge_sides(x, y, polygon) / lengths, axis=-1)
-    return edges[farthest, 1] / lengths[farthest], -edges[farthest, 0] / lengths[farthest]
 
 
 def point_in_polygon(point, polygon) -> bool:

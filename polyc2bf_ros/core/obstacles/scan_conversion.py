@@ -13,12 +13,11 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
        p_i = o + r_i (cos phi_i, sin phi_i),   o = q + R(yaw) (s_x, s_y),
        phi_i = yaw + s_yaw + alpha_i.
 
-2. Footprint.  The robot's body B is the disc ``|p - q| <= footprint_radius``, or, given a
-   ``footprint`` F (convex, base frame), the polygon ``q + R(yaw) F``.  Endpoints in B (or
-   on it) are the robot itself and are dropped like invalid beams.
+2. Footprint.  Endpoints with ``|p_i - q| <= footprint_radius`` are the robot's own body and
+   are dropped like invalid beams.
 3. Clusters.  Kept beams i and i + 1 are linked when ``|p_{i+1} - p_i| <= cluster_tolerance``
-   and the segment between them misses B (separating axes for F); a dropped beam breaks
-   the chain.  A scan that goes round (``N |angle_increment| >= 2 pi -
+   and the segment between them passes farther than ``footprint_radius`` from q; a dropped
+   beam breaks the chain.  A scan that goes round (``N |angle_increment| >= 2 pi -
    |angle_increment| / 2``) also links beam N - 1 to beam 0, so the cluster across the seam is
    one; a cluster that goes all the way round is a ring, opened at the point farthest from
    its first point (a point of its convex hull, so a corner rather than the middle of a
@@ -28,21 +27,20 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
    one piece from its first to its last point; a piece is split at its point farthest from
    its chord (the segment joining its end points) while that distance exceeds
    ``split_tolerance``.  Every piece of every cluster is examined in the same numpy pass,
-   one pass per level of splitting.  Then a piece whose chord touches B is split at its
-   middle point and splitting resumes, until no chord does (rare: the chord cuts across
-   the robot).  A piece of two consecutive points is never split, and both rules were
-   checked for it in step 3, so splitting ends.  Pieces are not merged again afterwards.
+   one pass per level of splitting.  Then a piece whose chord passes within
+   ``footprint_radius`` of q is split at its middle point and splitting resumes, until no
+   chord does (rare: the chord cuts across the robot).  A piece of two consecutive points is
+   never split, and both rules were checked for it in step 3, so splitting ends.  Pieces
+   are not merged again afterwards.
 5. Depth.  A piece with chord ``[a, b]`` of length ``L >= t = segment_thickness`` becomes
    the rectangle ``a, b, b + D n, a + D n`` (D = ``depth``), n the unit normal of the chord
-   on the side away from q (a and b swapped where needed for counter-clockwise order); with
-   F, on the other side where F's part within the chord's span lies beyond the chord (F
-   passes the chord's end).  A shorter piece, or a single point, becomes the t wide, D deep
-   rectangle whose near edge is centred on the chord midpoint m and which extends along
-   ``(m - q) / |m - q|``, with F along the outward normal of the edge of F whose line m lies
-   farthest beyond.  Either way the rectangle misses B.  Only the lit side is measured; D
-   stands for the body behind it.  (At D = 2 cm, a robot passing a BARN cylinder of 7.5 cm
-   radius saw a sliver of it: the side it came alongside had never been lit, the filter
-   believed it a few millimetres farther than it was, and the robot grazed it.)
+   on the side away from q (a and b swapped where needed for counter-clockwise order).  A
+   shorter piece, or a single point, becomes the t wide, D deep rectangle whose near edge is
+   centred on the chord midpoint m and which extends along ``(m - q) / |m - q|``.  Only the
+   lit side is measured; D stands for the body behind it.  (At D = 2 cm, a robot passing a
+   BARN cylinder of 7.5 cm radius saw a sliver of it: the side it came alongside had never
+   been lit, the filter believed it a few millimetres farther than it was, and the robot
+   grazed it.)
 6. Front.  A piece's points may lie in front of its chord (on the robot's side, up to
    ``split_tolerance``; ``t / 2`` for a lone point's).  The deepest of them, m, becomes a fifth
    corner between the chord's ends when it lies within the chord's span, so the near side
@@ -54,29 +52,25 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
    robot grazed cylinders it believed centimetres away: BARN in scan mode.  Moved as a
    whole instead, the near edge stood up to ``split_tolerance`` in front of a box's faces
    next to a corner, and a gap between two pillars narrowed by twice that.)  The move is
-   capped so that the polygon stays out of B.  Disc: a pentagon's line through its fifth
-   corner, parallel to the chord, stays ``footprint_radius`` from q (a piece whose corner
-   would pass that line keeps four), a rectangle's near edge as a segment.  (Capped by the
-   edge's line instead, a chord beside the robot, whose line passed within
-   ``footprint_radius`` though the chord did not, was never moved, and left the cylinder
-   the robot was passing up to 4 mm in front of its polygon: a BARN graze.)  F: a polygon
-   lies within its chord's span, and F's part there lies in front of the chord (step 5), g
-   at the least from its line; the near side moves at most g, a pentagon's g - f_m (f_m:
-   how far its fifth corner lies in front; one with f_m > g keeps four corners).
+   capped so that the polygon stays ``footprint_radius`` from q: a pentagon's line through
+   its fifth corner, parallel to the chord (a piece whose corner would pass that line keeps
+   four), a rectangle's near edge as a segment.  (Capped by the edge's line instead, a
+   chord beside the robot, whose line passed within ``footprint_radius`` though the chord
+   did not, was never moved, and left the cylinder the robot was passing up to 4 mm in
+   front of its polygon: a BARN graze.)
 
 Guarantees. Every point of a piece lies within ``split_tolerance`` of its chord, an edge of
 its rectangle, or within ``split_tolerance + t / 2`` of its short rectangle;
 ``ScanSettings`` requires that sum to be at most ``cluster_tolerance``. No point lies in
-front of its polygon's near side (step 6) unless that would bring the polygon into the
-body B. So, unless ``min_cluster_points > 1`` drops a cluster or ``max_obstacles`` drops a
-polygon, every endpoint outside B lies within ``cluster_tolerance`` of a returned polygon,
-and so does every segment between two linked endpoints (distance to a chord is convex along
-it): the outline is open only where links break. No polygon enters B: its chord misses B
-(steps 3, 4), its rectangle extends away from B (step 5) and its near side stops at B (step
-6); the disc's polygons stay ``footprint_radius`` from q. Polygons are rectangles, or
-pentagons with one corner in front of the chord: convex, counter-clockwise, area at least
-``t D``. At most ``max_obstacles`` are returned; the farthest from q (by their chords'
-rectangles) are dropped.
+front of its polygon's near side (step 6) unless that would bring the polygon within
+``footprint_radius`` of q. So, unless ``min_cluster_points > 1`` drops a cluster or
+``max_obstacles`` drops a polygon, every kept endpoint lies within ``cluster_tolerance`` of
+a returned polygon, and so does every segment between two linked endpoints (distance to a
+chord is convex along it): the outline is open only where links break. A polygon extends
+away from q from a near side that stays more than ``footprint_radius`` from q (step 6): no
+polygon contains the base. Polygons are rectangles, or pentagons with one corner in front of
+the chord: convex, counter-clockwise, area at least ``t D``. At most ``max_obstacles`` are
+returned; the farthest from q (by their chords' rectangles) are dropped.
 
 Limits.
 - A polygon is the lit side of an object, D deep: the far side and the true depth of the
@@ -95,15 +89,14 @@ Limits.
   exceeds ``cluster_tolerance`` (head-on beyond 34 m at 0.25 deg and 0.15 m; along a corridor
   wall 1 m away, beyond about 6 m) they no longer link and the surface becomes a row of
   short rectangles, which still cover every endpoint.
-- Anything in B is taken for the robot itself and ignored, even a real obstacle: with the
-  disc, also what lies within it beside a robot that is not round (a post 2 cm beside a
-  Jackal's long side lies 0.24 m from q, inside its covering disc of 0.333 m).
+- Anything closer than ``footprint_radius`` to the base is taken for the robot itself and
+  ignored, even a real obstacle.
 - The scan is taken as instantaneous at ``robot_pose`` (no de-skewing of motion during the
   sweep); obstacles get zero velocity and an unbounded z range (``scan_tracker`` estimates
   velocities from the clusters that ``with_clusters=True`` returns).  ``pose_at`` picks that
   pose among odometry samples: the one stamped nearest the scan, not interpolated.
 - ``obstacle_tracker.outline_polygon`` thickens an outline symmetrically, one obstacle at a
-  time; here the thickening goes away from the body, so that it can never cover it, and is
+  time; here the thickening goes away from the base, so that it can never cover it, and is
   done for all pieces at once.
 
 Cost.  O(N) numpy work for endpoints, links and polygons, plus O(K) per level of splitting
@@ -113,27 +106,16 @@ level is about 55 numpy calls whatever K, so at N = 1081 call overhead dominates
 0.4-0.6 ms per scan on the benchmark VM (``bench/bench_scan.py``; 2 to 3 levels in a room or
 clutter), up to about 1 ms while another process loads both cores.  ``with_clusters`` adds
 one (K, 2) array and a view per cluster: a few hundredths of a millisecond
-(``bench/bench_tracking.py``).  A footprint is tested only against the endpoints, links
-and pieces within its covering disc (``body_radius``): 8-20 % more than the disc there.
+(``bench/bench_tracking.py``).
 """
 import functools
 import math
 import numbers
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 
-from polyc2bf_ros.core.geometry.footprint import covering_radius
-from polyc2bf_ros.core.geometry.polygons import (
-    _inverse_square_lengths,
-    _segment_square_distances,
-    farthest_edge_normals,
-    is_convex,
-    points_in_convex,
-    segments_meet_convex,
-    signed_area,
-)
+from polyc2bf_ros.core.geometry.polygons import _inverse_square_lengths, _segment_square_distances
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle
 
 FULL_TURN = 2.0 * math.pi
@@ -153,9 +135,7 @@ class ScanSettings:
     far every polygon reaches behind the surface it outlines; ``split_tolerance`` [m]: the
     largest distance of a point from its piece's chord; ``footprint_radius`` [m]: endpoints
     this close to the base are the robot itself; ``max_obstacles``: how many polygons, the
-    nearest, are kept; ``footprint``: the robot's convex CCW polygon in the base frame as
-    ``(x, y)`` pairs (``geometry.footprint.parse_footprint``), the body instead of the disc
-    (``footprint_radius`` then 0), or None.
+    nearest, are kept.
     """
 
     cluster_tolerance: float = 0.15
@@ -165,42 +145,17 @@ class ScanSettings:
     split_tolerance: float = 0.05
     footprint_radius: float = 0.0
     max_obstacles: int = 512
-    footprint: Optional[tuple] = None
 
     def __post_init__(self):
-        """Take ``footprint`` as a tuple of float pairs; refuse settings out of range."""
-        if self.footprint is not None:
-            try:
-                pairs = tuple((float(x), float(y)) for x, y in self.footprint)
-            except (TypeError, ValueError):
-                raise ValueError(f'footprint must be (x, y) pairs, got {self.footprint!r}') \
-                    from None
-            object.__setattr__(self, 'footprint', pairs)
+        """Refuse settings out of range (``validate``)."""
         self.validate()
-
-    @functools.cached_property
-    def footprint_polygon(self):
-        """Return ``footprint`` as a read-only (m, 2) array, or None."""
-        if self.footprint is None:
-            return None
-        polygon = np.array(self.footprint)
-        polygon.flags.writeable = False
-        return polygon
-
-    @functools.cached_property
-    def body_radius(self):
-        """Return ``footprint_radius``, or with a footprint the radius of its covering disc."""
-        if self.footprint is None:
-            return self.footprint_radius
-        return covering_radius(self.footprint_polygon)
 
     def validate(self):
         """Raise ValueError naming the first field out of range.
 
         Lengths are finite, tolerance and thickness positive, counts integers >= 1,
-        ``depth >= segment_thickness``, ``split_tolerance + segment_thickness / 2 <=
-        cluster_tolerance`` (the coverage bound), and a footprint is at least 3 finite points
-        of a convex polygon, counter-clockwise, with ``footprint_radius`` 0.
+        ``depth >= segment_thickness`` and ``split_tolerance + segment_thickness / 2 <=
+        cluster_tolerance`` (the coverage bound).
         """
         for name, positive in (('cluster_tolerance', True), ('segment_thickness', True),
                                ('depth', True),
@@ -222,15 +177,6 @@ class ScanSettings:
                 f'split_tolerance + segment_thickness / 2 = '
                 f'{self.split_tolerance + self.segment_thickness / 2!r} must not exceed '
                 f'cluster_tolerance = {self.cluster_tolerance!r} (the coverage guarantee)')
-        if self.footprint is not None:
-            polygon = np.array(self.footprint)
-            if (len(polygon) < 3 or not np.isfinite(polygon).all() or not is_convex(polygon)
-                    or not signed_area(polygon) > 0):
-                raise ValueError(f'footprint must be a convex counter-clockwise polygon of '
-                                 f'finite points, got {self.footprint!r}')
-            if self.footprint_radius != 0:
-                raise ValueError(f'footprint_radius must be 0 with a footprint, got '
-                                 f'{self.footprint_radius!r}')
 
 
 DEFAULT_SETTINGS = ScanSettings()
@@ -320,42 +266,25 @@ def scan_wraps(beam_count, angle_increment):
     return beam_count >= 2 and beam_count * step >= FULL_TURN - step / 2
 
 
-def _within(ax, ay, ex, ey, base, reach):
-    """Return where segments ``[a, a + e]`` pass within ``reach`` of the base."""
-    return _segment_square_distances(base[0] - ax, base[1] - ay, ex, ey,
-                                     _inverse_square_lengths(ex, ey)) <= reach ** 2
-
-
-def _meets_body(ax, ay, ex, ey, base, settings, footprint):
-    """Return where segments ``[a, a + e]`` touch the robot (steps 3, 4).
-
-    The body is ``footprint``, the placed polygon, or else the disc of ``footprint_radius``
-    about the base; a footprint lies within the disc of ``body_radius``, so only segments
-    that pass within it are tested against the polygon.
-    """
-    near = _within(ax, ay, ex, ey, base, settings.body_radius)
-    if footprint is not None and near.any():
-        near[near] = segments_meet_convex(ax[near], ay[near], ex[near], ey[near], footprint)
-    return near
-
-
-def _links(px, py, beams, reach_sq, base, settings, wraps, footprint):
+def _links(px, py, beams, reach_sq, base, settings, wraps):
     """Return (K,) whether kept point k links to point k + 1, the last to the first (step 3).
 
-    Only a pair with its first point within ``body_radius + cluster_tolerance`` of the base
-    can touch the body, so only those pairs are measured.
+    Only a pair with its first point within ``footprint_radius + cluster_tolerance`` of the
+    base can pass within ``footprint_radius`` of it, so only those pairs are measured.
     """
     next_x, next_y = np.concatenate((px[1:], px[:1])), np.concatenate((py[1:], py[:1]))
     step_x, step_y = next_x - px, next_y - py
     links = step_x * step_x + step_y * step_y <= settings.cluster_tolerance ** 2
     links[:-1] &= beams[1:] - beams[:-1] == 1
     links[-1] &= wraps
-    reach = settings.body_radius + settings.cluster_tolerance
+    reach = settings.footprint_radius + settings.cluster_tolerance
     near = (links & (reach_sq < reach ** 2)).nonzero()[0]
     if near.size:
         ax, ay = px[near], py[near]
-        links[near] = ~_meets_body(ax, ay, next_x[near] - ax, next_y[near] - ay, base,
-                                   settings, footprint)
+        ex, ey = next_x[near] - ax, next_y[near] - ay
+        links[near] = _segment_square_distances(
+            base[0] - ax, base[1] - ay, ex, ey,
+            _inverse_square_lengths(ex, ey)) > settings.footprint_radius ** 2
     return links
 
 
@@ -409,12 +338,12 @@ def _split_to_tolerance(px, py, ends, tolerance):
     return ends
 
 
-def _split(px, py, ends, base, settings, footprint):
+def _split(px, py, ends, base, settings):
     """Return the sorted piece ends of step 4, starting from the sorted cluster ends.
 
-    Pieces are split to tolerance; then a piece of three or more points whose chord touches
-    the body (``_meets_body``) is split at its middle point, and so on until none is left
-    (pieces of two points were checked when the points were linked).
+    Pieces are split to tolerance; then a piece of three or more points whose chord passes
+    within ``footprint_radius`` of the base is split at its middle point, and so on until
+    none is left (pieces of two points were checked when the points were linked).
     """
     while True:
         ends = _split_to_tolerance(px, py, ends, settings.split_tolerance)
@@ -422,74 +351,31 @@ def _split(px, py, ends, base, settings, footprint):
         inner = last - first >= 2
         first, last = first[inner], last[inner]
         ax, ay = px[first], py[first]
-        near = _meets_body(ax, ay, px[last] - ax, py[last] - ay, base, settings, footprint)
+        ex, ey = px[last] - ax, py[last] - ay
+        near = _segment_square_distances(
+            base[0] - ax, base[1] - ay, ex, ey,
+            _inverse_square_lengths(ex, ey)) <= settings.footprint_radius ** 2
         if not near.any():
             return ends
         ends = np.concatenate((ends, (first[near] + last[near]) // 2))
         ends.sort()
 
 
-def _strip_extent(footprint, ax, ay, ex, ey, length):
-    """Return (lowest, highest) ``(x - a) . n`` over the footprint's points x in each span.
-
-    Chord k runs from a_k along the unit e_k for ``length[k]``, n_k is e_k turned left, and
-    its span is where ``0 <= (x - a) . e <= length``.  The footprint's part in a span is
-    convex: its extremes are among the footprint's corners in the span and the crossings of
-    its edges with the span's two ends; (inf, -inf) where it misses the span.
-    """
-    rel_x, rel_y = footprint[:, 0] - ax[:, None], footprint[:, 1] - ay[:, None]
-    along = rel_x * ex[:, None] + rel_y * ey[:, None]
-    across = rel_y * ex[:, None] - rel_x * ey[:, None]
-    next_along, next_across = np.roll(along, -1, axis=1), np.roll(across, -1, axis=1)
-    span = length[:, None]
-    values, valid = [across], [(along >= 0.0) & (along <= span)]
-    for end in (0.0, span):
-        crosses = (along - end) * (next_along - end) < 0.0
-        fraction = (end - along) / np.where(crosses, next_along - along, 1.0)
-        values.append(across + fraction * (next_across - across))
-        valid.append(crosses)
-    values, valid = np.concatenate(values, axis=1), np.concatenate(valid, axis=1)
-    return (np.where(valid, values, np.inf).min(axis=1),
-            np.where(valid, values, -np.inf).max(axis=1))
-
-
-def _away(x, y, base, size, footprint):
-    """Return vectors of length ``size`` from points (x, y) away from the body (step 5).
-
-    Away from the base for the disc; from a footprint, along the outward normal of the edge
-    whose line the point lies farthest beyond (``farthest_edge_normals``).
-    """
-    if footprint is not None:
-        nx, ny = farthest_edge_normals(x, y, footprint)
-        return nx * size, ny * size
-    ux, uy = x - base[0], y - base[1]
-    reach = np.sqrt(ux * ux + uy * uy)
-    away = reach > 0  # False only for a point on the base itself (footprint_radius 0)
-    scale = size / np.where(away, reach, 1.0)
-    return np.where(away, ux * scale, size), np.where(away, uy * scale, 0.0)
-
-
-def _rectangles(ax, ay, bx, by, base, thickness, depth, body_radius, footprint):
-    """Return the (M, 4, 2) CCW polygons of chords [a, b] (step 5); corners 0, 1: near edge.
-
-    A footprint can lie behind only a chord that passes within ``body_radius`` of the base.
-    """
+def _rectangles(ax, ay, bx, by, base, thickness, depth):
+    """Return the (M, 4, 2) CCW polygons of chords [a, b] (step 5); corners 0, 1: near edge."""
     length = np.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
     short = length < thickness
     swap = ~short & ((bx - ax) * (base[1] - ay) > (by - ay) * (base[0] - ax))
-    if footprint is not None:  # where the footprint lies behind a chord, turn its rectangle
-        near = (~short & _within(ax, ay, bx - ax, by - ay, base, body_radius)).nonzero()[0]
-        if near.size:
-            lowest, highest = _strip_extent(footprint, ax[near], ay[near],
-                                            (bx[near] - ax[near]) / length[near],
-                                            (by[near] - ay[near]) / length[near], length[near])
-            behind = np.where(swap[near], -highest, lowest)  # inf: it misses the span
-            swap[near] ^= (behind > 0.0) & (behind < np.inf)
     ax, bx = np.where(swap, bx, ax), np.where(swap, ax, bx)
     ay, by = np.where(swap, by, ay), np.where(swap, ay, by)
     if short.any():
         cx, cy = (ax + bx) / 2, (ay + by) / 2
-        ux, uy = _away(cx, cy, base, 0.5 * thickness, footprint)  # towards the far edge
+        ux, uy = cx - base[0], cy - base[1]
+        reach = np.sqrt(ux * ux + uy * uy)
+        away = reach > 0  # False only for a midpoint on the base itself (footprint_radius 0)
+        scale = 0.5 * thickness / np.where(away, reach, 1.0)
+        ux = np.where(away, ux * scale, 0.5 * thickness)  # half the side, towards the far edge
+        uy = np.where(away, uy * scale, 0.0)
         ax, ay = np.where(short, cx - uy, ax), np.where(short, cy + ux, ay)
         bx, by = np.where(short, cx + uy, bx), np.where(short, cy - ux, by)
         length = np.where(short, thickness, length)
@@ -503,39 +389,7 @@ def _rectangles(ax, ay, bx, by, base, thickness, depth, body_radius, footprint):
     return corners
 
 
-def _disc_rooms(ax, ay, ex, ey, nx, ny, length, base, footprint_radius):
-    """Return how far (pentagon, rectangle) near sides may move towards the base (step 6).
-
-    A pentagon's line through its fifth corner, parallel to the chord, must stay
-    ``footprint_radius`` from the base: room = height - R, the height of the chord's line
-    above the base.  A rectangle may come as near as its near edge, a segment: beside the
-    base (lateral offset w > 0 of the base beyond the chord's span) its corner stays R away
-    while the shift is at most height - sqrt(R^2 - w^2), and any shift is fine once w >= R.
-    """
-    height = (ax - base[0]) * nx + (ay - base[1]) * ny
-    lateral = np.maximum(np.maximum(-(base[0] - ax) * ex - (base[1] - ay) * ey,
-                                    (base[0] - ax) * ex + (base[1] - ay) * ey - length), 0.0)
-    clear = footprint_radius ** 2 - lateral * lateral
-    return height - footprint_radius, np.where(
-        clear > 0.0, height - np.sqrt(np.maximum(clear, 0.0)), np.inf)
-
-
-def _footprint_room(footprint, ax, ay, ex, ey, length, base, reach):
-    """Return how far near sides may move along -n before they meet the footprint (step 6).
-
-    The gap between the chord and the footprint's part in its span (``_strip_extent``: that
-    part lies in front of the chord); inf where the near edge passes farther than ``reach``
-    from the base, unmeasured.
-    """
-    room = np.full(len(ax), np.inf)
-    near = _within(ax, ay, ex * length, ey * length, base, reach).nonzero()[0]
-    if near.size:
-        room[near] = -_strip_extent(footprint, ax[near], ay[near], ex[near], ey[near],
-                                    length[near])[1]
-    return room
-
-
-def _front(polygons, px, py, first, last, base, body_radius, footprint):
+def _front(polygons, px, py, first, last, base, footprint_radius):
     """Return the piece polygons with their near sides brought to their points (step 6).
 
     Piece k is points ``first[k] .. last[k]`` and rectangle ``a, b, b', a'`` (``_rectangles``;
@@ -545,10 +399,8 @@ def _front(polygons, px, py, first, last, base, body_radius, footprint):
     between a and b (convex: m lies in front of the chord, within its span), where the near
     side then runs a m b, in front of u by c(u) = f_m min(u / u_m, (L - u) / (L - u_m));
     else c = 0.  The near corners then move along -n by max(0, max f - c(u)) over the piece,
-    capped by the room the body leaves (``_disc_rooms``, with ``body_radius`` the disc's; a
-    footprint: the gap g, ``_footprint_room``, a pentagon's g - f_m); a piece with less room
-    than f_m keeps 4 corners.  The shift is at most max f, so g matters only where g < 2 max
-    f: near edges within ``body_radius + 2 max f`` of the base.
+    capped so that the line through the nearest corner parallel to a b stays
+    ``footprint_radius`` from the base; a piece whose apex line is closer keeps 4 corners.
     """
     count = len(polygons)
     if not count:
@@ -560,7 +412,7 @@ def _front(polygons, px, py, first, last, base, body_radius, footprint):
     ex, ey = polygons[:, 1, 0] - ax, polygons[:, 1, 1] - ay
     length = np.sqrt(ex * ex + ey * ey)
     ex, ey = ex / length, ey / length
-    nx, ny = -ey, ex  # counter-clockwise corners: the normal away from the body is e turned left
+    nx, ny = -ey, ex  # counter-clockwise corners: the normal away from the base is e turned left
     rel_x, rel_y = px[points] - ax.repeat(counts), py[points] - ay.repeat(counts)
     along = rel_x * ex.repeat(counts) + rel_y * ey.repeat(counts)
     ahead = -(rel_x * nx.repeat(counts) + rel_y * ny.repeat(counts))
@@ -568,11 +420,8 @@ def _front(polygons, px, py, first, last, base, body_radius, footprint):
     deepest = (ahead == depth.repeat(counts)).nonzero()[0]
     apex = deepest[deepest.searchsorted(starts)]
     apex_along = along[apex]
-    if footprint is None:
-        room, edge_room = _disc_rooms(ax, ay, ex, ey, nx, ny, length, base, body_radius)
-    else:
-        room = edge_room = _footprint_room(footprint, ax, ay, ex, ey, length, base,
-                                           body_radius + 2.0 * np.maximum(depth, 0.0))
+    height = (ax - base[0]) * nx + (ay - base[1]) * ny  # of the chord's line above the base
+    room = height - footprint_radius
     pointed = ((depth > MIN_APEX_DEPTH) & (apex_along > 0.0) & (apex_along < length)
                & (room >= depth))
     rise = np.where(pointed, depth / np.where(pointed, apex_along, 1.0), 0.0)
@@ -580,6 +429,14 @@ def _front(polygons, px, py, first, last, base, body_radius, footprint):
     chain = np.maximum(np.minimum(rise.repeat(counts) * along,
                                   fall.repeat(counts) * (length.repeat(counts) - along)), 0.0)
     residual = np.maximum(np.maximum.reduceat(ahead - chain, starts), 0.0)
+    # A rectangle may come as near as its near edge, a segment: beside the base (lateral
+    # offset w > 0 of the base beyond the chord's span) its corner stays footprint_radius
+    # away while the shift is at most height - sqrt(R^2 - w^2), and any shift is fine once
+    # w >= R.
+    lateral = np.maximum(np.maximum(-(base[0] - ax) * ex - (base[1] - ay) * ey,
+                                    (base[0] - ax) * ex + (base[1] - ay) * ey - length), 0.0)
+    clear = footprint_radius ** 2 - lateral * lateral
+    edge_room = np.where(clear > 0.0, height - np.sqrt(np.maximum(clear, 0.0)), np.inf)
     shift = np.minimum(residual, np.maximum(np.where(pointed, room - depth, edge_room), 0.0))
     corners = np.empty((count, 5, 2))
     corners[:, 0], corners[:, 2:] = polygons[:, 0], polygons[:, 1:]
@@ -602,26 +459,14 @@ def _nearest(polygons, base, count):
     return np.sort(np.argpartition(reach_sq, count - 1)[:count])
 
 
-def _placed(footprint, base, heading):
-    """Return the (m, 2) footprint of a base at ``base`` with yaw ``heading``, or None."""
-    if footprint is None:
-        return None
-    cos_yaw, sin_yaw = math.cos(heading), math.sin(heading)
-    placed = np.empty(footprint.shape)
-    placed[:, 0] = base[0] + cos_yaw * footprint[:, 0] - sin_yaw * footprint[:, 1]
-    placed[:, 1] = base[1] + sin_yaw * footprint[:, 0] + cos_yaw * footprint[:, 1]
-    return placed
-
-
 def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=False,
-                   with_clusters=False, heading=0.0):
+                   with_clusters=False):
     """Return the obstacles (``Obstacle``, keys ``scan/<i>``) outlined by beam endpoints.
 
     ``endpoints`` (N, 2): one row per beam in beam order, non-finite rows for beams without a
     return (``beam_endpoints``); ``robot_position``: the base origin (x, y) in the same frame;
-    ``heading``: the base's yaw, which turns ``settings.footprint``; ``wraps``: the last beam
-    neighbours the first (``scan_wraps``).  Obstacles share one read-only zero velocity.
-    Module docstring: method, guarantees and limits.
+    ``wraps``: the last beam neighbours the first (``scan_wraps``).  Obstacles share one
+    read-only zero velocity.  Module docstring: method, guarantees and limits.
 
     ``with_clusters``: return ``(obstacles, owner, clusters)`` instead, where ``clusters`` is
     the list of the clusters of step 3 that ``min_cluster_points`` keeps, each the (n_i, 2)
@@ -634,26 +479,21 @@ def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=F
     if endpoints.ndim != 2 or endpoints.shape[1] != 2:
         raise ValueError(f'endpoints must have shape (N, 2), got {endpoints.shape}')
     base = _finite_vector(robot_position, 2, 'robot_position')
-    footprint = _placed(settings.footprint_polygon, base,
-                        _finite_number(heading, 'heading'))
     x, y = endpoints[:, 0], endpoints[:, 1]
     reach_sq = (x - base[0]) ** 2 + (y - base[1]) ** 2  # NaN or inf for beams without return
-    on_body = reach_sq <= settings.body_radius ** 2
-    if footprint is not None and on_body.any():  # the footprint lies within that disc
-        on_body[on_body] = points_in_convex(x[on_body], y[on_body], footprint)
-    beams = (~on_body & (reach_sq < np.inf)).nonzero()[0]
+    beams = ((reach_sq > settings.footprint_radius ** 2) & (reach_sq < np.inf)).nonzero()[0]
     if beams.size == 0:
         return ([], np.zeros(0, dtype=np.int64), []) if with_clusters else []
     px, py = x[beams], y[beams]
     wraps = bool(wraps) and beams[0] == 0 and beams[-1] == len(endpoints) - 1
     px, py, links, ring = _chain(px, py, _links(px, py, beams, reach_sq[beams], base, settings,
-                                                wraps, footprint))
+                                                wraps))
     breaks = (~links).nonzero()[0]
     cluster_first = np.concatenate(([0], breaks + 1))
     cluster_last = np.concatenate((breaks, [len(px) - 1]))
     vertex = np.zeros(len(px), dtype=bool)
     vertex[cluster_first] = vertex[cluster_last] = True
-    ends = _split(px, py, vertex.nonzero()[0], base, settings, footprint)
+    ends = _split(px, py, vertex.nonzero()[0], base, settings)
     within = links[ends[:-1]]
     lone = cluster_first[cluster_first == cluster_last]
     first = np.concatenate((ends[:-1][within], lone))
@@ -665,13 +505,12 @@ def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=F
     order = first.argsort()
     first, last = first[order], last[order]
     polygons = _rectangles(px[first], py[first], px[last], py[last], base,
-                           settings.segment_thickness, settings.depth, settings.body_radius,
-                           footprint)
+                           settings.segment_thickness, settings.depth)
     nearest = None
     if len(polygons) > settings.max_obstacles:
         nearest = _nearest(polygons, base, settings.max_obstacles)
         polygons, first, last = polygons[nearest], first[nearest], last[nearest]
-    polygons = _front(polygons, px, py, first, last, base, settings.body_radius, footprint)
+    polygons = _front(polygons, px, py, first, last, base, settings.footprint_radius)
     obstacles = [Obstacle(polygon=polygon, velocity=STILL, key=f'scan/{index}')
                  for index, polygon in enumerate(polygons)]
     if not with_clusters:
@@ -709,9 +548,8 @@ def scan_to_obstacles(ranges, angle_min, angle_increment, range_min, range_max, 
     """
     endpoints = beam_endpoints(ranges, angle_min, angle_increment, range_min, range_max,
                                sensor_pose, robot_pose)
-    x, y, yaw = _finite_vector(robot_pose, 3, 'robot_pose')
-    return scan_obstacles(endpoints, (x, y), settings,
-                          scan_wraps(len(endpoints), angle_increment), with_clusters, yaw)
+    return scan_obstacles(endpoints, _finite_vector(robot_pose, 3, 'robot_pose')[:2], settings,
+                          scan_wraps(len(endpoints), angle_increment), with_clusters)
 
 
 def pose_at(odometry, stamp):
