@@ -407,17 +407,32 @@ def footprint_min_h_along(x, y, counts, boxes, footprint, cover, inv_horizon, ep
     period.  A row where the footprint overlaps a part (no cone) is left out, as the filter
     leaves such a part out of its rows.  Pruning (``_far_from_box``) skips only rows where
     h >= 0, so the value is exact where negative, else only >= 0 (+inf: nothing
-    evaluated).
+    evaluated); a part for which it holds on the box of all rows, with their fastest
+    closing speed, is skipped before any row (a box holding the points gives a gap at most
+    each point's, as ``box_gap`` rounds).
     """
     width = x.shape[1] + footprint.shape[1]
     cx, cy = np.empty((1, width)), np.empty((1, width))
     feet = np.empty(width, dtype=np.int64)
     scratch = np.empty((PLANE_ROWS + 4, 1))
+    # The rows' box and their fastest closing speed, for a test per part before any row.
+    low_x = high_x = start[0]
+    low_y = high_y = start[1]
+    fastest = math.hypot(start[2], start[3]) + abs(start[5]) * cover
+    for k in range(path.shape[0]):
+        low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
+        low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
+        fastest = max(fastest, math.hypot(path[k, 2], path[k, 3]) + abs(path[k, 5]) * cover)
+    moved = max(abs(age), abs(age + path.shape[0] * period))
     best = math.inf
     for n in range(counts.shape[0]):
         ovx, ovy, ox, oy = velocities[n, 0], velocities[n, 1], offsets[n, 0], offsets[n, 1]
         obstacle_speed = math.hypot(ovx, ovy)
         box = boxes[n]
+        reach = moved * obstacle_speed
+        if inv_horizon * (box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
+                                  high_y - oy + reach, box) - cover) >= fastest + obstacle_speed:
+            continue  # every row is that far: _far_from_box holds at each
         for k in range(-1, path.shape[0]):
             row = start if k < 0 else path[k]
             t = age + (k + 1) * period
