@@ -61,6 +61,7 @@ to ``obstacle_accel`` and ``obstacle_velocity_error`` in the same pass, with dh/
 import numpy as np
 
 from polyc2bf_ros.core.barrier.cones import InflatedCone
+from polyc2bf_ros.core.geometry.footprint import covering_radius
 from polyc2bf_ros.core.kernels.footprint import _footprint_plane
 from polyc2bf_ros.core.kernels.horizon import footprint_min_h_along
 
@@ -86,7 +87,7 @@ class FootprintCone(InflatedCone):
         self.horizon, self.obstacle_accel = float(horizon), float(obstacle_accel)
         self.velocity_error, self.gamma = float(velocity_error), float(gamma)
         self._points = np.ascontiguousarray(np.array(self.footprint).T)
-        self._cover = float(np.max(np.hypot(*self._points)))
+        self._cover = covering_radius(footprint)
 
     @property
     def points(self):

@@ -34,14 +34,18 @@ self-filter disc.
 """
 
 
+def _outward_normals(polygon):
+    """Return the unit outward normal of each edge of a convex CCW polygon (k, 2)."""
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    return np.column_stack((edges[:, 1], -edges[:, 0])) / np.hypot(*edges.T)[:, None]
+
+
 def inner_radius(polygon):
     """Return the radius of the largest disc about the origin inside a convex polygon.
 
     The least distance from the origin to an edge's line (0 or less: the origin is outside).
     """
-    edges = np.roll(polygon, -1, axis=0) - polygon
-    normals = np.column_stack((edges[:, 1], -edges[:, 0])) / np.hypot(*edges.T)[:, None]
-    return float(np.min(np.einsum('ij,ij->i', normals, polygon)))
+    return float(np.min(np.einsum('ij,ij->i', _outward_normals(polygon), polygon)))
 
 
 def half_width(polygon):
@@ -49,9 +53,7 @@ def half_width(polygon):
 
     A convex polygon's width across a direction is least across one of its edges' normals.
     """
-    edges = np.roll(polygon, -1, axis=0) - polygon
-    normals = np.column_stack((edges[:, 1], -edges[:, 0])) / np.hypot(*edges.T)[:, None]
-    extents = polygon @ normals.T
+    extents = polygon @ _outward_normals(polygon).T
     return float(0.5 * np.min(extents.max(axis=0) - extents.min(axis=0)))
 
 
@@ -88,7 +90,7 @@ class ObstacleGeometry:
             self.guard_radius = self.robot_radius
             self.passage_radius = half_width(hull)
             self.own_radius = max(0.0, inner_radius(hull) - SCAN_BODY_MARGIN)
-            self.cone_model = FootprintCone(convex_hull(self.footprint), config.horizon,
+            self.cone_model = FootprintCone(hull, config.horizon,
                                             config.obstacle_accel,
                                             config.obstacle_velocity_error, config.gamma)
         else:
