@@ -19,6 +19,7 @@ from polyc2bf_ros.core.decision import ObstacleSnapshot
 from polyc2bf_ros.core.obstacles.marker_tracker import ObstacleTracker
 from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.obstacles.scan_conversion import pose_at, scan_to_obstacles, ScanSettings
+from polyc2bf_ros.core.obstacles.scan_memory import ScanMemory, ScanView
 from polyc2bf_ros.core.obstacles.scan_tracker import (
     ScanTracker,
     TrackerSettings,
@@ -32,7 +33,8 @@ from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 class ScanObstacles(NamedTuple):
     """One scan's obstacles: the scan's stamp [s], ``Obstacle`` list, cluster per obstacle.
 
-    ``origin``: the sensor's position (x, y) in the odometry frame when the scan was taken.
+    ``origin``: the sensor's position (x, y) in the odometry frame when the scan was taken;
+    ``view``: where it looked (``ScanView``); ``settings``: its ``ScanSettings``.
 
     ``owner[i]`` indexes ``clusters``, the endpoints (n, 2) of each cluster in the odometry
     frame (``scan_to_obstacles(..., with_clusters=True)``).
@@ -42,7 +44,9 @@ class ScanObstacles(NamedTuple):
     obstacles: list
     owner: np.ndarray
     clusters: list
-    origin: tuple = (0.0, 0.0)
+    origin: tuple
+    view: ScanView
+    settings: ScanSettings
 
 
 class ScanStatus(NamedTuple):
@@ -82,6 +86,7 @@ class ObstaclePipeline:
         self._received = None
         self._scans = {}  # topic: (stamp [s], its obstacles)
         self._scan_tracker = self._tracking = None  # made on the first tracked scan
+        self._memories = {}  # topic: ScanMemory
         self._static = StaticTransforms()
         self.scan_status = {}  # topic: ScanStatus
 
@@ -150,7 +155,7 @@ class ObstaclePipeline:
             self.scan_status[topic] = status._replace(
                 received=received, rejected=status.rejected + 1, reason=str(exc))
             return
-        obstacles, unseen = scan.obstacles, []
+        obstacles, unseen, standing = scan.obstacles, [], scan.clusters
         if settings.scan_tracking:
             # Unstamped scans and odometry: the tracker times them by their receipt.
             clock = scan.stamp if scan.stamp > 0.0 else received
@@ -161,15 +166,34 @@ class ObstaclePipeline:
                 self._scan_tracker = ScanTracker(TrackerSettings(
                     pose_std=tracking[1], heading_std=tracking[2]), link=link)
                 self._tracking = tracking
-            obstacles = with_velocities(
-                scan.obstacles, scan.owner,
-                self._scan_tracker.update(clock, scan.clusters, scan.origin),
-                float(settings.scan_unknown_speed))
+            estimates = self._scan_tracker.update(clock, scan.clusters, scan.origin)
+            unknown = float(settings.scan_unknown_speed)
+            obstacles = with_velocities(scan.obstacles, scan.owner, estimates, unknown)
             unseen = unseen_obstacles(self._scan_tracker, f'{topic}:')
+            standing = [cluster for cluster, estimate in zip(scan.clusters, estimates)
+                        if not (estimate.moving and estimate.confirmed)
+                        and (estimate.trusted or unknown == 0.0)]
         self._scans[topic] = (scan.stamp, [
-            dataclasses.replace(o, key=f'{topic}:{o.key}') for o in obstacles] + unseen)
+            dataclasses.replace(o, key=f'{topic}:{o.key}') for o in obstacles] + unseen
+            + self._remembered(topic, scan, standing, settings))
         self.scan_status[topic] = status._replace(accepted=received, received=received)
 
+
+    def _remembered(self, topic, scan, standing, settings):
+        """Return the obstacles ``topic``'s laser saw before and cannot see now (``ScanMemory``).
+
+        ``standing``: the scan's clusters that no moving or untrusted track holds.
+        """
+        keep_time, reach = float(settings.scan_memory_time), float(settings.scan_memory_range)
+        memory = self._memories.get(topic)
+        if keep_time <= 0.0:
+            self._memories.pop(topic, None)
+            return []
+        if memory is None or (memory.keep_time, memory.reach) != (keep_time, reach):
+            memory = self._memories[topic] = ScanMemory(keep_time, reach)
+        points = np.concatenate(standing) if standing else np.zeros((0, 2))
+        return [dataclasses.replace(o, key=f'{topic}:memory/{index}') for index, o in
+                enumerate(memory.update(scan.stamp, scan.view, points, scan.settings))]
 
 
 def _moved(obstacle, dt):
@@ -226,8 +250,12 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
     x, y, yaw = robot_pose
     origin = (x + math.cos(yaw) * sensor_pose[0] - math.sin(yaw) * sensor_pose[1],
               y + math.sin(yaw) * sensor_pose[0] + math.cos(yaw) * sensor_pose[1])
+    last = scan.angle_min + (len(ranges) - 1) * scan.angle_increment
+    view = ScanView(*origin, yaw + sensor_pose[2], min(scan.angle_min, last),
+                    max(scan.angle_min, last), abs(scan.angle_increment), scan.range_min,
+                    scan.range_max, (x, y))
     return ScanObstacles(stamp if stamp > 0.0 else float(odometry[-1][0]), obstacles, owner,
-                         clusters, origin)
+                         clusters, origin, view, scan_settings)
 
 
 def _sensor_pose(frame, base_frame, settings, transforms):

@@ -24,5 +24,7 @@ class IntakeSettings(NamedTuple):
     scan_obstacle_depth: float = 0.10
     scan_tracking: bool = True
     scan_unknown_speed: float = 2.0
+    scan_memory_time: float = 10.0
+    scan_memory_range: float = 1.5
     odom_position_std: float = 0.0
     odom_heading_std: float = 0.0

@@ -147,6 +147,23 @@ def test_pipeline_combines_markers_and_scans_and_keeps_a_topic_on_a_bad_scan():
     assert (status.accepted, status.received, status.rejected) == (1.0, 2.0, 1)
 
 
+@pytest.mark.parametrize('keep_time', [10.0, 0.0])
+def test_a_wall_that_passes_behind_a_half_turn_laser_is_kept(keep_time):
+    """A wall 0.5 m ahead, then the robot turns about: the laser (180 degrees) sees nothing.
+
+    With ``scan_memory_time`` the wall stays an obstacle where it was; 0: it is forgotten.
+    """
+    pipeline = ObstaclePipeline()
+    settings = IntakeSettings(scan_memory_time=keep_time)
+    for t, yaw, wall_x in ((1.0, 0.0, 0.5), (1.1, math.pi, None)):
+        snapshot = pipeline.run(ObstacleJob([], 'odom', settings, SPEC, t, (
+            ('scan', _data(wall_x=wall_x), t, ((t, 0.0, 0.0, yaw),), 'base_link'),)))
+    obstacles = snapshot.obstacles
+    kept = [polygon for polygon, owner in zip(obstacles.footprints.vertices, obstacles.owner)
+            if obstacles.keys[owner].startswith('scan:memory/')]
+    assert any(_covers(polygon, (0.505, 0.0)) for polygon in kept) is (keep_time > 0)
+
+
 @pytest.mark.parametrize('tracking', [True, False])
 def test_a_box_coming_at_the_robot_gets_its_velocity_only_when_tracked(tracking):
     """A 0.5 m box coming at a standing robot at 1 m/s from 3 m, scanned at 10 Hz.

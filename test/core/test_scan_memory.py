@@ -1,0 +1,116 @@
+"""What a laser with a blind sector keeps of what it saw (``core/obstacles/scan_memory.py``)."""
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, strategies as st
+
+from polyc2bf_ros.core.obstacles.scan_conversion import beam_endpoints, ScanSettings
+from polyc2bf_ros.core.obstacles.scan_memory import ScanMemory, ScanView
+from scan_simulator import simulate_ranges
+
+SETTINGS = ScanSettings()
+
+
+def _scanner(fov, beams=540):
+    """Return (angle_min, increment) of a scan of ``beams`` beams over ``fov`` [rad]."""
+    increment = fov / (beams - 1) if fov < 2 * math.pi else fov / beams
+    return -0.5 * fov, increment
+
+
+def _look(memory, stamp, yaw, fov, circles, position=(0.0, 0.0), keep=True):
+    """Scan ``circles`` from ``position`` facing ``yaw``; return (obstacles, endpoints seen)."""
+    angle_min, increment = _scanner(fov)
+    beams = 540
+    pose = (*position, yaw)
+    ranges = simulate_ranges(pose, beams, angle_min, increment, 10.0, circles=circles)
+    points = beam_endpoints(ranges, angle_min, increment, 0.05, 10.0, (0.0, 0.0, 0.0), pose)
+    points = points[np.isfinite(points).all(axis=1)]
+    view = ScanView(*position, yaw, angle_min, angle_min + (beams - 1) * increment, increment,
+                    0.05, 10.0, position)
+    obstacles = memory.update(stamp, view, points if keep else np.zeros((0, 2)), SETTINGS)
+    return obstacles, points
+
+
+def _inside(polygon, point, tolerance=1e-9):
+    """Return True when a CCW convex polygon holds ``point`` (or has it on its boundary)."""
+    edges, rel = np.roll(polygon, -1, axis=0) - polygon, np.asarray(point) - polygon
+    lengths = np.hypot(edges[:, 0], edges[:, 1])
+    return bool(((edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0]) / lengths
+                 >= -tolerance).all())
+
+
+@given(fov=st.floats(0.5 * math.pi, 1.8 * math.pi), bearing=st.floats(-math.pi, math.pi),
+       distance=st.floats(0.4, 1.2), radius=st.floats(0.05, 0.2),
+       turn=st.floats(0.0, 1.0))
+def test_a_post_that_leaves_the_view_is_kept_until_the_view_covers_it_again(
+        fov, bearing, distance, radius, turn):
+    """A post seen ahead is turned into the blind sector, then back into view.
+
+    Out of view, every endpoint the laser saw of it lies in an obstacle the memory gives;
+    in view again, the memory gives nothing (the scan sees it itself).
+    """
+    post = ((distance * math.cos(bearing), distance * math.sin(bearing)), radius)
+    blind = 2 * math.pi - fov
+    half = math.asin(radius / distance) + 2 * fov / 539
+    if blind <= 2 * half:
+        return  # the post does not fit in the blind sector
+    memory = ScanMemory(keep_time=5.0, reach=2.0)
+    obstacles, seen = _look(memory, 0.0, bearing, fov, [post])
+    assert not obstacles and len(seen)
+    behind = bearing + math.pi + (turn - 0.5) * (blind - 2 * half)  # anywhere in the blind
+    obstacles, _ = _look(memory, 0.1, behind, fov, [post], keep=False)
+    assert obstacles
+    for point in seen:
+        assert any(_inside(o.polygon, point) for o in obstacles), point
+    assert len(memory) == len(seen)
+    obstacles, _ = _look(memory, 0.2, bearing, fov, [post])
+    assert not obstacles and not len(memory)
+
+
+def _post_behind(memory, position=(0.0, 0.0), stamp=0.1, distance=0.6):
+    """See a post ahead at ``stamp - 0.1``, turn about; return the obstacles kept of it."""
+    post = ((position[0] + distance, position[1]), 0.1)
+    _look(memory, stamp - 0.1, 0.0, 1.5 * math.pi, [post], position)
+    return _look(memory, stamp, math.pi, 1.5 * math.pi, [post], position, keep=False)[0]
+
+
+def test_only_what_is_near_and_recent_is_kept():
+    """A post 0.6 m away is kept for ``keep_time``, and only while within ``reach``."""
+    assert _post_behind(ScanMemory(keep_time=1.0, reach=1.0))
+    assert not _post_behind(ScanMemory(keep_time=1.0, reach=0.5))
+    memory = ScanMemory(keep_time=1.0, reach=1.0)
+    assert _post_behind(memory)
+    view = ScanView(0.0, 0.0, math.pi, -0.75 * math.pi, 0.75 * math.pi, 0.01, 0.05, 10.0,
+                    (0.0, 0.0))
+    assert memory.update(0.9, view, np.zeros((0, 2)), SETTINGS)
+    assert not memory.update(1.2, view, np.zeros((0, 2)), SETTINGS) and not len(memory)
+
+
+def test_a_laser_that_sees_all_round_keeps_nothing():
+    """A full-turn scan has no blind sector: nothing to remember."""
+    memory = ScanMemory(keep_time=5.0, reach=2.0)
+    post = ((0.6, 0.0), 0.1)
+    _look(memory, 0.0, 0.0, 2 * math.pi, [post])
+    obstacles, _ = _look(memory, 0.1, math.pi, 2 * math.pi, [post])
+    assert not obstacles and not len(memory)
+
+
+@pytest.mark.parametrize('keep_time, reach', [(0.0, 1.0), (1.0, -1.0), (math.nan, 1.0),
+                                              (1.0, math.inf)])
+def test_bad_settings_are_refused(keep_time, reach):
+    """Times and reaches must be finite and positive."""
+    with pytest.raises(ValueError, match='keep_time|reach'):
+        ScanMemory(keep_time, reach)
+
+
+def test_what_is_kept_is_drawn_as_the_laser_would_see_it_from_here():
+    """Two points kept on one bearing behind the laser: only the nearer makes an obstacle."""
+    memory = ScanMemory(keep_time=5.0, reach=2.0)
+    ahead = ScanView(0.0, 0.0, 0.0, -0.75 * math.pi, 0.75 * math.pi, 0.01, 0.05, 10.0,
+                     (0.0, 0.0))
+    memory.update(0.0, ahead, np.array([[-0.5, 0.0], [-0.8, 0.0]]), SETTINGS)
+    obstacles = memory.update(0.1, ahead, np.zeros((0, 2)), SETTINGS)
+    assert len(memory) == 2
+    assert any(_inside(o.polygon, (-0.5, 0.0)) for o in obstacles)
+    assert not any(_inside(o.polygon, (-0.8, 0.0)) for o in obstacles)
