@@ -774,10 +774,22 @@ class SafetyFilter:
         """Return the input accelerating the reference point out along ``direction``.
 
         Desired acceleration a* = k (v_esc d - r_dot); u = lstsq(B, a* - drift), clipped.
+        A turning footprint sweeps its corners as it turns, and near the axle the lateral
+        share of a* asks for a turn as large as 1 / offset_l: its steering inputs brake
+        (``braking_input``) and the others take a* alone.  (Measured: steering out of a
+        scan obstacle that had just appeared over its corner, a Jackal turned at 1.5 rad/s
+        into the cylinder behind it, BARN from the laser.)
         """
         config = self.config
         desired = config.escape_gain * (config.escape_speed * direction - ref.velocity)
-        u, *_ = np.linalg.lstsq(ref.input_matrix, desired - ref.drift, rcond=None)
+        if not self._turning:
+            u, *_ = np.linalg.lstsq(ref.input_matrix, desired - ref.drift, rcond=None)
+            return self.model.clip_input(u)
+        u = self.model.braking_input(ref.state)
+        steer = list(self.model.steering_inputs)
+        drive = [i for i in range(self.model.input_dim) if i not in steer]
+        u[drive], *_ = np.linalg.lstsq(ref.input_matrix[:, drive], desired - ref.drift
+                                       - ref.input_matrix[:, steer] @ u[steer], rcond=None)
         return self.model.clip_input(u)
 
     def escape_direction(self, evaluation, obstacles):

@@ -192,6 +192,21 @@ def test_turning_in_place_beside_a_post_stops_before_a_corner_sweeps_into_it(fil
     assert (closest > 0.0) == filtered
 
 
+def test_a_box_overlapping_a_part_escapes_along_its_heading_without_turning():
+    """A part appears over the box's rear-left corner (a scan obstacle newly drawn there).
+
+    The escape backs out of it, or drives out, along the heading; it brakes the turn rather
+    than swing the other corners (near the axle, steering the reference point out asks for
+    a turn of 1 / offset_l).
+    """
+    overlap = np.array([[-0.30, 0.20], [-0.20, 0.20], [-0.20, 0.30], [-0.30, 0.30]])
+    for turn in (0.0, 0.5):
+        state = np.array([0.0, 0.0, 0.0, 0.1, turn])
+        u, info = GUARDED.step(state, _scene([overlap]), np.array([0.0, 0.0]))
+        assert info.status.value == 'escape'
+        assert u[1] == pytest.approx(GUARDED.model.braking_input(state)[1])
+
+
 @settings(max_examples=examples(100), deadline=None)
 @given(obstacle=convex_polygons(centre_range=1.5), seed=st.integers(0, 2 ** 32 - 1))
 def test_the_braking_clearance_is_the_bodies_signed_distance_along_the_path(obstacle, seed):
