@@ -6,7 +6,7 @@ from hypothesis import assume, given, settings, strategies as st
 from oracles import configuration_polygon, footprint_barrier, planar_rotation
 from polyc2bf_ros.core.barrier.footprint_cone import FootprintCone
 from polyc2bf_ros.core.geometry.footprint import format_footprint
-from polyc2bf_ros.core.geometry.polygons import convex_hull, signed_distance
+from polyc2bf_ros.core.geometry.polygons import convex_hull, PolygonBatch, signed_distance
 from polyc2bf_ros.core.kernels.braking import path_clearance
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
@@ -190,6 +190,44 @@ def test_turning_in_place_beside_a_post_stops_before_a_corner_sweeps_into_it(fil
         state = GUARDED.model.one_period(state, u, 0.01)
         closest = min(closest, _separation(_body(state), post))
     assert (closest > 0.0) == filtered
+
+
+@settings(max_examples=examples(150), deadline=None)
+@given(polygons=st.lists(convex_polygons(centre_range=1.5), min_size=1, max_size=3),
+       seed=st.integers(0, 2 ** 32 - 1))
+def test_min_h_along_a_path_is_the_smallest_h_the_filter_evaluates(polygons, seed):
+    """The braking check's footprint kernel against ``evaluate`` row by row.
+
+    Random axle paths (heading, speed and turn rate wandering) starting near a standing or
+    moving part: where some h along the path is negative the kernel finds that minimum,
+    and its pruning skips only rows where h >= 0.
+    """
+    rng = np.random.default_rng(seed)
+    velocities = rng.uniform(-1.0, 1.0, (len(polygons), 3)) * rng.integers(0, 2)
+    velocities[:, 2] = 0.0
+    obstacles = ObstacleSet.from_obstacles([Obstacle(polygon=p, velocity=v)
+                                            for p, v in zip(polygons, velocities)])
+    period, age = 0.01, float(rng.uniform(0.0, 0.1))
+    start = np.r_[polygons[0].mean(axis=0) + rng.uniform(-0.8, 0.8, 2),
+                  rng.uniform(-np.pi, np.pi), rng.uniform(-2.0, 2.0), rng.uniform(-4.0, 4.0)]
+    states = start + np.cumsum(
+        np.r_[[np.zeros(5)], rng.uniform(-0.05, 0.05, (int(rng.integers(1, 40)), 5))], axis=0)
+    rows = np.column_stack((states[:, :2], states[:, 3] * np.cos(states[:, 2]),
+                            states[:, 3] * np.sin(states[:, 2]), states[:, 2], states[:, 4]))
+    model = GUARDED.cone_model
+    kernel = model.min_h_along(model.prepare(PolygonBatch.from_polygons(polygons)),
+                               np.ascontiguousarray(velocities[:, :2]),
+                               np.zeros((len(polygons), 2)), age, rows[0],
+                               np.ascontiguousarray(rows[1:]), period,
+                               GUARDED.config.velocity_epsilon)
+    expected = np.inf
+    for k, state in enumerate(states):
+        evaluation = GUARDED.evaluate(state, obstacles, age + k * period)
+        if evaluation.valid.any():
+            expected = min(expected, float(evaluation.terms.h[evaluation.valid].min()))
+    assert kernel >= expected - 1e-9
+    if expected < 0.0:
+        assert kernel == pytest.approx(expected, rel=1e-9, abs=1e-9)
 
 
 def test_a_box_overlapping_a_part_escapes_along_its_heading_without_turning():

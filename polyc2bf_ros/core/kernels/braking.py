@@ -28,6 +28,28 @@ origin, is below 1e-11 m."""
 
 
 @kernel
+def _footprint_bound(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, footprint, cos, sin):
+    """Return a lower bound on the distance of a footprint at axle q, heading theta, to part n.
+
+    With p the part's point nearest q and u = (p - q) / |p - q|, the part lies beyond the
+    line through p normal to u and the footprint within its support s(u) = max_j <R f_j, u>
+    of q along u, so the bodies are at least |p - q| - s(u) apart: a handful of products
+    against the merge of ``configuration_polygon``.  -inf when q lies in the part.
+    """
+    square, _, dx, dy, inside = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)
+    if inside or not square > 0.0:
+        return -math.inf
+    distance = math.sqrt(square)
+    ux, uy = -dx / distance, -dy / distance
+    support = -math.inf
+    for j in range(footprint.shape[1]):
+        fx, fy = footprint[0, j], footprint[1, j]
+        support = max(support, (cos * fx - sin * fy) * ux + (sin * fx + cos * fy) * uy)
+    return distance - support
+
+
+
+@kernel
 def group_size(rows):
     """Return how many consecutive rows of a path of ``rows`` the check bounds together.
 
@@ -137,7 +159,8 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
     from the polygon's box: each of its points is outside the box, so at least g from
     the polygon, and counts at least g - max(e t + a t^2 / 2) over the group's two end
     times (the bound is convex in t); when that is ``SLACK`` above the running minimum,
-    no row of the group can lower it, and the result is the one every row gives.
+    no row of the group can lower it, and the result is the one every row gives.  Nor is
+    a footprint's row whose ``_footprint_bound``, so counted, is ``SLACK`` above it.
     """
     rows = path.shape[0]
     if rows == 0:
@@ -165,8 +188,14 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
                 t = age + (k + 1) * period
                 qx, qy = path[k, 0] - t * vx - ox, path[k, 1] - t * vy - oy
                 if footprint.shape[1]:
-                    count = configuration_polygon(x, y, counts[n], n, footprint,
-                                                  math.cos(path[k, 4]), math.sin(path[k, 4]),
+                    cos, sin = math.cos(path[k, 4]), math.sin(path[k, 4])
+                    bound = _footprint_bound(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx,
+                                             qy, footprint, cos, sin)
+                    if moving:
+                        bound -= t * (velocity_errors[n] + 0.5 * accel * t)
+                    if bound >= (best_moving if moving else best) + SLACK:
+                        continue
+                    count = configuration_polygon(x, y, counts[n], n, footprint, cos, sin,
                                                   cx, cy, feet)
                     _, _, wx, wy, inside = nearest_boundary(cx, cy, count, qx, qy)
                     distance, dx, dy = math.hypot(wx, wy), -wx, -wy

@@ -383,17 +383,46 @@ def _value_at(x, y, count, n, footprint, cover, row, t, ovx, ovy, ox, oy, inv_ho
 
 
 @kernel
-def _far_from_box(box, cover, row, t, ovx, ovy, ox, oy, obstacle_speed, inv_horizon):
-    """Return True when h >= 0 at ``row`` surely: tau |v| <= the footprint's distance.
+def _far_from_box(box, cover, qx, qy, square, turn, obstacle_speed, inv_horizon):
+    """Return True when h >= 0 at an axle q (relative to the part) surely: tau |v| <= distance.
 
     The footprint lies within ``cover`` of the axle, so its distance to the part is at
     least g - cover, g the axle's distance to the part's box; the touching points'
-    relative speed |v| is at most |o_dot| + |c_dot| + |omega| cover; and h >= L (1 - cc)
-    (d / tau - |v|) (``horizon_cone``'s bound with v the touching points').
+    relative speed |v| is at most |o_dot| + |c_dot| + |omega| cover (``square`` = |c_dot|^2,
+    ``turn`` = |omega|); and h >= L (1 - cc) (d / tau - |v|) (``horizon_cone``'s bound with
+    v the touching points').  Each operation rounds monotonically, so a box holding q, a
+    larger ``square`` or ``turn`` give a test that holds only where this one does.
     """
-    qx, qy = row[0] - t * ovx - ox, row[1] - t * ovy - oy
-    speed = obstacle_speed + math.hypot(row[2], row[3]) + abs(row[5]) * cover
-    return inv_horizon * (box_gap(qx, qx, qy, qy, box) - cover) >= speed
+    speed = obstacle_speed + math.sqrt(square) + turn * cover
+    return inv_horizon * (box_gap(qx[0], qx[1], qy[0], qy[1], box) - cover) >= speed
+
+
+
+@kernel
+def _sweeps_past(box, cover, qx, qy, dx, dy, spread):
+    """Return True when h > 0 at a row surely: the touching points head past the part.
+
+    The robot's touching points move at d + e relative to the part, d = c_dot - o_dot and
+    |e| <= ``spread`` = |omega| cover (``footprint_cone``: the turning share, s <= 1), and
+    C(theta) lies in the part's box grown by ``cover`` on every side.  When every ray from
+    q along any d + e misses that box, -v lies outside the silhouette cone of C(theta), so
+    <u, v> + |v| c > 0 and h > 0 (``min_h_along``'s second test, here for a set of
+    directions).  Sufficient, with r = corner - q at each of the four corners: cross(d, r)
+    - spread |r| > 0 at all (the box lies left of every such ray), or cross(d, r) + spread
+    |r| < 0 at all (right), or <d, r> + spread |r| < 0 at all (behind q).  The first two are
+    concave in the corner and the last convex, so what holds at the corners holds over
+    the box.
+    """
+    left = right = behind = True
+    for corner in range(4):
+        rx = (box[0] - cover if corner < 2 else box[1] + cover) - qx
+        ry = (box[2] - cover if corner % 2 == 0 else box[3] + cover) - qy
+        reach = spread * math.sqrt(rx * rx + ry * ry)
+        cross = dx * ry - dy * rx
+        left = left and cross - reach > 0.0
+        right = right and cross + reach < 0.0
+        behind = behind and dx * rx + dy * ry + reach < 0.0
+    return left or right or behind
 
 
 
@@ -405,39 +434,72 @@ def footprint_min_h_along(x, y, counts, boxes, footprint, cover, inv_horizon, ep
     ``horizon.min_h_along`` for a turning footprint: rows [x, y, vx, vy, theta, omega] of
     the axle (``unicycle.AxlePaths``), ``start`` at ``age`` and row k at age + (k + 1)
     period.  A row where the footprint overlaps a part (no cone) is left out, as the filter
-    leaves such a part out of its rows.  Pruning (``_far_from_box``) skips only rows where
-    h >= 0, so the value is exact where negative, else only >= 0 (+inf: nothing
-    evaluated); a part for which it holds on the box of all rows, with their fastest
-    closing speed, is skipped before any row (a box holding the points gives a gap at most
-    each point's, as ``box_gap`` rounds).
+    leaves such a part out of its rows.  Pruning (``_far_from_box``, ``_sweeps_past``)
+    skips only rows where h >= 0, so the value is exact where negative, else only >= 0
+    (+inf: nothing evaluated).  ``_far_from_box`` is also taken on the box of a group of
+    rows (``path_groups``, ``group_box``) with its fastest speed and turn, and on the box
+    of all of them: where it holds there it holds at each row, as computed.
     """
     width = x.shape[1] + footprint.shape[1]
     cx, cy = np.empty((1, width)), np.empty((1, width))
     feet = np.empty(width, dtype=np.int64)
     scratch = np.empty((PLANE_ROWS + 4, 1))
-    # The rows' box and their fastest closing speed, for a test per part before any row.
-    low_x = high_x = start[0]
-    low_y = high_y = start[1]
-    fastest = math.hypot(start[2], start[3]) + abs(start[5]) * cover
-    for k in range(path.shape[0]):
-        low_x, high_x = min(low_x, path[k, 0]), max(high_x, path[k, 0])
-        low_y, high_y = min(low_y, path[k, 1]), max(high_y, path[k, 1])
-        fastest = max(fastest, math.hypot(path[k, 2], path[k, 3]) + abs(path[k, 5]) * cover)
-    moved = max(abs(age), abs(age + path.shape[0] * period))
+    rows = path.shape[0]
+    size = group_size(rows)
+    groups = path_groups(path, size, True)
+    turns = np.zeros(groups.shape[0])
+    for k in range(rows):
+        turns[k // size] = max(turns[k // size], abs(path[k, 5]))
+    # The start and every group in one box, with their fastest speed and turn.
+    low_x, high_x, low_y, high_y = start[0], start[0], start[1], start[1]
+    square = start[2] * start[2] + start[3] * start[3]
+    turn = abs(start[5])
+    for g in range(groups.shape[0]):
+        low_x, high_x = min(low_x, groups[g, 0]), max(high_x, groups[g, 1])
+        low_y, high_y = min(low_y, groups[g, 2]), max(high_y, groups[g, 3])
+        square, turn = max(square, groups[g, 8]), max(turn, turns[g])
+    moved = max(abs(age), abs(age + rows * period))
     best = math.inf
     for n in range(counts.shape[0]):
         ovx, ovy, ox, oy = velocities[n, 0], velocities[n, 1], offsets[n, 0], offsets[n, 1]
         obstacle_speed = math.hypot(ovx, ovy)
         box = boxes[n]
         reach = moved * obstacle_speed
-        if inv_horizon * (box_gap(low_x - ox - reach, high_x - ox + reach, low_y - oy - reach,
-                                  high_y - oy + reach, box) - cover) >= fastest + obstacle_speed:
-            continue  # every row is that far: _far_from_box holds at each
-        for k in range(-1, path.shape[0]):
-            row = start if k < 0 else path[k]
-            t = age + (k + 1) * period
-            if _far_from_box(box, cover, row, t, ovx, ovy, ox, oy, obstacle_speed, inv_horizon):
-                continue
-            best = min(best, _value_at(x, y, counts[n], n, footprint, cover, row, t, ovx, ovy,
-                                       ox, oy, inv_horizon, eps_sq, cx, cy, feet, scratch))
+        if _far_from_box(box, cover, (low_x - ox - reach, high_x - ox + reach),
+                         (low_y - oy - reach, high_y - oy + reach), square, turn,
+                         obstacle_speed, inv_horizon):
+            continue  # every row is that far
+        best = min(best, _row_h(x, y, counts[n], n, footprint, cover, start, age, ovx, ovy,
+                                ox, oy, obstacle_speed, box, inv_horizon, eps_sq, cx, cy, feet,
+                                scratch))
+        for g in range(groups.shape[0]):
+            first, end = g * size, min((g + 1) * size, rows)
+            low_qx, high_qx, low_qy, high_qy = group_box(
+                groups[g], age + (first + 1) * period, age + end * period, ovx, ovy, ox, oy)
+            if _far_from_box(box, cover, (low_qx, high_qx), (low_qy, high_qy), groups[g, 8],
+                             turns[g], obstacle_speed, inv_horizon):
+                continue  # so is every row of the group
+            for k in range(first, end):
+                best = min(best, _row_h(x, y, counts[n], n, footprint, cover, path[k],
+                                        age + (k + 1) * period, ovx, ovy, ox, oy,
+                                        obstacle_speed, box, inv_horizon, eps_sq, cx, cy, feet,
+                                        scratch))
     return best
+
+
+
+@kernel
+def _row_h(x, y, count, n, footprint, cover, row, t, ovx, ovy, ox, oy, obstacle_speed, box,
+           inv_horizon, eps_sq, cx, cy, feet, scratch):
+    """Return h of part n at ``row`` at time t, or inf where a pruning test skips it.
+
+    ``_far_from_box`` and ``_sweeps_past`` hold only where h >= 0.
+    """
+    qx, qy = row[0] - t * ovx - ox, row[1] - t * ovy - oy
+    if _far_from_box(box, cover, (qx, qx), (qy, qy), row[2] * row[2] + row[3] * row[3],
+                     abs(row[5]), obstacle_speed, inv_horizon):
+        return math.inf
+    if _sweeps_past(box, cover, qx, qy, row[2] - ovx, row[3] - ovy, abs(row[5]) * cover):
+        return math.inf
+    return _value_at(x, y, count, n, footprint, cover, row, t, ovx, ovy, ox, oy, inv_horizon,
+                     eps_sq, cx, cy, feet, scratch)
