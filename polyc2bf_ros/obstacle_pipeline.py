@@ -186,7 +186,7 @@ class ObstaclePipeline:
         """
         keep_time, reach = float(settings.scan_memory_time), float(settings.scan_memory_range)
         memory = self._memories.get(topic)
-        if keep_time <= 0.0:
+        if keep_time <= 0.0 or not scan.view.blind():  # a full turn sees all it keeps
             self._memories.pop(topic, None)
             return []
         if memory is None or (memory.keep_time, memory.reach) != (keep_time, reach):

@@ -60,9 +60,9 @@ it along the heading, so the route's first leg backs it out to where it can turn
 on that leg, a route point behind the robot (cos e < 0) is driven to in reverse at no more
 than ``BACKING_SPEED``, v* = -min(v_n, v_b) max(0, cos e'), omega* = clip(k_theta e',
 +-omega_max), e' = wrap(e - pi); past it the rule above (turn, then forward).  Reversing
-no farther keeps a robot whose laser faces forward from driving blind: the filter keeps
-no memory of what a scan no longer shows.  A disc robot turns in place anywhere, and
-keeps ``backing`` 0.
+no farther keeps a robot whose laser faces forward from driving blind: behind it the
+filter knows only what the laser saw before (``obstacles.scan_memory``).  A disc robot
+turns in place anywhere, and keeps ``backing`` 0.
 
 Holonomic bases (``point_mass_2d``, body-frame commands [vx, vy] at the odometry yaw psi)
 take d = Rz(psi) [vx, vy] / |[vx, vy]| and follow with the velocity v_n (target - p) /
