@@ -233,9 +233,9 @@ def test_min_h_along_a_path_is_the_smallest_h_the_filter_evaluates(polygons, see
 def test_a_box_overlapping_a_part_escapes_along_its_heading_without_turning():
     """A part appears over the box's rear-left corner (a scan obstacle newly drawn there).
 
-    The escape backs out of it, or drives out, along the heading; it brakes the turn rather
-    than swing the other corners (near the axle, steering the reference point out asks for
-    a turn of 1 / offset_l).
+    The way out is C(theta)'s, the body's shortest move off the part; the escape drives
+    along the heading and brakes the turn rather than swing the other corners (near the
+    axle, steering the reference point out asks for a turn of 1 / offset_l).
     """
     overlap = np.array([[-0.30, 0.20], [-0.20, 0.20], [-0.20, 0.30], [-0.30, 0.30]])
     for turn in (0.0, 0.5):
@@ -243,6 +243,9 @@ def test_a_box_overlapping_a_part_escapes_along_its_heading_without_turning():
         u, info = GUARDED.step(state, _scene([overlap]), np.array([0.0, 0.0]))
         assert info.status.value == 'escape'
         assert u[1] == pytest.approx(GUARDED.model.braking_input(state)[1])
+        # The shortest way out of the overlap moves the body 1.5 cm to the right.
+        direction = GUARDED.escape_direction(info.evaluation, _scene([overlap]))
+        np.testing.assert_allclose(direction, [0.0, -1.0], atol=1e-9)
 
 
 @settings(max_examples=examples(100), deadline=None)

@@ -8,7 +8,7 @@ from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge import barn
 from sim_bridge.closed_loop import run_in_process
 from sim_bridge.evaluation.barn_suite import run_world
-from sim_bridge.launcher import closed_loop_plan, params_file
+from sim_bridge.launcher import closed_loop_plan, default_barrier, params_file
 from sim_bridge.lidar import lidar_settings
 from sim_bridge.plants import JACKAL_MAX_ACCEL, JACKAL_MAX_SPEED
 from sim_bridge.robots import JACKAL_RADIUS, JACKAL_SIZE, ROBOT_TYPES
@@ -104,9 +104,13 @@ def test_the_cruise_speed_reaches_the_nominal():
 @pytest.mark.slow
 @pytest.mark.parametrize('number', [5, 8])
 def test_a_jackal_at_2_m_s_crosses_a_barn_world_from_its_laser_without_contact(number):
-    """BARN's protocol, the laser alone, go-to-goal at 2 m/s: the goal, no collision."""
+    """BARN's protocol, the laser alone, go-to-goal at 2 m/s: the goal, no collision.
+
+    With the barrier the shipped config/jackal.yaml runs.
+    """
     world, = [w for w in barn.load_worlds(barn.WORLDS_FILE) if w.world == number]
-    (record, _), = run_world(world, [('polyc2bf_horizon', 'goal')], obstacle_source='scan',
+    (record, _), = run_world(world, [(default_barrier('jackal'), 'goal')],
+                             obstacle_source='scan',
                              lidar=lidar_settings((), **ROBOT_TYPES['jackal'].lidar),
                              robot='jackal', speed=2.0)
     assert record['robot'] == 'jackal' and record['speed'] == 2.0

@@ -62,7 +62,7 @@ import numpy as np
 
 from polyc2bf_ros.core.barrier.cones import InflatedCone
 from polyc2bf_ros.core.geometry.footprint import covering_radius
-from polyc2bf_ros.core.kernels.footprint import _footprint_plane
+from polyc2bf_ros.core.kernels.footprint import _footprint_exits, _footprint_plane
 from polyc2bf_ros.core.kernels.horizon import footprint_min_h_along
 
 
@@ -71,8 +71,11 @@ class FootprintCone(InflatedCone):
 
     ``footprint`` (m, 2) CCW about the axle, ``horizon`` tau; ``obstacle_accel``,
     ``velocity_error`` and ``gamma`` as ``FilterConfig``'s.  The prepared polygons are the
-    parts themselves; ``fill`` and ``exits`` see them without the body (the escape leaves a
-    part along the shortest way out of it, seen from the axle).
+    parts themselves; ``exits`` are those of C(theta) at the heading of the last
+    ``fill_plane`` (the escape of the same step): the axle's shortest way out of the
+    region where the bodies overlap.  (Measured: taken from the part alone, seen from an
+    axle outside it, the way out pointed at the part, and a box whose nose overlapped a
+    scan obstacle drove on into the cylinders behind it, BARN from the laser.)
     """
 
     name = 'polyc2bf_footprint'
@@ -88,6 +91,7 @@ class FootprintCone(InflatedCone):
         self.velocity_error, self.gamma = float(velocity_error), float(gamma)
         self._points = np.ascontiguousarray(np.array(self.footprint).T)
         self._cover = covering_radius(footprint)
+        self._heading = 0.0  # of the last fill_plane: the escape's C(theta)
 
     @property
     def points(self):
@@ -97,11 +101,17 @@ class FootprintCone(InflatedCone):
     def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
                    velocity_epsilon, block, valid, checked):
         """Run the footprint kernel at the state the reference was computed at."""
+        self._heading = float(reference.state[2])
         kernel = _footprint_plane if checked else _footprint_plane.unchecked
         kernel(prepared.x, prepared.y, prepared.counts, self._points, reference.state,
                velocities, offsets, age, 1.0 / self.horizon,
                velocity_epsilon * velocity_epsilon, self.obstacle_accel, self.velocity_error,
                self.gamma, block, valid)
+
+    def fill_exits(self, prepared, viewpoints, out):
+        """Run the exit kernel on C(theta) (class docstring)."""
+        _footprint_exits(prepared.x, prepared.y, prepared.counts, self._points, self._heading,
+                         viewpoints, out)
 
     def min_h_along(self, prepared, velocities, offsets, age, start, path, period,
                     velocity_epsilon, checked=True):

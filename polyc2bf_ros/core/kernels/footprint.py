@@ -79,6 +79,30 @@ def nearest_boundary(cx, cy, count, qx, qy):
 
 
 
+@kernel(signature('void', F2, F2, I1, F2, 'f8', F2, F2))
+def _footprint_exits(x, y, counts, footprint, theta, viewpoints, out):
+    """Write the shortest way out of each C(theta) for the axle at ``viewpoints`` into ``out``.
+
+    Column n: the unit direction from the axle q (``viewpoints`` column n, or 0 when it
+    has one) to C's nearest boundary point, and its depth |w| where q lies inside C (the
+    bodies overlap: no cone), else -|w|.
+    """
+    width = x.shape[1] + footprint.shape[1]
+    cx, cy = np.empty((1, width)), np.empty((1, width))
+    feet = np.empty(width, dtype=np.int64)
+    cos, sin = math.cos(theta), math.sin(theta)
+    for n in range(counts.shape[0]):
+        column = n if viewpoints.shape[1] > 1 else 0
+        qx, qy = viewpoints[0, column], viewpoints[1, column]
+        count = configuration_polygon(x, y, counts[n], n, footprint, cos, sin, cx, cy, feet)
+        _, _, wx, wy, inside = nearest_boundary(cx, cy, count, qx, qy)
+        depth = math.sqrt(wx * wx + wy * wy)
+        scale = 1.0 / depth if depth > _TINY else 0.0
+        out[0, n], out[1, n] = wx * scale, wy * scale
+        out[2, n] = depth if inside else -depth
+
+
+
 @kernel(signature('void', F2, F2, I1, F2, F1, F2, F2, 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', F2,
                   B1))
 def _footprint_plane(x, y, counts, footprint, state, velocities, offsets, age, inv_horizon,
