@@ -33,8 +33,8 @@ from polyc2bf_ros.static_transforms import IDENTITY, StaticTransforms
 class ScanObstacles(NamedTuple):
     """One scan's obstacles: the scan's stamp [s], ``Obstacle`` list, cluster per obstacle.
 
-    ``origin``: the sensor's position (x, y) in the odometry frame when the scan was taken;
-    ``view``: where it looked (``ScanView``); ``settings``: its ``ScanSettings``.
+    ``view``: where it looked from (``ScanView``: the sensor's pose in the odometry frame
+    when the scan was taken) and over which bearings; ``settings``: its ``ScanSettings``.
 
     ``owner[i]`` indexes ``clusters``, the endpoints (n, 2) of each cluster in the odometry
     frame (``scan_to_obstacles(..., with_clusters=True)``).
@@ -44,7 +44,6 @@ class ScanObstacles(NamedTuple):
     obstacles: list
     owner: np.ndarray
     clusters: list
-    origin: tuple
     view: ScanView
     settings: ScanSettings
 
@@ -155,7 +154,7 @@ class ObstaclePipeline:
             self.scan_status[topic] = status._replace(
                 received=received, rejected=status.rejected + 1, reason=str(exc))
             return
-        obstacles, unseen, standing = scan.obstacles, [], scan.clusters
+        obstacles, unseen, estimates = scan.obstacles, [], None
         if settings.scan_tracking:
             # Unstamped scans and odometry: the tracker times them by their receipt.
             clock = scan.stamp if scan.stamp > 0.0 else received
@@ -166,23 +165,21 @@ class ObstaclePipeline:
                 self._scan_tracker = ScanTracker(TrackerSettings(
                     pose_std=tracking[1], heading_std=tracking[2]), link=link)
                 self._tracking = tracking
-            estimates = self._scan_tracker.update(clock, scan.clusters, scan.origin)
-            unknown = float(settings.scan_unknown_speed)
-            obstacles = with_velocities(scan.obstacles, scan.owner, estimates, unknown)
+            estimates = self._scan_tracker.update(clock, scan.clusters, scan.view[:2])
+            obstacles = with_velocities(scan.obstacles, scan.owner, estimates,
+                                        float(settings.scan_unknown_speed))
             unseen = unseen_obstacles(self._scan_tracker, f'{topic}:')
-            standing = [cluster for cluster, estimate in zip(scan.clusters, estimates)
-                        if not (estimate.moving and estimate.confirmed)
-                        and (estimate.trusted or unknown == 0.0)]
         self._scans[topic] = (scan.stamp, [
             dataclasses.replace(o, key=f'{topic}:{o.key}') for o in obstacles] + unseen
-            + self._remembered(topic, scan, standing, settings))
+            + self._remembered(topic, scan, estimates, settings))
         self.scan_status[topic] = status._replace(accepted=received, received=received)
 
 
-    def _remembered(self, topic, scan, standing, settings):
+    def _remembered(self, topic, scan, estimates, settings):
         """Return the obstacles ``topic``'s laser saw before and cannot see now (``ScanMemory``).
 
-        ``standing``: the scan's clusters that no moving or untrusted track holds.
+        ``estimates``: the tracker's per cluster (None untracked); the clusters that no
+        moving or untrusted track holds join the memory.
         """
         keep_time, reach = float(settings.scan_memory_time), float(settings.scan_memory_range)
         memory = self._memories.get(topic)
@@ -191,6 +188,11 @@ class ObstaclePipeline:
             return []
         if memory is None or (memory.keep_time, memory.reach) != (keep_time, reach):
             memory = self._memories[topic] = ScanMemory(keep_time, reach)
+        unknown = float(settings.scan_unknown_speed)
+        standing = scan.clusters if estimates is None else [
+            cluster for cluster, estimate in zip(scan.clusters, estimates)
+            if not (estimate.moving and estimate.confirmed)
+            and (estimate.trusted or unknown == 0.0)]
         points = np.concatenate(standing) if standing else np.zeros((0, 2))
         return [dataclasses.replace(o, key=f'{topic}:memory/{index}') for index, o in
                 enumerate(memory.update(scan.stamp, scan.view, points, scan.settings))]
@@ -248,14 +250,14 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
         sensor_pose, robot_pose, scan_settings, with_clusters=True)
     # An unstamped scan is taken at the latest odometry sample (``pose_at``): its stamp too.
     x, y, yaw = robot_pose
-    origin = (x + math.cos(yaw) * sensor_pose[0] - math.sin(yaw) * sensor_pose[1],
-              y + math.sin(yaw) * sensor_pose[0] + math.cos(yaw) * sensor_pose[1])
     last = scan.angle_min + (len(ranges) - 1) * scan.angle_increment
-    view = ScanView(*origin, yaw + sensor_pose[2], min(scan.angle_min, last),
+    view = ScanView(x + math.cos(yaw) * sensor_pose[0] - math.sin(yaw) * sensor_pose[1],
+                    y + math.sin(yaw) * sensor_pose[0] + math.cos(yaw) * sensor_pose[1],
+                    yaw + sensor_pose[2], min(scan.angle_min, last),
                     max(scan.angle_min, last), abs(scan.angle_increment), scan.range_min,
                     scan.range_max, (x, y))
     return ScanObstacles(stamp if stamp > 0.0 else float(odometry[-1][0]), obstacles, owner,
-                         clusters, origin, view, scan_settings)
+                         clusters, view, scan_settings)
 
 
 def _sensor_pose(frame, base_frame, settings, transforms):

@@ -362,14 +362,13 @@ def _point_h(x, y, edge_x, edge_y, inv_sq, count, n, box, px, py, pvx, pvy, t, o
 
 
 @kernel
-def _value_at(x, y, count, n, footprint, cover, row, t, ovx, ovy, ox, oy, inv_horizon, eps_sq,
+def _value_at(x, y, count, n, footprint, cover, row, qx, qy, ovx, ovy, inv_horizon, eps_sq,
               cx, cy, feet, scratch):
-    """Return h of part n at a path ``row`` [x, y, vx, vy, theta, omega] at time t; inf: none.
+    """Return h of part n at a path ``row`` [x, y, vx, vy, theta, omega]; inf: none.
 
-    The part moved by (ox, oy) and moving at (ovx, ovy); ``_footprint_column`` into the
-    one-column ``scratch``.
+    q: the row's axle relative to the part, which moves at (ovx, ovy);
+    ``_footprint_column`` into the one-column ``scratch``.
     """
-    qx, qy = row[0] - t * ovx - ox, row[1] - t * ovy - oy
     cos, sin = math.cos(row[4]), math.sin(row[4])
     vertices = configuration_polygon(x, y, count, n, footprint, cos, sin, cx, cy, feet)
     ia, ib, seen = silhouette(cx, cy, vertices, 0, qx, qy)
@@ -501,5 +500,5 @@ def _row_h(x, y, count, n, footprint, cover, row, t, ovx, ovy, ox, oy, obstacle_
         return math.inf
     if _sweeps_past(box, cover, qx, qy, row[2] - ovx, row[3] - ovy, abs(row[5]) * cover):
         return math.inf
-    return _value_at(x, y, count, n, footprint, cover, row, t, ovx, ovy, ox, oy, inv_horizon,
+    return _value_at(x, y, count, n, footprint, cover, row, qx, qy, ovx, ovy, inv_horizon,
                      eps_sq, cx, cy, feet, scratch)
