@@ -230,6 +230,39 @@ def test_min_h_along_a_path_is_the_smallest_h_the_filter_evaluates(polygons, see
         assert kernel == pytest.approx(expected, rel=1e-9, abs=1e-9)
 
 
+@settings(max_examples=examples(150), deadline=None)
+@given(polygons=st.lists(convex_polygons(centre_range=2.0), min_size=1, max_size=4),
+       seed=st.integers(0, 2 ** 32 - 1))
+def test_min_h_along_skips_a_group_of_rows_only_where_each_row_is_skipped(polygons, seed):
+    """The kernel's groups of rows against its rows taken one at a time, bit for bit.
+
+    Long braking paths (hundreds of rows, groups of about twenty) past standing and
+    moving parts: a group is skipped only where each of its rows would be, so the value
+    is the smallest over the rows, each the kernel's own from that row alone.
+    """
+    rng = np.random.default_rng(seed)
+    velocities = rng.uniform(-1.0, 1.0, (len(polygons), 2)) * rng.integers(0, 2)
+    period, age = 0.01, float(rng.uniform(0.0, 0.1))
+    count = int(rng.integers(100, 600))
+    speed = np.linspace(rng.uniform(-2.0, 2.0), 0.0, count)
+    turn = rng.uniform(-2.0, 2.0) * np.linspace(1.0, 0.0, count)
+    heading = rng.uniform(-np.pi, np.pi) + np.cumsum(turn) * period
+    steps = np.column_stack((np.cos(heading), np.sin(heading))) * speed[:, None] * period
+    points = rng.uniform(-2.5, 2.5, 2) + np.cumsum(steps, axis=0)
+    rows = np.ascontiguousarray(np.column_stack((points, steps / period, heading, turn)))
+    model = GUARDED.cone_model
+    prepared = model.prepare(PolygonBatch.from_polygons(polygons))
+    offsets = np.zeros((len(polygons), 2))
+
+    def kernel(start, path, at):
+        return model.min_h_along(prepared, np.ascontiguousarray(velocities), offsets, at,
+                                 start, path, period, GUARDED.config.velocity_epsilon)
+
+    row_by_row = min(kernel(rows[k], np.zeros((0, 6)), age + k * period)
+                     for k in range(count))
+    assert kernel(rows[0], rows[1:], age) == row_by_row
+
+
 def test_a_box_overlapping_a_part_escapes_along_its_heading_without_turning():
     """A part appears over the box's rear-left corner (a scan obstacle newly drawn there).
 

@@ -425,6 +425,38 @@ def _sweeps_past(box, cover, qx, qy, dx, dy, spread):
 
 
 
+@kernel
+def _group_sweeps_past(box, cover, qx, qy, dx, dy, spread):
+    """Return True when ``_sweeps_past`` holds at every row of a group of rows.
+
+    The group's axles lie in qx x qy (``group_box``), its d in dx x dy and its spreads are
+    at most ``spread``.  Per corner, r = corner - q ranges over the corner less that box,
+    |r| is at most its farthest point's, and cross(d, r), <d, r> range over
+    ``_product_range``'s sums; each bound is the row test's own arithmetic on the group's
+    ends, and rounding is monotone, so a test that holds here holds at each row as
+    ``_sweeps_past`` computes it.
+    """
+    left = right = behind = True
+    for corner in range(4):
+        corner_x = box[0] - cover if corner < 2 else box[1] + cover
+        corner_y = box[2] - cover if corner % 2 == 0 else box[3] + cover
+        low_rx, high_rx = corner_x - qx[1], corner_x - qx[0]
+        low_ry, high_ry = corner_y - qy[1], corner_y - qy[0]
+        reach = spread * math.sqrt(max(low_rx * low_rx, high_rx * high_rx)
+                                   + max(low_ry * low_ry, high_ry * high_ry))
+        low_a, high_a = _product_range(dx[0], dx[1], low_ry, high_ry)
+        low_b, high_b = _product_range(dy[0], dy[1], low_rx, high_rx)
+        left = left and (low_a - high_b) - reach > 0.0
+        right = right and (high_a - low_b) + reach < 0.0
+        ahead_x = _product_range(dx[0], dx[1], low_rx, high_rx)[1]
+        ahead_y = _product_range(dy[0], dy[1], low_ry, high_ry)[1]
+        behind = behind and (ahead_x + ahead_y) + reach < 0.0
+        if not (left or right or behind):
+            return False
+    return left or right or behind
+
+
+
 @kernel(signature('f8', F2, F2, I1, F2, F2, 'f8', 'f8', 'f8', F2, F2, 'f8', F1, F2, 'f8'))
 def footprint_min_h_along(x, y, counts, boxes, footprint, cover, inv_horizon, eps_sq,
                           velocities, offsets, age, start, path, period):
@@ -437,7 +469,11 @@ def footprint_min_h_along(x, y, counts, boxes, footprint, cover, inv_horizon, ep
     skips only rows where h >= 0, so the value is exact where negative, else only >= 0
     (+inf: nothing evaluated).  ``_far_from_box`` is also taken on the box of a group of
     rows (``path_groups``, ``group_box``) with its fastest speed and turn, and on the box
-    of all of them: where it holds there it holds at each row, as computed.
+    of all of them, and ``_sweeps_past`` on a group's bounds (``_group_sweeps_past``):
+    where they hold there they hold at each row, as computed, so the value is the rows'
+    one at a time, bit for bit.  (Measured: without the group test, a box driving at 1 m/s
+    between two rows of parts, at 1 kHz, tested each of its braking path's rows against
+    every part near it, and this kernel cost more than the rest of the step.)
     """
     width = x.shape[1] + footprint.shape[1]
     cx, cy = np.empty((1, width)), np.empty((1, width))
@@ -478,6 +514,10 @@ def footprint_min_h_along(x, y, counts, boxes, footprint, cover, inv_horizon, ep
             if _far_from_box(box, cover, (low_qx, high_qx), (low_qy, high_qy), groups[g, 8],
                              turns[g], obstacle_speed, inv_horizon):
                 continue  # so is every row of the group
+            if _group_sweeps_past(box, cover, (low_qx, high_qx), (low_qy, high_qy),
+                                  (groups[g, 4] - ovx, groups[g, 5] - ovx),
+                                  (groups[g, 6] - ovy, groups[g, 7] - ovy), turns[g] * cover):
+                continue  # every row heads past
             for k in range(first, end):
                 best = min(best, _row_h(x, y, counts[n], n, footprint, cover, path[k],
                                         age + (k + 1) * period, ovx, ovy, ox, oy,
