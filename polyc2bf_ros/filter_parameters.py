@@ -136,11 +136,11 @@ NODE_PARAMETERS = {
                            'holding two objects; core/obstacles/scan_tracker.py); the braking '
                            'check allows for it; 0 = off', False),
     'scan_memory_time': (10.0, (0.0, 3600.0), 'a laser with a blind sector: endpoints it saw '
-                         'are kept this long [s] while no beam can see them and they lie '
-                         'within scan_memory_range (core/obstacles/scan_memory.py), so a '
-                         'turning or backing body knows what passed behind it; 0 = off',
+                         'are kept this long [s] while no beam can see them '
+                         '(core/obstacles/scan_memory.py), so a turning or backing body '
+                         'knows what passed behind it; 0 = off',
                          False),
-    'scan_memory_range': (1.5, (0.01, 30.0), '... kept while this close [m] to the sensor',
+    'scan_memory_range': (1.5, (0.01, 30.0), '... and drawn while this close [m] to the sensor',
                           False),
     'odom_position_std': (0.0, (0.0, 1.0), 'noise [m] of the odometry position scans are '
                           'placed at; the scan tracker allows for it in every displacement it '

@@ -87,6 +87,17 @@ def test_only_what_is_near_and_recent_is_kept():
     assert not memory.update(1.2, view, np.zeros((0, 2)), SETTINGS) and not len(memory)
 
 
+def test_a_post_seen_beyond_reach_is_drawn_once_the_robot_backs_within_reach():
+    """Seen 1.6 m ahead, the post leaves the view; backing towards it brings it back."""
+    memory = ScanMemory(keep_time=5.0, reach=1.0)
+    post = ((1.6, 0.0), 0.1)
+    _look(memory, 0.0, 0.0, 1.5 * math.pi, [post])
+    assert not _look(memory, 0.1, math.pi, 1.5 * math.pi, [post], keep=False)[0]
+    assert len(memory)
+    obstacles, _ = _look(memory, 0.2, math.pi, 1.5 * math.pi, [post], (0.8, 0.0), keep=False)
+    assert obstacles and all(o.polygon[:, 0].min() > 1.4 for o in obstacles)
+
+
 def test_a_laser_that_sees_all_round_keeps_nothing():
     """A full-turn scan has no blind sector: nothing to remember."""
     memory = ScanMemory(keep_time=5.0, reach=2.0)
