@@ -4,7 +4,6 @@ import math
 import numpy as np
 import pytest
 
-from polyc2bf_ros.core.barrier.footprint_cone import FootprintCone
 from polyc2bf_ros.filter_parameters import build_filter, load_parameters
 from sim_bridge import barn
 from sim_bridge.closed_loop import run_in_process
@@ -72,12 +71,10 @@ def test_the_jackal_accelerates_and_drives_at_its_own_limits():
 
 
 def test_config_guards_the_footprint_and_the_lidar_is_barns():
-    """config/jackal.yaml guards the box as itself; the lidar is a UST-10's."""
+    """config/jackal.yaml gives the box as its footprint; the lidar is a UST-10's."""
     parameters = load_parameters([params_file('jackal')], (), 'base')
-    safety_filter = build_filter(parameters).command_filter.safety_filter
-    assert isinstance(safety_filter.cone_model, FootprintCone)
-    assert safety_filter.config.body_radius == pytest.approx(JACKAL_RADIUS)
-    assert default_barrier('jackal') == FootprintCone.name
+    config = build_filter(parameters).command_filter.safety_filter.config
+    assert config.body_radius == pytest.approx(JACKAL_RADIUS)
     lidar = lidar_settings((), **ROBOT_TYPES['jackal'].lidar)
     assert (lidar.beams, lidar.range_max) == (720, 30.0)
     assert lidar.field_of_view == pytest.approx(math.radians(270.0))
