@@ -113,11 +113,11 @@ class ScanMemory:
         ranges, after = view.bearings(points)
         keep = view.unseen(ranges, after) & (age >= 0.0) & (age <= self.keep_time)
         self._points, self._stamps = points[keep], stamps[keep]
-        near = ranges[keep] <= self.reach
+        near = keep & (ranges <= self.reach)
         if not near.any():
             return []
-        ranges, after = ranges[keep][near], after[keep][near]
+        points, ranges, after = points[near], ranges[near], after[near]
         bins = np.floor(after / view.step).astype(np.int64)
         order = np.lexsort((ranges, bins))
         nearest = order[np.concatenate(([True], bins[order][1:] != bins[order][:-1]))]
-        return scan_obstacles(self._points[near][nearest], view.base, settings)
+        return scan_obstacles(points[nearest], view.base, settings)
