@@ -54,16 +54,16 @@ omega J R f* is in v.  A non-convex footprint is guarded by its convex hull
 The braking check measures the footprint along the brake the same way: the signed
 distance of the axle to C(theta_k) at each row is the bodies' distance
 (``kernels.braking.path_clearance`` with a footprint), and its barrier test takes this h
-at each row (``kernels.horizon.footprint_min_h_along``).  The moving parts' rows are made robust
-to ``obstacle_accel`` and ``obstacle_velocity_error`` in the same pass, with dh/do (rows
-7-8 of the block: every vertex moved alike) in place of ``cone_barrier``'s dh/dp.
+at each row (``kernels.footprint_path.footprint_min_h_along``).  The moving parts' rows
+are made robust to ``obstacle_accel`` and ``obstacle_velocity_error`` in the same pass, with
+dh/do (rows 7-8 of the block: every vertex moved alike) in place of ``cone_barrier``'s dh/dp.
 """
 import numpy as np
 
 from polyc2bf_ros.core.barrier.cones import InflatedCone
 from polyc2bf_ros.core.geometry.footprint import covering_radius
 from polyc2bf_ros.core.kernels.footprint import _footprint_exits, _footprint_plane
-from polyc2bf_ros.core.kernels.horizon import footprint_min_h_along
+from polyc2bf_ros.core.kernels.footprint_path import footprint_min_h_along
 
 
 class FootprintCone(InflatedCone):
