@@ -36,8 +36,11 @@ def test_diagnostics_fields_follow_the_inputs_and_markers_show_the_cones():
     marker in frame 'map': ERROR naming it, until it is deleted.
     Odometry silent: WARN, stale_inputs 'odom', stale stops counted.
     """
-    # A starved node's stall-guard stop would turn the healthy report into an ERROR.
-    params = {'model': 'unicycle', 'rate': RATE, 'stall_timeout': 10.0}
+    # A starved node's stall-guard stop would turn the healthy report into an ERROR; on a
+    # busy machine a late odometry message (a stale stop) or the stuck rule (the odometry
+    # does not move; 8 s by default) would turn it into a WARN.
+    params = {'model': 'unicycle', 'rate': RATE, 'stall_timeout': 10.0, 'odom_timeout': 1.0,
+              'cmd_timeout': 1.0, 'stuck_time': 0.0}
     with running_filter(params=params) as proc, Harness() as h:
         drawn = h.collect(MarkerArray, 'safety_filter/markers')
         io = h.filter_io(proc)
@@ -60,7 +63,8 @@ def test_diagnostics_fields_follow_the_inputs_and_markers_show_the_cones():
         # Two seconds of steps: the latest one-second window is fully in steady state.
         status, values = report(lambda v: int(v['steps_ok']) > 2 * RATE)
         assert set(FIELDS) <= set(values)
-        assert status.level == DiagnosticStatus.OK and status.hardware_id == 'unicycle'
+        assert status.level == DiagnosticStatus.OK, status.message
+        assert status.hardware_id == 'unicycle'
         assert values['stale_inputs'] == 'none' and values['enabled'] == 'true'
         assert values['obstacles_in_use'] == '1' and math.isfinite(float(values['min_h']))
         # A steady timer fires at most once per period (rcl skips missed ones), so only
@@ -84,7 +88,7 @@ def test_diagnostics_fields_follow_the_inputs_and_markers_show_the_cones():
         assert "'map'" in values['rejected walls/9'] and values['obstacles_in_use'] == '1'
         inputs['obstacles'][-1] = Marker(ns='walls', id=9, action=Marker.DELETE)
         status, values = report(lambda v: v['obstacles_rejected'] == '0')
-        assert status.level == DiagnosticStatus.OK
+        assert status.level == DiagnosticStatus.OK, status.message
 
         stops_before = int(values['steps_stale_stop'])
         inputs['odom'] = False
