@@ -402,9 +402,9 @@ class SafetyFilter:
         self._barrier_check = self._braking and bool(self.config.braking_check_barrier)
         # The braking check measures paths against the obstacles' own polygons: the robot
         # keeps braking_margin, i.e. a guarded point guard_radius + braking_margin, a
-        # footprint braking_margin (its distance is 0 at contact: ``_contact``).
-        self._contact = 0.0 if self._turning else self.guard_radius
-        self._clearance = self._contact + float(self.config.braking_margin)
+        # footprint braking_margin (its distance is 0 at contact).
+        contact = 0.0 if self._turning else self.guard_radius
+        self._clearance = contact + float(self.config.braking_margin)
         # The footprint the paths carry ((2, 0): a point), how far it reaches from its origin,
         # and so how far beyond a path's points an obstacle can matter (``_far_from_all``).
         self._body = self.cone_model.points if self._turning else np.zeros((2, 0))
@@ -539,9 +539,9 @@ class SafetyFilter:
     def _must_brake(self, state, u, prepared, age, now, moving=True):
         """Return True when holding ``u`` leaves a less clear way to stop than braking now.
 
-        ``polyc2bf_ros.core.barrier.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x));
-        braked only while c(B(x)) > 0 (distances to the footprints less the guard radius);
-        moving parts, where the path closes on them, apart and without that exception.
+        ``polyc2bf_ros.core.barrier.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x))
+        (distances to the footprints less the guard radius), also where c(B(x)) <= 0;
+        moving parts, where the path closes on them, apart.
         With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept
         when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+ and B(x+):
         ``RobotModel.braking_after``.
@@ -554,8 +554,7 @@ class SafetyFilter:
         after_path = rows[1:]
         after, after_moving = self._path_clearance(after_path, prepared, age + period)
         # c(B(x)) is computed only where c(B(x+)) falls under the margin.
-        if (after < self._clearance and after < now.clearance[0]
-                and now.clearance[0] > self._contact):
+        if after < self._clearance and after < now.clearance[0]:
             return True
         if not moving:
             return False

@@ -323,3 +323,38 @@ def test_the_footprint_barrier_needs_a_footprint_and_a_heading():
                            FilterConfig(footprint=format_footprint(JACKAL)))
     assert not isinstance(covered.cone_model, FootprintCone)
     assert covered.guard_radius == pytest.approx(np.hypot(0.254, 0.215) + 0.2)
+
+
+def _stop_clearance(state, scene):
+    """Return c(B(x)): the box's signed distance to ``scene``'s parts along its braking path."""
+    cone = FootprintCone(JACKAL)
+    polygons = cone.prepare(scene.footprints)
+    count = len(scene)
+    static, _ = path_clearance(
+        polygons.x, polygons.y, polygons.edge_x, polygons.edge_y, polygons.inv_sq,
+        polygons.counts, polygons.boxes, np.zeros((count, 2)), np.zeros((count, 2)), 0.0,
+        GUARDED.braking_path(state), GUARDED.config.control_period, 10.0, 0.0,
+        np.zeros(count), True, cone.points, float(np.hypot(0.254, 0.215)))
+    return static
+
+
+def test_a_part_drawn_over_a_creeping_boxs_stop_is_not_driven_into_deeper():
+    """A scan draws a post's polygon a few millimetres nearer: braking now stops inside it.
+
+    The box creeps at 0.15 m/s towards the polygon, 3 mm off its nose, and stopping takes
+    about 6 mm: c(B(x)) < 0, though the bodies do not touch (the post itself may lie a
+    centimetre behind its scan polygon).  Every input the filter returns then keeps the way
+    to stop at least as clear as braking now, so the box goes no deeper, whatever the
+    nominal asks; without that it slid a centimetre further in (BARN from the laser, a
+    1 mm graze).
+    """
+    state = np.array([0.0, 0.0, 0.5 * np.pi, 0.15, 0.05])
+    post = _scene([np.array([[-0.30, 0.257], [0.10, 0.257], [0.10, 0.40], [-0.30, 0.40]])])
+    first = _stop_clearance(state, post)
+    assert -0.01 < first < 0.0 < _separation(_body(state), post.footprints.vertices[0])
+    deepest = first
+    for k in range(60):
+        u, _ = GUARDED.step(state, post, np.array([2.0, 4.0 * np.cos(k / 5.0)]))
+        state = rk4_step(GUARDED.model, state, u, GUARDED.config.control_period)
+        deepest = min(deepest, _stop_clearance(state, post))
+    assert deepest >= first - 1e-9

@@ -23,12 +23,16 @@ the inflated polygon itself, it braked a robot sliding along a cylinder within i
 again and again (BARN go-to-goal with circulation: 76 % -> 20 % of the first 50 worlds).
 u is kept when c(B(x+)) >= margin, or when c(B(x+)) >= c(B(x)), no worse than braking now
 (a robot at rest within the margin may still slide along the boundary or leave it);
-otherwise the filter brakes, unless c(B(x)) <= 0 (an obstacle appeared, or the robot
-started inside: braking promises nothing, and the filter's input stands).  Moving parts have
-no such exception: their clearance is taken apart (``path_clearance`` returns both), and an
-input that closes on a moving part more than braking now does is refused even when braking
-cannot avoid the contact either (a part coming at the robot too fast): the robot then meets
-it as slowly as it can, or backing away.  A moving part's velocity is an estimate and
+otherwise the filter brakes.  Also when c(B(x)) <= 0 (an obstacle appeared, a scan drew a
+post's polygon nearer, or the robot started inside): braking cannot stop clear then, but an
+input that would stop deeper in is refused, so the robot goes no deeper than braking takes
+it, while inputs that leave or slide along stand.  (With that case exempt, a box whose stop
+a new scan polygon overlapped by 3 mm crept 1.2 cm further in at the QP's input and grazed
+the post behind it.)  Moving parts are held to the same rule, apart
+(``path_clearance`` returns both clearances): an input that closes on a moving part more
+than braking now does is refused even when braking cannot avoid the contact either (a part
+coming at the robot too fast): the robot then meets it as slowly as it can, or backing
+away.  A moving part's velocity is an estimate and
 changes, so at a path point t seconds ahead it may be ``obstacle_velocity_error`` t +
 ``braking_obstacle_accel`` t^2 / 2 nearer than its stated velocity says; that much is taken
 off its clearance there.  (Without it the check let the robot race a cylinder across its path,
@@ -38,7 +42,8 @@ track is not trusted, ``scan_tracker`` step 5); it counts as moving, whatever it
 velocity, with max(e_n, ``obstacle_velocity_error``) in place of the latter.
 
 Once c(B(x)) > 0 it stays >= min(margin, its first value): a kept u hands the next step a
-path B(x+) at least that clear, and a brake continues along the rest of B(x).  By induction
+path B(x+) at least that clear, and a brake continues along the rest of B(x); at or below
+0 it does not fall.  By induction
 the robot stays clear of every obstacle that is static or moves as its stated velocity says,
 as long as the plant follows the model.
 
