@@ -111,6 +111,8 @@ from polyc2bf_ros.core.qp.solver import QPStatus, solve_with_shared_slack
 
 BARRIERS = (*CONE_MODELS, FootprintCone.name)
 """``FilterConfig.barrier``'s values: a cone model, or the turning footprint's cone."""
+DRIVE_SHARE = 0.25
+"""Share of the way out a turning footprint's drive inputs must cover to escape by them."""
 EVASION_STEP = 0.05
 """s between the points of an evasion's look ahead (rounded to whole control periods)."""
 EVASION_REACH = 0.5
@@ -510,13 +512,14 @@ class SafetyFilter:
     def _solve_rows(self, prepared, count, inside, ref, evaluation, u_nom, active):
         """Solve the QP on the step's ``count`` rows where the one-pass kernel could not.
 
-        u_ref is the escape input when ``inside`` parts are unusable, else u_nom; an
+        u_ref is the escape input when ``inside`` parts are unusable (unless a turning
+        footprint's drive cannot follow it: ``_drives_out``), else u_nom; an
         infeasible QP is solved again with the shared slack.  Return (u, slack, status,
         message, active parts), or None when the slack QP failed too.
         """
         u_ref, status, message = u_nom, FilterStatus.OK, ''
         if inside:
-            u_ref = self._escape_input(ref, self._escape_direction(prepared, evaluation))
+            u_ref = self._escape_input(ref, self._escape_direction(prepared, evaluation), u_nom)
             status = FilterStatus.ESCAPE
             message = (f'reference point inside {inside} (inflated) obstacle part(s); '
                        'escaping along the outward direction')
@@ -769,7 +772,7 @@ class SafetyFilter:
             status=status, h=h, min_h=min_h, solve_time_s=time.perf_counter() - start,
             num_obstacles=len(h), message=message, evaluation=evaluation)
 
-    def _escape_input(self, ref, direction):
+    def _escape_input(self, ref, direction, u_nom):
         """Return the input accelerating the reference point out along ``direction``.
 
         Desired acceleration a* = k (v_esc d - r_dot); u = lstsq(B, a* - drift), clipped.
@@ -777,7 +780,12 @@ class SafetyFilter:
         share of a* asks for a turn as large as 1 / offset_l: its steering inputs brake
         (``braking_input``) and the others take a* alone.  (Measured: steering out of a
         scan obstacle that had just appeared over its corner, a Jackal turned at 1.5 rad/s
-        into the cylinder behind it, BARN from the laser.)
+        into the cylinder behind it, BARN from the laser.)  Where those others move the point
+        along d by less than ``DRIVE_SHARE`` of it (the way out runs across the heading: a
+        scan polygon drawn over the box's side), they take u_nom's values instead: a* would
+        leave the box standing inside for good (3 of 17 traced Jackal runs from the laser,
+        until the referee called a deadlock), and the braking check keeps any input from
+        stopping deeper in.
         """
         config = self.config
         desired = config.escape_gain * (config.escape_speed * direction - ref.velocity)
@@ -787,8 +795,13 @@ class SafetyFilter:
         u = self.model.braking_input(ref.state)
         steer = list(self.model.steering_inputs)
         drive = [i for i in range(self.model.input_dim) if i not in steer]
-        u[drive], *_ = np.linalg.lstsq(ref.input_matrix[:, drive], desired - ref.drift
-                                       - ref.input_matrix[:, steer] @ u[steer], rcond=None)
+        columns = ref.input_matrix[:, drive]
+        share, *_ = np.linalg.lstsq(columns, direction, rcond=None)
+        if np.linalg.norm(columns @ share) < DRIVE_SHARE:
+            u[drive] = u_nom[drive]
+        else:
+            u[drive], *_ = np.linalg.lstsq(columns, desired - ref.drift
+                                           - ref.input_matrix[:, steer] @ u[steer], rcond=None)
         return self.model.clip_input(u)
 
     def escape_direction(self, evaluation, obstacles):

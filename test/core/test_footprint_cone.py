@@ -358,3 +358,21 @@ def test_a_part_drawn_over_a_creeping_boxs_stop_is_not_driven_into_deeper():
         state = rk4_step(GUARDED.model, state, u, GUARDED.config.control_period)
         deepest = min(deepest, _stop_clearance(state, post))
     assert deepest >= first - 1e-9
+
+
+def test_a_box_whose_way_out_runs_across_its_heading_drives_as_the_nominal_asks():
+    """A part drawn over the middle of the standing box's left side: the way out is to the right.
+
+    Driving along the heading does not lead out, so an escape by the drive would leave the
+    box standing inside for good; the drive follows the nominal instead (here forward,
+    along the part), the steering still brakes, and the stop is no deeper than before.
+    """
+    side = np.array([[-0.10, 0.20], [0.10, 0.20], [0.10, 0.30], [-0.10, 0.30]])
+    state = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+    u, info = GUARDED.step(state, _scene([side]), np.array([1.0, 2.0]))
+    assert info.status.value == 'escape'
+    direction = GUARDED.escape_direction(info.evaluation, _scene([side]))
+    np.testing.assert_allclose(direction, [0.0, -1.0], atol=1e-9)
+    assert u[0] == pytest.approx(1.0) and u[1] == pytest.approx(0.0, abs=1e-12)
+    after = rk4_step(GUARDED.model, state, u, GUARDED.config.control_period)
+    assert _stop_clearance(after, _scene([side])) >= _stop_clearance(state, _scene([side]))
