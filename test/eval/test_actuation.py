@@ -135,9 +135,11 @@ def test_from_the_laser_a_base_later_and_slower_than_told_needs_the_error_bounds
 
     The base is 30 ms late with tau 0.1 s and 1 cm odometry noise; the filter is told
     20 ms and 0.07 s with a 2 cm braking margin.  Planning its stops at the full
-    ``max_accel``, the braking check lets the robot close on a cylinder it sees; told
-    that the base may be 10 ms later and 0.03 s slower (``braking_plan``), it reaches the
-    goal without contact.
+    ``max_accel``, the braking check lets the robot close on cylinders it sees: it spends
+    twice the steps outside the safe set and takes four times as long (it used to touch
+    one, until the check refused stops deeper inside an obstacle where braking cannot stop
+    clear).  Told that the base may be 10 ms later and 0.03 s slower (``braking_plan``), it
+    reaches the goal without contact, sooner and less often outside.
     """
     world, = [w for w in load_worlds(WORLDS_FILE) if w.world == 212]
     plant = Actuation(latency=0.03, actuator_tau=0.1, odom_noise=0.01)
@@ -153,9 +155,12 @@ def test_from_the_laser_a_base_later_and_slower_than_told_needs_the_error_bounds
                                         parameters={**told, **bounds},
                                         obstacle_source='scan', lidar=lidar,
                                         actuation=plant)
-    assert records['unbounded']['collision']
-    assert records['bounded']['success'] and not records['bounded']['collision']
-    assert records['bounded']['min_clearance_m'] > 0.0
+    unbounded, bounded = records['unbounded'], records['bounded']
+    assert not unbounded['collision']
+    assert bounded['success'] and not bounded['collision']
+    assert bounded['min_clearance_m'] > 0.0
+    assert bounded['negative_h_rate'] < 0.75 * unbounded['negative_h_rate']
+    assert bounded['time_s'] < 0.5 * unbounded['time_s']
 
 
 def test_lagging_rotors_put_a_crazyflie_into_the_pillars_unless_the_filter_is_told():
