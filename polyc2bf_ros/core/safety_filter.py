@@ -512,8 +512,8 @@ class SafetyFilter:
     def _solve_rows(self, prepared, count, inside, ref, evaluation, u_nom, active):
         """Solve the QP on the step's ``count`` rows where the one-pass kernel could not.
 
-        u_ref is the escape input when ``inside`` parts are unusable (unless a turning
-        footprint's drive cannot follow it: ``_drives_out``), else u_nom; an
+        u_ref is the escape input when ``inside`` parts are unusable (``_escape_input``),
+        else u_nom; an
         infeasible QP is solved again with the shared slack.  Return (u, slack, status,
         message, active parts), or None when the slack QP failed too.
         """

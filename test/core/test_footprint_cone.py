@@ -281,6 +281,21 @@ def test_a_box_overlapping_a_part_escapes_along_its_heading_without_turning():
         np.testing.assert_allclose(direction, [0.0, -1.0], atol=1e-9)
 
 
+def _box_path_clearance(path, scene, period):
+    """Return ``path_clearance`` (static, moving; cutoff 10 m) of the Jackal box along ``path``.
+
+    Rows [x, y, vx, vy, theta] of its axle; ``scene``'s parts standing.
+    """
+    cone = FootprintCone(JACKAL)
+    polygons = cone.prepare(scene.footprints)
+    count = len(scene)
+    return path_clearance(
+        polygons.x, polygons.y, polygons.edge_x, polygons.edge_y, polygons.inv_sq,
+        polygons.counts, polygons.boxes, np.zeros((count, 2)), np.zeros((count, 2)), 0.0,
+        path, period, 10.0, 0.0, np.zeros(count), True, cone.points,
+        float(np.hypot(0.254, 0.215)))
+
+
 @settings(max_examples=examples(100), deadline=None)
 @given(obstacle=convex_polygons(centre_range=1.5), seed=st.integers(0, 2 ** 32 - 1))
 def test_the_braking_clearance_is_the_bodies_signed_distance_along_the_path(obstacle, seed):
@@ -293,16 +308,10 @@ def test_the_braking_clearance_is_the_bodies_signed_distance_along_the_path(obst
     rows = int(rng.integers(1, 12))
     path = np.column_stack((rng.uniform(-2.0, 2.0, (rows, 2)), rng.uniform(-1.0, 1.0, (rows, 2)),
                             rng.uniform(-3.1, 3.1, rows)))
-    cone = FootprintCone(JACKAL)
-    polygons = cone.prepare(_scene([obstacle]).footprints)
     expected = min(signed_distance(row[:2], configuration_polygon(obstacle, JACKAL,
                                                                   row[4])[0])
                    for row in path)
-    static, moving = path_clearance(
-        polygons.x, polygons.y, polygons.edge_x, polygons.edge_y, polygons.inv_sq,
-        polygons.counts, polygons.boxes, np.zeros((1, 2)), np.zeros((1, 2)), 0.0,
-        np.ascontiguousarray(path), 0.01, 10.0, 0.0, np.zeros(1), True, cone.points,
-        float(np.hypot(0.254, 0.215)))
+    static, moving = _box_path_clearance(np.ascontiguousarray(path), _scene([obstacle]), 0.01)
     assert moving == 10.0
     assert static == pytest.approx(min(expected, 10.0), abs=1e-12)
     gaps = [_separation(_body(np.array([*row[:2], row[4]])), obstacle) for row in path]
@@ -327,15 +336,8 @@ def test_the_footprint_barrier_needs_a_footprint_and_a_heading():
 
 def _stop_clearance(state, scene):
     """Return c(B(x)): the box's signed distance to ``scene``'s parts along its braking path."""
-    cone = FootprintCone(JACKAL)
-    polygons = cone.prepare(scene.footprints)
-    count = len(scene)
-    static, _ = path_clearance(
-        polygons.x, polygons.y, polygons.edge_x, polygons.edge_y, polygons.inv_sq,
-        polygons.counts, polygons.boxes, np.zeros((count, 2)), np.zeros((count, 2)), 0.0,
-        GUARDED.braking_path(state), GUARDED.config.control_period, 10.0, 0.0,
-        np.zeros(count), True, cone.points, float(np.hypot(0.254, 0.215)))
-    return static
+    return _box_path_clearance(GUARDED.braking_path(state), scene,
+                               GUARDED.config.control_period)[0]
 
 
 def test_a_part_drawn_over_a_creeping_boxs_stop_is_not_driven_into_deeper():
