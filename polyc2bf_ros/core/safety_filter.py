@@ -113,6 +113,14 @@ BARRIERS = (*CONE_MODELS, FootprintCone.name)
 """``FilterConfig.barrier``'s values: a cone model, or the turning footprint's cone."""
 DRIVE_SHARE = 0.25
 """Share of the way out a turning footprint's drive inputs must cover to escape by them."""
+CLEARANCE_ROUNDING = 1e-12
+"""m by which c(B(x+)) may fall short of c(B(x)) and still count as no worse (rounding).
+
+A body sliding along an edge has the same clearance in exact arithmetic; computed, the two
+differ by 1e-19 to 1e-16 m either way, which refused every input of a box backing out
+between two posts within the margin.  Over 10^6 steps it adds up to 1 um at most."""
+BRAKING_MESSAGE = 'braking check: the input leaves no clear way to stop; braking'
+"""``FilterInfo.message`` when the braking check leaves the model's braking input alone."""
 EVASION_STEP = 0.05
 """s between the points of an evasion's look ahead (rounded to whole control periods)."""
 EVASION_REACH = 0.5
@@ -543,7 +551,8 @@ class SafetyFilter:
         """Return True when holding ``u`` leaves a less clear way to stop than braking now.
 
         ``polyc2bf_ros.core.barrier.braking_check``: kept when c(B(x+)) >= margin or >= c(B(x))
-        (distances to the footprints less the guard radius), also where c(B(x)) <= 0;
+        (distances to the footprints less the guard radius; less ``CLEARANCE_ROUNDING``),
+        also where c(B(x)) <= 0;
         moving parts, where the path closes on them, apart.
         With ``braking_check_barrier`` the same test on H(x) = min h over x and B(x): kept
         when H(x+) >= 0 or >= H(x); braked only while H(x) >= 0.  x+ and B(x+):
@@ -557,11 +566,12 @@ class SafetyFilter:
         after_path = rows[1:]
         after, after_moving = self._path_clearance(after_path, prepared, age + period)
         # c(B(x)) is computed only where c(B(x+)) falls under the margin.
-        if after < self._clearance and after < now.clearance[0]:
+        if after < self._clearance and after < now.clearance[0] - CLEARANCE_ROUNDING:
             return True
         if not moving:
             return False
-        if after_moving < self._clearance and after_moving < now.clearance[1]:
+        if (after_moving < self._clearance
+                and after_moving < now.clearance[1] - CLEARANCE_ROUNDING):
             return True
         if not self._barrier_check:
             return False
@@ -598,24 +608,38 @@ class SafetyFilter:
     def _backup_input(self, state, u, prepared, age, now, count):
         """Return (input, message) once the braking check refused ``u``.
 
-        The brake with the model's steering inputs taken from ``u``, if the check keeps
-        that, else with them reversed (a unicycle at rest at the band's edge turns away
-        instead of standing for good); otherwise the brake.  A turning footprint steers
-        only where the step's ``count`` QP rows hold too: its corners sweep as it turns,
-        which the check's clearance test alone lets come to the margin and past h = 0.
+        The first the check keeps of: for a turning footprint, ``u``'s drive with the
+        steering braked (the turn is most often what swings a corner into the margin: a
+        box at rest nose-in between posts, asked to back out while turning, stood for
+        good); the brake with the model's steering inputs taken from ``u``; the same with
+        them reversed (a unicycle at rest at the band's edge turns away instead of
+        standing for good); otherwise the brake.  A turning footprint's steered
+        candidates must hold the step's ``count`` QP rows too: its corners sweep as it
+        turns, which the check's clearance test alone lets come to the margin and past
+        h = 0.  The driven one does not turn, and is held to the check alone: in tight
+        spots the rows are often infeasible (the slack QP answered), and every candidate
+        missed them.
         """
         brake = self.model.clip_input(self.model.braking_input(state))
         steering = list(self.model.steering_inputs)
+        if not steering:
+            return brake, BRAKING_MESSAGE
         rows_a, rows_b = prepared.rows_a[:count], prepared.rows_b[:count]
-        if steering:
-            for sign, how in ((1.0, 'keeping'), (-1.0, 'reversing')):
-                steered = brake.copy()
-                steered[steering] = sign * u[steering]
-                if self._turning and np.any(rows_a @ steered < rows_b - ACTIVE_TOLERANCE):
-                    continue
-                if not self._must_brake(state, steered, prepared, age, now):
-                    return steered, f'braking check: braking the speed, {how} the steering'
-        return brake, 'braking check: the input leaves no clear way to stop; braking'
+        candidates = []
+        if self._turning:
+            driven = u.copy()
+            driven[steering] = brake[steering]
+            candidates.append((driven, False, 'keeping the drive, braking the steering'))
+        for sign, how in ((1.0, 'keeping'), (-1.0, 'reversing')):
+            steered = brake.copy()
+            steered[steering] = sign * u[steering]
+            candidates.append((steered, self._turning, f'braking the speed, {how} the steering'))
+        for candidate, turns, how in candidates:
+            if turns and np.any(rows_a @ candidate < rows_b - ACTIVE_TOLERANCE):
+                continue
+            if not self._must_brake(state, candidate, prepared, age, now):
+                return candidate, f'braking check: {how}'
+        return brake, BRAKING_MESSAGE
 
     def _moving_near(self, state, prepared, age):
         """Return True when a moving part may come within an evasion's look ahead.

@@ -192,6 +192,28 @@ def test_turning_in_place_beside_a_post_stops_before_a_corner_sweeps_into_it(fil
     assert (closest > 0.0) == filtered
 
 
+def test_a_box_nose_in_between_two_posts_backs_out_when_asked_to_back_and_turn():
+    """Posts 1 mm off both sides of the box's front half, inside the braking margin.
+
+    The nominal asks to back out while turning.  Any turn swings a side into a post, so the
+    braking check refuses the QP's input, and braking while keeping or reversing the turn
+    too: the box stood there for good.  The backup keeps the input's drive and brakes the
+    steering instead, and backing straight, which leaves the clearance as it is up to
+    rounding, is kept: the box backs out of the slot, touching neither post.
+    """
+    flat = _octagon((0.0, 0.0), 0.075) @ planar_rotation(np.pi / 8.0).T  # a side faces the box
+    posts = [flat + [0.1, side * (0.215 + 0.001 + 0.075)] for side in (1.0, -1.0)]
+    scene, state, closest, messages = _scene(posts), np.zeros(5), np.inf, set()
+    for _ in range(100):
+        u, info = GUARDED.step(state, scene, np.array([-1.0, 3.0]))
+        messages.add(info.message)
+        state = rk4_step(GUARDED.model, state, u, GUARDED.config.control_period)
+        closest = min(closest, *(_separation(_body(state), post) for post in posts))
+    assert 'braking check: keeping the drive, braking the steering' in messages
+    assert closest > 0.0
+    assert state[0] < -0.3  # out of the slot: the front face behind the posts
+
+
 @settings(max_examples=examples(150), deadline=None)
 @given(polygons=st.lists(convex_polygons(centre_range=1.5), min_size=1, max_size=3),
        seed=st.integers(0, 2 ** 32 - 1))
