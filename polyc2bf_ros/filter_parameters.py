@@ -23,6 +23,7 @@ from polyc2bf_ros.core.command_filter import CommandFilter
 from polyc2bf_ros.core.decision import DEADLOCK_DEFAULTS, RESOLUTIONS, ROUTE_DEFAULTS
 from polyc2bf_ros.core.geometry.polygon_limits import MAX_PARTS, MAX_VERTICES
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, MODELS
+from polyc2bf_ros.core.obstacles.scan_conversion import ScanSettings
 from polyc2bf_ros.core.safety_filter import FilterConfig
 from polyc2bf_ros.obstacle_settings import IntakeSettings, MAX_OBSTACLES
 
@@ -128,6 +129,10 @@ NODE_PARAMETERS = {
                               'polygon: the disc inside it, less 3 cm)', False),
     'scan_obstacle_depth': (0.10, (0.02, 10.0), 'how far [m] each scan obstacle reaches behind '
                             'the surface the beams lit (the unseen body behind it)', False),
+    'scan_split_tolerance': (0.05, (0.001, 10.0), 'largest distance [m] of a scan endpoint '
+                             'from the side of its obstacle: smaller outlines curved surfaces '
+                             'closer, with more polygons; at most scan_cluster_tolerance less '
+                             '0.01 m (core/obstacles/scan_conversion.py, step 4)', False),
     'scan_tracking': (True, None, 'track scan clusters from scan to scan '
                       '(core/obstacles/scan_tracker.py): obstacles of a confirmed, moving '
                       'track get its velocity; false: every scan obstacle stands still', False),
@@ -379,6 +384,13 @@ def build_settings(values, model=None, reuse=None):
         if 0.0 < timeout <= period:
             raise ParameterError(f'{name}_timeout ({timeout:g} s) must exceed the control '
                                  f'period 1/rate ({period:g} s)')
+    try:  # the scan settings' own check: split tolerance and cluster tolerance together
+        ScanSettings(cluster_tolerance=float(values['scan_cluster_tolerance']),
+                     depth=float(values['scan_obstacle_depth']),
+                     split_tolerance=float(values['scan_split_tolerance']))
+    except ValueError as exc:
+        raise ParameterError('invalid scan parameters (scan_split_tolerance, '
+                             f'scan_cluster_tolerance, scan_obstacle_depth): {exc}') from None
     scan_timeout = float(values['scan_timeout'])
     if scan_topics and 0.0 < scan_timeout <= period:
         raise ParameterError(f'scan_timeout ({scan_timeout:g} s) must exceed the control '

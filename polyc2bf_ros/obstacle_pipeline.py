@@ -244,7 +244,8 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
     radius = settings.scan_footprint_radius
     scan_settings = ScanSettings(cluster_tolerance=float(settings.scan_cluster_tolerance),
                                  footprint_radius=float(robot_radius if radius < 0 else radius),
-                                 depth=float(settings.scan_obstacle_depth))
+                                 depth=float(settings.scan_obstacle_depth),
+                                 split_tolerance=float(settings.scan_split_tolerance))
     obstacles, owner, clusters = scan_to_obstacles(
         ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max,
         sensor_pose, robot_pose, scan_settings, with_clusters=True)

@@ -22,6 +22,7 @@ class IntakeSettings(NamedTuple):
     scan_cluster_tolerance: float = 0.15
     scan_footprint_radius: float = -1.0  # negative: the filter's robot_radius
     scan_obstacle_depth: float = 0.10
+    scan_split_tolerance: float = 0.05
     scan_tracking: bool = True
     scan_unknown_speed: float = 2.0
     scan_memory_time: float = 10.0

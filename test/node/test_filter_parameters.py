@@ -54,6 +54,14 @@ def test_route_parameters_reach_the_resolution_and_must_fit_the_window():
         build_filter({'route_ahead': 6.0})
 
 
+def test_scan_split_tolerance_must_leave_room_in_the_cluster_tolerance():
+    """A piece's points stay within cluster_tolerance of its polygon only if split + 1 cm fits."""
+    assert build_filter({'scan_split_tolerance': 0.01}).intake.scan_split_tolerance == 0.01
+    with pytest.raises(ParameterError, match='invalid scan parameters .*must not exceed '
+                                             'cluster_tolerance'):
+        build_filter({'scan_split_tolerance': 0.2})
+
+
 @pytest.mark.parametrize('values, message', [
     ({'command_latency': -0.01}, 'command_latency must be a finite number >= 0'),
     ({'command_latency': float('nan')}, 'command_latency must be a finite number >= 0'),

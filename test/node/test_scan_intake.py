@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 from rclpy.serialization import serialize_message
+from sensor_msgs.msg import LaserScan
 
 from node_harness import markers, wall
 from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry, SCAN_BODY_MARGIN
@@ -109,6 +110,40 @@ def test_scan_obstacle_depth_sets_how_far_obstacles_reach_behind_the_wall(depth)
     obstacles = _obstacles(_data(wall_x=1.0), ODOMETRY, 'base_link', settings, 0.3)
     assert obstacles
     assert max(o.polygon[:, 0].max() for o in obstacles) == pytest.approx(1.0 + depth, abs=0.01)
+
+
+def _post_scan(centre, radius, beams=720, field_of_view=1.5 * math.pi):
+    """Return a serialized scan from the base of a post (a circle): BARN's Hokuyo by default."""
+    msg = LaserScan()
+    msg.header.frame_id = 'base_link'
+    msg.angle_min, msg.angle_increment = -0.5 * field_of_view, field_of_view / (beams - 1)
+    msg.angle_max = msg.angle_min + (beams - 1) * msg.angle_increment
+    msg.range_min, msg.range_max = 0.05, 30.0
+    angles = msg.angle_min + msg.angle_increment * np.arange(beams)
+    along = np.cos(angles) * centre[0] + np.sin(angles) * centre[1]
+    square = along ** 2 - (centre[0] ** 2 + centre[1] ** 2 - radius ** 2)
+    hit = (square > 0.0) & (along > 0.0)
+    msg.ranges = np.where(hit, along - np.sqrt(np.where(hit, square, 0.0)), np.inf).tolist()
+    return serialize_message(msg)
+
+
+@pytest.mark.parametrize('centre', [(1.0, 0.0), (1.5, 0.8), (2.0, -0.5)])
+def test_scan_split_tolerance_sets_how_closely_a_post_is_outlined(centre):
+    """A smaller ``scan_split_tolerance`` outlines a BARN post (7.5 cm radius) more closely.
+
+    A piece's near corners stand off the post by up to the sagitta of the arc it spans; a
+    smaller tolerance splits the arc into more pieces, each nearer the surface.
+    """
+    radius, standoffs, counts = 0.075, {}, {}
+    for split in (0.05, 0.01):
+        obstacles = _obstacles(_post_scan(centre, radius), ODOMETRY, 'base_link',
+                               IntakeSettings(scan_split_tolerance=split), 0.3)
+        corners = np.vstack([o.polygon for o in obstacles])
+        near = np.linalg.norm(corners, axis=1) < np.hypot(*centre)  # the lit side's corners
+        standoffs[split] = float((np.linalg.norm(corners[near] - centre, axis=1) - radius).max())
+        counts[split] = len(obstacles)
+    assert standoffs[0.01] < 0.004 < standoffs[0.05]
+    assert counts[0.01] > counts[0.05]
 
 
 def test_a_scan_is_placed_at_the_odometry_stamped_nearest_it():
