@@ -63,8 +63,9 @@ def run_node(node_class, name, args=None):
     except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C while starting up
         rclpy.try_shutdown()
         return 0
-    executor = LeanExecutor()
+    executor = None
     try:
+        executor = LeanExecutor()  # Ctrl-C may still arrive here, while starting up
         executor.add_node(node)
         gc.collect()
         gc.freeze()
@@ -76,7 +77,8 @@ def run_node(node_class, name, args=None):
         if rclpy.ok():
             raise
     finally:
-        executor.shutdown()
+        if executor is not None:
+            executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
