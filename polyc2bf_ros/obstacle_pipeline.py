@@ -256,7 +256,8 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
                     y + math.sin(yaw) * sensor_pose[0] + math.cos(yaw) * sensor_pose[1],
                     yaw + sensor_pose[2], min(scan.angle_min, last),
                     max(scan.angle_min, last), abs(scan.angle_increment), scan.range_min,
-                    scan.range_max, (x, y))
+                    scan.range_max, (x, y),
+                    ranges if scan.angle_increment > 0 else ranges[::-1])
     return ScanObstacles(stamp if stamp > 0.0 else float(odometry[-1][0]), obstacles, owner,
                          clusters, view, scan_settings)
 
