@@ -149,6 +149,28 @@ def test_a_post_hidden_behind_a_nearer_one_is_kept_until_it_is_seen_again():
     assert not any(_inside(o.polygon, point) for o in obstacles for point in seen)
 
 
+def test_what_stays_in_view_is_not_kept_even_with_a_deep_depth():
+    """A post in view, scan after scan: its points and their backs are dropped as seen.
+
+    A back lies ``depth`` behind its lit surface, which stops the beams that far short of
+    it; with ``depth`` above ``cluster_tolerance`` that must not count as hidden.
+    """
+    deep = ScanSettings(depth=0.3)
+    memory = ScanMemory(keep_time=5.0, reach=2.0)
+    post = ((0.8, 0.1), 0.1)
+    angle_min, increment = _scanner(1.5 * math.pi)
+    view = ScanView(0.0, 0.0, 0.0, angle_min, angle_min + 539 * increment, increment, 0.05,
+                    10.0, (0.0, 0.0),
+                    simulate_ranges((0.0, 0.0, 0.0), 540, angle_min, increment, 10.0,
+                                    circles=[post]))
+    points = beam_endpoints(view.ranges, angle_min, increment, 0.05, 10.0, (0.0, 0.0, 0.0),
+                            (0.0, 0.0, 0.0))
+    points = points[np.isfinite(points).all(axis=1)]
+    for stamp in (0.0, 0.1, 0.2):
+        assert not memory.update(stamp, view, points, deep)
+    assert not len(memory)
+
+
 def test_a_post_kept_from_its_far_side_is_still_covered_on_the_side_facing_the_robot():
     """A post lit from the north, then behind the laser of a robot south-east of it.
 

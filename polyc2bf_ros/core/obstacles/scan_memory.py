@@ -22,12 +22,13 @@ Per scan of one source, taken at ``stamp`` from ``ScanView`` ``view``:
 2. A point is dropped when this scan could have seen it: its bearing from the sensor lies
    within the beams' span (widened by half an increment on each side), its range within
    ``[range_min, range_max]``, and one of the two beams either side of its bearing got at
-   least that far less ``cluster_tolerance`` (or returned nothing: the beam passed).  A
-   point both beams stopped short of is hidden behind something nearer and is kept, like
-   one in the blind sector.  (Measured: dropped when hidden, a post that a nearer post hid
-   from the laser was gone by the time it passed into the blind sector, and a Jackal box
-   backing at 0.9 m/s grazed it by 4 mm; BARN world 119 from the laser.)  It is also
-   dropped when it is older than ``keep_time``.
+   least that far less ``cluster_tolerance`` (or returned nothing: the beam passed); a
+   back, less ``cluster_tolerance + depth``, since its own body stops the beams ``depth``
+   short of it.  A point both beams stopped short of is hidden behind something nearer
+   and is kept, like one in the blind sector.  (Measured: dropped when hidden, a post
+   that a nearer post hid from the laser was gone by the time it passed into the blind
+   sector, and a Jackal box backing at 0.9 m/s grazed it by 4 mm; BARN world 119 from
+   the laser.)  It is also dropped when it is older than ``keep_time``.
 3. The rest within ``reach`` of the sensor is drawn as the laser would see it from here:
    by bearing, in bins of the scan's increment from the blind sector's first bearing on,
    the nearest point per bin, in bearing order.  ``scan_obstacles`` turns them into
@@ -120,7 +121,8 @@ class ScanMemory:
         self.keep_time, self.reach = float(keep_time), float(reach)
         self._points = np.zeros((0, 2))
         self._stamps = np.zeros(0)
-        self._last = (np.zeros((0, 2)), 0.0)
+        self._behind = np.zeros(0)  # per point: how far behind its lit surface [m]
+        self._last = (np.zeros((0, 2)), np.zeros(0), 0.0)
 
     def __len__(self):
         """Return the number of points kept."""
@@ -133,18 +135,19 @@ class ScanMemory:
         endpoints of its standing clusters (joining the memory at the next scan);
         ``settings``: its ``ScanSettings``.  Obstacles are keyed ``scan/<i>``.
         """
-        last, last_stamp = self._last
-        self._last = (_with_backs(standing, view, settings.depth), float(stamp))
+        last, last_behind, last_stamp = self._last
+        self._last = (*_with_backs(standing, view, settings.depth), float(stamp))
         if not view.blind():
-            self._points, self._stamps = np.zeros((0, 2)), np.zeros(0)
+            self._points, self._stamps, self._behind = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
             return []
         points = np.concatenate((self._points, last))
         stamps = np.concatenate((self._stamps, np.full(len(last), last_stamp)))
+        behind = np.concatenate((self._behind, last_behind))
         age = stamp - stamps
         ranges, after = view.bearings(points)
-        keep = (view.unseen(ranges, after, settings.cluster_tolerance) & (age >= 0.0)
+        keep = (view.unseen(ranges, after, settings.cluster_tolerance + behind) & (age >= 0.0)
                 & (age <= self.keep_time))
-        self._points, self._stamps = points[keep], stamps[keep]
+        self._points, self._stamps, self._behind = points[keep], stamps[keep], behind[keep]
         near = keep & (ranges <= self.reach)
         if not near.any():
             return []
@@ -156,13 +159,14 @@ class ScanMemory:
 
 
 def _with_backs(points, view, depth):
-    """Return (2n, 2): ``points`` seen from ``view``, then each moved ``depth`` along its beam.
+    """Return ``points`` seen from ``view`` with their backs, and how far behind each lies.
 
-    The moved points stand for the body's far side (module step 1), as a scan polygon
-    reaches ``depth`` behind the surface it outlines.
+    (2n, 2): the points, then each moved ``depth`` along its beam; (2n,): 0 for the
+    points, ``depth`` for the backs.  The backs stand for the body's far side (module
+    step 1), as a scan polygon reaches ``depth`` behind the surface it outlines.
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     rays = points - (view.x, view.y)
     lengths = np.hypot(rays[:, 0], rays[:, 1])
     backs = points + rays * (depth / np.maximum(lengths, 1e-9))[:, None]
-    return np.concatenate((points, backs))
+    return np.concatenate((points, backs)), np.repeat((0.0, float(depth)), len(points))
