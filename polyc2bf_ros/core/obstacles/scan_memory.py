@@ -23,12 +23,13 @@ Per scan of one source, taken at ``stamp`` from ``ScanView`` ``view``:
    within the beams' span (widened by half an increment on each side), its range within
    ``[range_min, range_max]``, and one of the two beams either side of its bearing got at
    least that far less ``cluster_tolerance`` (or returned nothing: the beam passed); a
-   back, less ``cluster_tolerance + depth``, since its own body stops the beams ``depth``
-   short of it.  A point both beams stopped short of is hidden behind something nearer
-   and is kept, like one in the blind sector.  (Measured: dropped when hidden, a post
-   that a nearer post hid from the laser was gone by the time it passed into the blind
-   sector, and a Jackal box backing at 0.9 m/s grazed it by 4 mm; BARN world 119 from
-   the laser.)  It is also dropped when it is older than ``keep_time``.
+   back, less the larger of ``cluster_tolerance`` and ``depth + split_tolerance``, since
+   its own body stops the beams about ``depth`` short of it.  A point both beams stopped
+   short of is hidden behind something nearer and is kept, like one in the blind sector.
+   (Measured: dropped when hidden, a post that a nearer post hid from the laser was gone
+   by the time it passed into the blind sector, and a Jackal box backing at 0.9 m/s
+   grazed it by 4 mm; BARN world 119 from the laser.)  It is also dropped when it is
+   older than ``keep_time``.
 3. The rest within ``reach`` of the sensor is drawn as the laser would see it from here:
    by bearing, in bins of the scan's increment from the blind sector's first bearing on,
    the nearest point per bin, in bearing order.  ``scan_obstacles`` turns them into
@@ -145,7 +146,10 @@ class ScanMemory:
         behind = np.concatenate((self._behind, last_behind))
         age = stamp - stamps
         ranges, after = view.bearings(points)
-        keep = (view.unseen(ranges, after, settings.cluster_tolerance + behind) & (age >= 0.0)
+        tolerance = np.where(behind > 0.0, max(settings.cluster_tolerance,
+                                               settings.depth + settings.split_tolerance),
+                             settings.cluster_tolerance)
+        keep = (view.unseen(ranges, after, tolerance) & (age >= 0.0)
                 & (age <= self.keep_time))
         self._points, self._stamps, self._behind = points[keep], stamps[keep], behind[keep]
         near = keep & (ranges <= self.reach)
