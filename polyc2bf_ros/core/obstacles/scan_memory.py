@@ -93,7 +93,7 @@ class ScanView(NamedTuple):
         """
         blind = FULL_TURN - (self.last - self.first + self.step)
         unseen = (after < blind) | (ranges < self.range_min) | (ranges > self.range_max)
-        if self.ranges is None or len(self.ranges) == 0:
+        if self.ranges is None:
             return unseen
         beams = np.asarray(self.ranges, dtype=np.float64)
         # Fractional beam index of each bearing: after - blind runs from 0 at half an
@@ -122,8 +122,8 @@ class ScanMemory:
         self.keep_time, self.reach = float(keep_time), float(reach)
         self._points = np.zeros((0, 2))
         self._stamps = np.zeros(0)
-        self._behind = np.zeros(0)  # per point: how far behind its lit surface [m]
-        self._last = (np.zeros((0, 2)), np.zeros(0), 0.0)
+        self._backs = np.zeros(0, dtype=bool)  # per point: a back (module step 1)
+        self._last = (np.zeros((0, 2)), np.zeros(0, dtype=bool), 0.0)
 
     def __len__(self):
         """Return the number of points kept."""
@@ -136,22 +136,23 @@ class ScanMemory:
         endpoints of its standing clusters (joining the memory at the next scan);
         ``settings``: its ``ScanSettings``.  Obstacles are keyed ``scan/<i>``.
         """
-        last, last_behind, last_stamp = self._last
+        last, last_backs, last_stamp = self._last
         self._last = (*_with_backs(standing, view, settings.depth), float(stamp))
         if not view.blind():
-            self._points, self._stamps, self._behind = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+            self._points, self._stamps = np.zeros((0, 2)), np.zeros(0)
+            self._backs = np.zeros(0, dtype=bool)
             return []
         points = np.concatenate((self._points, last))
         stamps = np.concatenate((self._stamps, np.full(len(last), last_stamp)))
-        behind = np.concatenate((self._behind, last_behind))
+        backs = np.concatenate((self._backs, last_backs))
         age = stamp - stamps
         ranges, after = view.bearings(points)
-        tolerance = np.where(behind > 0.0, max(settings.cluster_tolerance,
-                                               settings.depth + settings.split_tolerance),
-                             settings.cluster_tolerance)
+        back_tolerance = max(settings.cluster_tolerance,
+                             settings.depth + settings.split_tolerance)
+        tolerance = np.where(backs, back_tolerance, settings.cluster_tolerance)
         keep = (view.unseen(ranges, after, tolerance) & (age >= 0.0)
                 & (age <= self.keep_time))
-        self._points, self._stamps, self._behind = points[keep], stamps[keep], behind[keep]
+        self._points, self._stamps, self._backs = points[keep], stamps[keep], backs[keep]
         near = keep & (ranges <= self.reach)
         if not near.any():
             return []
@@ -163,14 +164,14 @@ class ScanMemory:
 
 
 def _with_backs(points, view, depth):
-    """Return ``points`` seen from ``view`` with their backs, and how far behind each lies.
+    """Return ``points`` seen from ``view`` with their backs, and which rows are backs.
 
-    (2n, 2): the points, then each moved ``depth`` along its beam; (2n,): 0 for the
-    points, ``depth`` for the backs.  The backs stand for the body's far side (module
+    (2n, 2): the points, then each moved ``depth`` along its beam; (2n,) bool: True for
+    the backs.  The backs stand for the body's far side (module
     step 1), as a scan polygon reaches ``depth`` behind the surface it outlines.
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     rays = points - (view.x, view.y)
     lengths = np.hypot(rays[:, 0], rays[:, 1])
     backs = points + rays * (depth / np.maximum(lengths, 1e-9))[:, None]
-    return np.concatenate((points, backs)), np.repeat((0.0, float(depth)), len(points))
+    return np.concatenate((points, backs)), np.repeat((False, True), len(points))
