@@ -200,6 +200,9 @@ FILTER_PARAMETERS = {
                        'every obstacle all along, checked against standing obstacles only '
                        '(faster past crossing obstacles; trusts their estimated velocities, '
                        'so never while an untrusted scan track is near)'),
+    'evasion_max_speed': ((0.0, 100.0), 'evasion: the fastest [m/s] a look ahead taken may '
+                          'drive the robot, or its speed now if faster; a lagging base stops '
+                          'later than planned, sooner from a slower evasion (0: no limit)'),
     'ground_z': (None, '3-D models: height of the ground [m], an obstacle like any other '
                  '(core/obstacles/ground.py); -.inf: no ground'),
 }

@@ -13,11 +13,12 @@ RADIUS = 0.2
 SIDE = 0.5  # m: half the side of the square coming at the robot
 
 
-def _filter(horizon, model=None, commit=False):
+def _filter(horizon, model=None, commit=False, max_speed=0.0):
     return SafetyFilter(model or make_model('unicycle', offset_l=0.01, max_accel=2.0),
                         FilterConfig(barrier='polyc2bf_horizon', robot_radius=RADIUS,
                                      gamma=5.0, control_period=PERIOD,
-                                     evasion_horizon=horizon, evasion_commit=commit))
+                                     evasion_horizon=horizon, evasion_commit=commit,
+                                     evasion_max_speed=max_speed))
 
 
 def _square(centre, velocity, error=0.0):
@@ -35,16 +36,17 @@ def _gap(position, centre):
 
 
 def _crossing(horizon, speed, seconds=4.0, start=((0.0, 2.0), 0.0, 'stay'), commit=False,
-              error=0.0):
+              error=0.0, max_speed=0.0, speeds=None):
     """Run a unicycle past a square crossing from the side at ``speed``.
 
     ``start``: the square's centre, the robot's speed along +x from the origin, and its
     nominal: 'stay' (the brake) or 'keep' (no acceleration); ``error``: the square's own
-    velocity bound (an untrusted scan track).  Return (smallest gap, statuses, the robot's
-    speed toward the square at the closest approach).
+    velocity bound (an untrusted scan track); ``max_speed``: ``evasion_max_speed``;
+    ``speeds``: a list to which the robot's speed is appended each period.  Return (smallest
+    gap, statuses, the robot's speed toward the square at the closest approach).
     """
     model = make_model('unicycle', offset_l=0.01, max_accel=2.0)
-    filt = _filter(horizon, model, commit)
+    filt = _filter(horizon, model, commit, max_speed)
     centre, robot_speed, nominal = start
     state = np.array([0.0, 0.0, 0.0, robot_speed, 0.0])
     centre, velocity = np.array(centre), np.array([0.0, -speed])
@@ -58,6 +60,8 @@ def _crossing(horizon, speed, seconds=4.0, start=((0.0, 2.0), 0.0, 'stay'), comm
         middle = state + 0.5 * PERIOD * model.state_derivative(state, u)
         state = state + PERIOD * model.state_derivative(middle, u)
         centre = centre + PERIOD * velocity
+        if speeds is not None:
+            speeds.append(abs(state[3]))
         gaps.append(_gap(state[:2], centre))
         away = centre - state[:2]
         toward.append(state[3] * np.array([np.cos(state[2]), np.sin(state[2])])
@@ -99,6 +103,25 @@ def test_a_committed_evasion_drives_on_past_a_square_that_would_catch_it_braking
     assert FilterStatus.EVADE in statuses
 
 
+def test_an_evasion_at_its_speed_limit_does_not_speed_the_robot_up():
+    """``evasion_max_speed``: at 1 m/s, the crossing above is evaded without going faster.
+
+    Unlimited, the committed evasion speeds the robot up past the square (above 1.3 m/s).
+    Limited to the 1 m/s it drives, no evasion adds speed, and the square does not reach
+    it while it closes on it.
+    """
+    start = ((0.5, 2.0), 1.0, 'keep')
+    unlimited = []
+    _crossing(1.0, 1.5, 2.5, start, commit=True, speeds=unlimited)
+    assert max(unlimited) > 1.3
+    limited = []
+    gap, statuses, toward = _crossing(1.0, 1.5, 2.5, start, commit=True, max_speed=1.0,
+                                      speeds=limited)
+    assert max(limited) < 1.01, max(limited)  # the QP's own inputs may add a few mm/s
+    assert FilterStatus.EVADE in statuses
+    assert gap > 0.0 or toward <= 0.05, (gap, toward)
+
+
 def test_no_evasion_is_committed_past_an_obstacle_whose_velocity_is_not_known():
     """The same square as an untrusted scan track (its own 2 m/s bound): no wager on it.
 
@@ -127,11 +150,12 @@ def test_standing_obstacles_never_start_an_evasion(x, y, heading, speed, nominal
     np.testing.assert_array_equal(with_evasion, without)
 
 
-def test_evasion_horizon_must_be_finite_and_non_negative():
-    """A negative or infinite look ahead is refused by name."""
+@pytest.mark.parametrize('name', ['evasion_horizon', 'evasion_max_speed'])
+def test_evasion_settings_must_be_finite_and_non_negative(name):
+    """A negative or infinite look ahead or speed limit is refused by name."""
     for value in (-1.0, float('inf'), float('nan')):
-        with pytest.raises(ValueError, match='evasion_horizon'):
-            FilterConfig(evasion_horizon=value).validate()
+        with pytest.raises(ValueError, match=name):
+            FilterConfig(**{name: value}).validate()
 
 
 @settings(max_examples=examples(40), deadline=None)
