@@ -724,9 +724,7 @@ class SafetyFilter:
         # A committed input wagers on stated velocities: not with an unknown one near.
         may_commit = self._evasion_commit and not self._untrusted_near(state, prepared, age)
         limit = self._speed_limit(state)
-        scores = [max((min(self._look_ahead(path, prepared, age))
-                       for path in self._evasion_paths(state, candidate)
-                       if _speed(path[0]) <= limit), default=-math.inf)
+        scores = [self._evasion_score(state, candidate, prepared, age, limit)
                   for candidate in self._evasion_inputs]
         for index in sorted(range(len(scores)), key=lambda i: -scores[i]):
             candidate, score = self._evasion_inputs[index], scores[index]
@@ -741,6 +739,16 @@ class SafetyFilter:
                     f'{self.config.evasion_horizon:g} s, the filter input '
                     f'{held - self.guard_radius:.2f} m')
         return None
+
+    def _evasion_score(self, state, candidate, prepared, age, limit):
+        """Return the better smallest clearance of ``candidate``'s look aheads (``_evade``).
+
+        -inf when their shared first row is faster than ``limit`` (``_speed_limit``).
+        """
+        paths = self._evasion_paths(state, candidate)
+        if _speed(paths[0][0]) > limit:
+            return -math.inf
+        return max(min(self._look_ahead(path, prepared, age)) for path in paths)
 
     def _speed_limit(self, state):
         """Return the fastest an evasion's look ahead may go at its first row [m/s].
