@@ -29,47 +29,44 @@ import argparse
 import sys
 
 import numpy as np
-import yaml
 from bench_io import require_installed_checkout, write_records
 
-from sim_bridge.dynamic_worlds import (
-    ContactReferee,
-    DEFAULT_SEED,
-    dynamic_world,
-    TIME_LIMIT,
-    WORLDS_PER_DIFFICULTY,
-)
+from polyc2bf_ros.core.safety_filter import FilterConfig
+from polyc2bf_ros.filter_parameters import load_parameters
+from sim_bridge.dynamic_worlds import DEFAULT_SEED, DIFFICULTIES, dynamic_worlds, TIME_LIMIT
 
-DIFFICULTIES = ('easy', 'medium', 'hard')
 DIFFERENCE = 0.01  # s: the central difference of the velocity that gives the acceleration
 
 
 def filter_bounds(path):
-    """Return (obstacle_velocity_error [m/s], braking_obstacle_accel [m/s^2]) of a config."""
-    with open(path, encoding='utf-8') as stream:
-        document = yaml.safe_load(stream)
-    for node in document.values():
-        settings = node.get('ros__parameters', {}).get('filter', {})
-        return (float(settings.get('obstacle_velocity_error', 0.0)),
-                float(settings.get('braking_obstacle_accel', 0.0)))
-    raise ValueError(f'{path}: no ros__parameters')
+    """Return (obstacle_velocity_error [m/s], braking_obstacle_accel [m/s^2]) of a config.
+
+    As the node reads the file (``load_parameters``); a bound it leaves out is the
+    filter's default.
+    """
+    values = load_parameters([path], (), '')
+    return tuple(float(values.get(f'filter.{name}', getattr(FilterConfig, name)))
+                 for name in ('obstacle_velocity_error', 'braking_obstacle_accel'))
 
 
-def predictions(referee, t0, horizons):
+def _states(trajectories, time):
+    """Return the cylinders' centres and velocities (N, 2) each at ``time``."""
+    return (np.array([trajectory.position(time) for trajectory in trajectories], dtype=float),
+            np.array([trajectory.velocity(time) for trajectory in trajectories], dtype=float))
+
+
+def predictions(trajectories, t0, horizons):
     """Return {h: (cv errors (N,), ctrv errors (N,))} of every cylinder from ``t0``."""
-    cylinders = referee._cylinders
-    centre = referee.centres(t0)
-    velocity = np.array([c.velocity_at(t0) for c in cylinders]).reshape(-1, 2)
-    accel = (np.array([c.velocity_at(t0 + DIFFERENCE) for c in cylinders]).reshape(-1, 2)
-             - np.array([c.velocity_at(t0 - DIFFERENCE) for c in cylinders]).reshape(-1, 2)
-             ) / (2 * DIFFERENCE)
+    centre, velocity = _states(trajectories, t0)
+    accel = (_states(trajectories, t0 + DIFFERENCE)[1]
+             - _states(trajectories, t0 - DIFFERENCE)[1]) / (2 * DIFFERENCE)
     speed = np.hypot(velocity[:, 0], velocity[:, 1])
     turn = ((velocity[:, 0] * accel[:, 1] - velocity[:, 1] * accel[:, 0])
             / np.maximum(speed ** 2, 1e-12))
     heading = np.arctan2(velocity[:, 1], velocity[:, 0])
     result = {}
     for h in horizons:
-        truth = referee.centres(t0 + h)
+        truth = _states(trajectories, t0 + h)[0]
         cv = centre + velocity * h
         # The arc's chord, written to stay exact as the turn rate goes to 0.
         half = 0.5 * turn * h
@@ -82,12 +79,12 @@ def predictions(referee, t0, horizons):
 
 def measure(difficulty, horizons, samples, rng, bounds):
     """Return one record per horizon for the worlds of ``difficulty``."""
-    first = DIFFICULTIES.index(difficulty) * WORLDS_PER_DIFFICULTY
     errors = {h: ([], []) for h in horizons}
-    for world in range(first, first + WORLDS_PER_DIFFICULTY):
-        referee = ContactReferee(dynamic_world(world, DEFAULT_SEED).scenario())
+    for world in dynamic_worlds(DEFAULT_SEED):
+        if world.difficulty != difficulty:
+            continue
         for t0 in rng.uniform(DIFFERENCE, TIME_LIMIT - max(horizons), samples):
-            for h, (cv, ctrv) in predictions(referee, float(t0), horizons).items():
+            for h, (cv, ctrv) in predictions(world.cylinders, float(t0), horizons).items():
                 errors[h][0].append(cv)
                 errors[h][1].append(ctrv)
     velocity_error, accel = bounds
