@@ -30,6 +30,7 @@ REPO = Path(__file__).resolve().parents[2]
 RELIABLE = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+RESEND = 5.0  # s without a reply before an idempotent request is sent again (Harness.call)
 
 
 @contextlib.contextmanager
@@ -77,6 +78,7 @@ class Harness:
         self.node = rclpy.create_node('harness', namespace=namespace, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self._clients = {}
 
     def __enter__(self):
         """Return self."""
@@ -148,14 +150,30 @@ class Harness:
         return self.spin_until(
             lambda: all(p.get_subscription_count() > 0 for p in publishers), timeout)
 
-    def call(self, srv_type, name, request, timeout=10.0):
-        """Call a service and return its response (``None`` on timeout)."""
-        client = self.node.create_client(srv_type, name)
+    def call(self, srv_type, name, request, timeout=10.0, resend_after=None):
+        """Call a service and return its response (``None`` on timeout).
+
+        ``wait_for_service`` only sees the request path matched; a server that
+        answers before its reply writer has matched this client drops the response
+        ("failed to send response (timeout)").  For an idempotent request pass
+        ``resend_after`` (s): the request is sent again at that period until any
+        copy is answered.  Clients are kept per service, so once a reply path is
+        matched it stays matched.
+        """
+        client = self._clients.get(name)
+        if client is None:
+            client = self._clients[name] = self.node.create_client(srv_type, name)
+        end = time.monotonic() + timeout
         if not client.wait_for_service(timeout_sec=timeout):
             return None
-        future = client.call_async(request)
-        self.spin_until(future.done, timeout)
-        return future.result()
+        futures = []
+        while time.monotonic() < end:
+            futures.append(client.call_async(request))
+            left = end - time.monotonic()
+            wait = left if resend_after is None else min(resend_after, left)
+            if self.spin_until(lambda: any(f.done() for f in futures), wait):
+                return next(f.result() for f in futures if f.done())
+        return None
 
     def now(self):
         """Return the current ROS time as a ``builtin_interfaces/Time``."""

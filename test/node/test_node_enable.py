@@ -9,6 +9,7 @@ from node_harness import (
     markers,
     node_log,
     odometry,
+    RESEND,
     running_filter,
     twist,
     wall,
@@ -41,7 +42,8 @@ def test_enable_service_switches_between_pass_through_and_filtering():
             return bool(out) and out[-1][1] == nominal
 
         assert h.spin_until(filtered, WAIT, feed, 1.0 / RATE), (out[-3:], node_log(proc))
-        response = h.call(SetBool, 'safety_filter/enable', SetBool.Request(data=False))
+        response = h.call(SetBool, 'safety_filter/enable', SetBool.Request(data=False),
+                          resend_after=RESEND)
         assert response.success and 'DISABLED' in response.message
         assert h.spin_until(passed_through, WAIT, feed, 1.0 / RATE)
 
@@ -54,6 +56,7 @@ def test_enable_service_switches_between_pass_through_and_filtering():
         assert status.level == DiagnosticStatus.WARN and 'DISABLED' in status.message
         assert 'DISABLED' in node_log(proc)
 
-        response = h.call(SetBool, 'safety_filter/enable', SetBool.Request(data=True))
+        response = h.call(SetBool, 'safety_filter/enable', SetBool.Request(data=True),
+                          resend_after=RESEND)
         assert response.success
         assert h.spin_until(filtered, WAIT, feed, 1.0 / RATE)

@@ -16,6 +16,7 @@ from node_harness import (
     markers,
     node_log,
     odometry,
+    RESEND,
     running_filter,
     twist,
     wall,
@@ -39,12 +40,13 @@ def stamped_filter():
 def _set(h, **values):
     request = SetParameters.Request(parameters=[
         Parameter(name, value=value).to_parameter_msg() for name, value in values.items()])
-    return h.call(SetParameters, 'safety_filter/set_parameters', request).results
+    return h.call(SetParameters, 'safety_filter/set_parameters', request,
+                  resend_after=RESEND).results
 
 
 def _get(h, *names):
     response = h.call(GetParameters, 'safety_filter/get_parameters',
-                      GetParameters.Request(names=list(names)))
+                      GetParameters.Request(names=list(names)), resend_after=RESEND)
     return [Parameter.from_parameter_msg(ParameterMsg(name=n, value=v)).value
             for n, v in zip(names, response.values)]
 
@@ -152,7 +154,8 @@ def test_good_values_are_applied_and_parameters_are_described(stamped_filter):
     assert _get(h, 'filter.gamma', 'rate') == [2.5, 200.0]
     assert all(r.successful for r in _set(h, rate=RATE))
     response = h.call(DescribeParameters, 'safety_filter/describe_parameters',
-                      DescribeParameters.Request(names=['rate', 'model', 'cylinder_sides']))
+                      DescribeParameters.Request(names=['rate', 'model', 'cylinder_sides']),
+                      resend_after=RESEND)
     rate, model, sides = response.descriptors
     assert rate.description and rate.floating_point_range[0].to_value == 2000.0
     assert model.read_only and 'point_mass_2d' in model.description

@@ -11,6 +11,7 @@ from node_harness import (
     markers,
     node_log,
     odometry,
+    RESEND,
     running_filter,
     twist,
     wall,
@@ -80,7 +81,8 @@ def test_state_follows_the_wall_coming_near_and_the_enable_switch():
             assert late.spin_until(lambda: late_states, WAIT), node_log(proc)
             assert _values(late_states[-1][1])['action'] in ('limit', 'stop')
 
-        response = h.call(SetBool, 'safety_filter/enable', SetBool.Request(data=False))
+        response = h.call(SetBool, 'safety_filter/enable', SetBool.Request(data=False),
+                          resend_after=RESEND)
         assert response is not None and response.success
         assert h.spin_until(lambda: latest_action() == 'disabled', WAIT, feed, 1.0 / RATE), \
             ([s.message for _, s in states[-3:]], node_log(proc))
