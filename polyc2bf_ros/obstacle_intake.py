@@ -71,10 +71,10 @@ _PROTOCOL = pickle.HIGHEST_PROTOCOL
 
 
 def _encode(snapshot, last_base, scan_status=None):
-    """Pickle a snapshot; a translation of ``last_base`` goes as its offsets and velocities."""
+    """Pickle a snapshot; a translation of ``last_base`` goes as its offsets and motion."""
     obstacles = snapshot.obstacles
     if last_base is not None and obstacles.base is last_base:
-        moved = (obstacles.offsets, obstacles.velocities)
+        moved = (obstacles.offsets, obstacles.velocities, obstacles.accelerations)
         return pickle.dumps((True, moved, _replace(snapshot, ObstacleSet.empty()), scan_status),
                             _PROTOCOL)
     return pickle.dumps((False, None, snapshot, scan_status), _PROTOCOL)

@@ -125,8 +125,8 @@ def quaternion_matrix(q):
 
 
 def path_clearance_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offsets,
-                           age, path, period, cutoff, accel, velocity_errors, closing_only,
-                           footprint, cover):
+                           accelerations, age, path, period, cutoff, accel, velocity_errors,
+                           closing_only, footprint, cover, per_part):
     """Return ``kernels.braking.path_clearance`` measured at every row of every part.
 
     The parts whose bounding box stays out of reach of the path's are skipped, as the
@@ -134,6 +134,7 @@ def path_clearance_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, velociti
     (``footprint`` (2, 0), ``cover`` 0).
     """
     assert footprint.shape[1] == 0 and cover == 0.0
+    per_part[:] = cutoff
     rows = path.shape[0]
     if rows == 0:
         return cutoff, cutoff
@@ -144,9 +145,11 @@ def path_clearance_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, velociti
     for n in range(counts.shape[0]):
         vx, vy = velocities[n, 0], velocities[n, 1]
         velocity_error = velocity_errors[n]
-        moving = vx != 0.0 or vy != 0.0 or velocity_error > 0.0
+        ax, ay = accelerations[n, 0], accelerations[n, 1]
+        moving = vx != 0.0 or vy != 0.0 or ax != 0.0 or ay != 0.0 or velocity_error > 0.0
         horizon = max(abs(age), abs(last))
-        reach = cutoff + horizon * math.sqrt(vx * vx + vy * vy)
+        reach = cutoff + horizon * (math.sqrt(vx * vx + vy * vy)
+                                    + 0.5 * horizon * math.hypot(ax, ay))
         if moving:
             reach += horizon * (velocity_error + 0.5 * accel * horizon)
         ox, oy = offsets[n, 0], offsets[n, 1]
@@ -156,14 +159,16 @@ def path_clearance_by_rows(x, y, edge_x, edge_y, inv_sq, counts, boxes, velociti
         for k in range(rows):
             t = age + (k + 1) * period
             distance, dx, dy = _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
-                                                path[k, 0] - t * vx - ox,
-                                                path[k, 1] - t * vy - oy)
+                                                path[k, 0] - t * vx - 0.5 * ax * t * t - ox,
+                                                path[k, 1] - t * vy - 0.5 * ay * t * t - oy)
             if not moving:
                 best = min(best, distance)
             elif (not closing_only or distance <= 0.0
                   or path[k, 2] * dx + path[k, 3] * dy < 0.0):
-                best_moving = min(best_moving,
-                                  distance - t * (velocity_error + 0.5 * accel * t))
+                value = distance - t * (velocity_error + 0.5 * accel * t)
+                best_moving = min(best_moving, value)
+                if per_part.shape[0]:
+                    per_part[n] = min(per_part[n], value)
     return best, best_moving
 
 

@@ -127,6 +127,8 @@ EVASION_REACH = 0.5
 """m beyond the braking check's clearance up to which an evasion's look ahead measures."""
 EVASION_GAIN = 0.01
 """m of clearance an evasion must gain over holding the filter's input."""
+_NO_PARTS = np.empty(0)
+"""``path_clearance``'s ``per_part`` when no part's own value is wanted."""
 SPEED_TOLERANCE = 1e-3
 """m/s an evasion at its speed limit may still add: a turn alone speeds up a point ahead of
 the axle by a little (l omega), and is no speeding up (``_speed_limit``)."""
@@ -310,7 +312,10 @@ class _Prepared:
     ``index`` (N,) are scratch space for the QP rows (the first rows of a step are valid);
     ``velocity_errors`` (3, N): how far each part's velocity may be off, for the braking
     check, then for an evasion's look ahead, then the part's own bound alone
-    (``_velocity_errors``).
+    (``_velocity_errors``); ``accelerations`` (N, 2) their stated planar accelerations
+    (``ObstacleSet.accelerations``; zeros when none), which only an evasion's look ahead
+    follows (``_look_ahead``); ``steady`` (N, 2) zeros, the braking check's, which keeps
+    the constant-velocity bound.
     """
 
     count: int
@@ -322,6 +327,8 @@ class _Prepared:
     rows_b: np.ndarray
     index: np.ndarray
     velocity_errors: np.ndarray
+    accelerations: np.ndarray
+    steady: np.ndarray
     footprints: Optional[object] = None
 
     @functools.cached_property
@@ -329,12 +336,18 @@ class _Prepared:
         """Return True when some part moves in the plane (``velocities``' first two columns)."""
         return bool(self.velocities[:, :2].any())
 
-    def translated(self, offsets, velocities, velocity_errors):
+    @functools.cached_property
+    def fastest_speeding_up(self):
+        """Return the largest stated acceleration's norm [m/s^2] (0 without parts)."""
+        return float(np.hypot(*self.accelerations.T).max(initial=0.0))
+
+    def translated(self, offsets, velocities, velocity_errors, accelerations):
         """Return the same views and buffers with obstacles moved by ``offsets`` (N, d)."""
         return _Prepared(count=self.count, views=self.views, velocities=velocities,
                          offsets=offsets, finite=self.finite, rows_a=self.rows_a,
                          rows_b=self.rows_b, index=self.index, footprints=self.footprints,
-                         velocity_errors=velocity_errors)
+                         velocity_errors=velocity_errors, accelerations=accelerations,
+                         steady=self.steady)
 
 
 def compile_kernels():
@@ -374,7 +387,15 @@ class _BrakingNow:
     @functools.cached_property
     def clearance(self):
         """Return c(B(x)), capped at the margin: (static parts, moving parts)."""
-        return self._filter._path_clearance(self.path, self._prepared, self._age)
+        self._moving_parts = np.empty(self._prepared.count)
+        return self._filter._path_clearance(self.path, self._prepared, self._age,
+                                            self._moving_parts)
+
+    @property
+    def moving_parts(self):
+        """Return (N,) each moving part's own c(B(x)) (the margin for the others)."""
+        _ = self.clearance
+        return self._moving_parts
 
     @functools.cached_property
     def min_h(self):
@@ -422,8 +443,8 @@ class SafetyFilter:
         # The braking check measures paths against the obstacles' own polygons: the robot
         # keeps braking_margin, i.e. a guarded point guard_radius + braking_margin, a
         # footprint braking_margin (its distance is 0 at contact).
-        contact = 0.0 if self._turning else self.guard_radius
-        self._clearance = contact + float(self.config.braking_margin)
+        self._contact = 0.0 if self._turning else self.guard_radius
+        self._clearance = self._contact + float(self.config.braking_margin)
         # The footprint the paths carry ((2, 0): a point), how far it reaches from its origin,
         # and so how far beyond a path's points an obstacle can matter (``_far_from_all``).
         self._body = self.cone_model.points if self._turning else np.zeros((2, 0))
@@ -574,15 +595,22 @@ class SafetyFilter:
         period = self.config.control_period
         rows = self._paths.braking_after(state, u, period)  # the point at x+, then B(x+)
         after_path = rows[1:]
-        after, after_moving = self._path_clearance(after_path, prepared, age + period)
+        parts = np.empty(prepared.count) if moving else _NO_PARTS
+        after, after_moving = self._path_clearance(after_path, prepared, age + period, parts)
         # c(B(x)) is computed only where c(B(x+)) falls under the margin.
         if after < self._clearance and after < now.clearance[0] - CLEARANCE_ROUNDING:
             return True
         if not moving:
             return False
-        if (after_moving < self._clearance
-                and after_moving < now.clearance[1] - CLEARANCE_ROUNDING):
-            return True
+        if after_moving < self._clearance:
+            if now.clearance[1] >= self._contact:  # B(x) meets no moving part: the nearest
+                if after_moving < now.clearance[1] - CLEARANCE_ROUNDING:  # decides
+                    return True
+            # B(x) meets one: part by part, so that it does not hide an input closing on
+            # another.
+            elif np.any((parts < self._clearance)
+                        & (parts < now.moving_parts - CLEARANCE_ROUNDING)):
+                return True
         if not self._barrier_check:
             return False
         after = self._min_h_along(rows[0], after_path, prepared, age + period)
@@ -654,15 +682,16 @@ class SafetyFilter:
     def _moving_near(self, state, prepared, age):
         """Return True when a moving part may come within an evasion's look ahead.
 
-        ``clear_around`` over the moving parts, with ``_evasion_reach``.
+        ``clear_around`` over the moving parts, with ``_evasion_reach``, each straying by
+        the largest stated acceleration too.
         """
         if not prepared.moving:
             return False
         position, reach, horizon = self._evasion_reach(state)
         return not clear_around.unchecked(
             prepared.footprints.boxes, prepared.velocities, prepared.offsets,
-            prepared.velocity_errors[1], 0.0, abs(age) + horizon, position[0], position[1],
-            reach, True)
+            prepared.velocity_errors[1], prepared.fastest_speeding_up, abs(age) + horizon,
+            position[0], position[1], reach, True)
 
     def _untrusted_near(self, state, prepared, age):
         """Return True when a part with its own velocity bound may come as near.
@@ -735,9 +764,9 @@ class SafetyFilter:
             if not self._must_brake(state, candidate, prepared, age, now, moving=not committed):
                 return candidate.copy(), (
                     f'evading a moving obstacle: {np.round(candidate, 2).tolist()} keeps '
-                    f'{score - self.guard_radius:.2f} m clear over '
+                    f'{score - self._contact:.2f} m clear over '
                     f'{self.config.evasion_horizon:g} s, the filter input '
-                    f'{held - self.guard_radius:.2f} m')
+                    f'{held - self._contact:.2f} m')
         return None
 
     def _evasion_score(self, state, candidate, prepared, age, limit):
@@ -794,25 +823,28 @@ class SafetyFilter:
     def _look_ahead(self, path, prepared, age):
         """Return (static, moving) clearances of a look-ahead ``path`` (rows ``step`` s apart).
 
-        ``path_clearance`` at every row, moving parts at their stated velocity less
-        ``obstacle_velocity_error`` t, up to the clearance plus ``EVASION_REACH``.
+        ``path_clearance`` at every row, moving parts along their stated velocity and
+        acceleration (c + v t + a t^2 / 2) less ``obstacle_velocity_error`` t, up to the
+        clearance plus ``EVASION_REACH``.
         """
         footprints = prepared.footprints
         return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
-            prepared.offsets, float(age), np.ascontiguousarray(path, dtype=np.float64),
+            prepared.offsets, prepared.accelerations, float(age),
+            np.ascontiguousarray(path, dtype=np.float64),
             self._evasion_step, self._clearance + EVASION_REACH, 0.0,
-            prepared.velocity_errors[1], False, self._body, self._cover)
+            prepared.velocity_errors[1], False, self._body, self._cover, _NO_PARTS)
 
     def braking_path(self, state):
         """Return B(x), the braking path the check measures (a turning footprint's axle's)."""
         return self._paths.braking_path(state, self.config.control_period)
 
-    def _path_clearance(self, path, prepared, age):
+    def _path_clearance(self, path, prepared, age, per_part=None):
         """Return c(B), capped at the margin, of a braking ``path``: (static, moving parts).
 
-        ``path_clearance``: of the guarded point, or of a turning footprint (``_body``).
+        ``path_clearance``: of the guarded point, or of a turning footprint (``_body``);
+        ``per_part`` (N,), if given, gets each moving part's own (``path_clearance``).
 
         Unchecked kernel: the footprints, velocities and offsets are the filter's own and
         the path a fresh C-contiguous float64 array (``RobotModel.braking_path``).
@@ -821,8 +853,9 @@ class SafetyFilter:
         return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
-            prepared.offsets, float(age), path, self.config.control_period, self._clearance,
-            self._braking_accel, prepared.velocity_errors[0], True, self._body, self._cover)
+            prepared.offsets, prepared.steady, float(age), path, self.config.control_period,
+            self._clearance, self._braking_accel, prepared.velocity_errors[0], True, self._body,
+            self._cover, _NO_PARTS if per_part is None else per_part)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""
@@ -952,7 +985,7 @@ class SafetyFilter:
             prepared = self._base.translated(
                 np.ascontiguousarray(offsets, dtype=np.float64),
                 np.ascontiguousarray(velocities, dtype=np.float64),
-                self._velocity_errors(velocities, obstacles))
+                self._velocity_errors(velocities, obstacles), self._accelerations(obstacles))
         else:
             chosen = obstacles if finite else ObstacleSet.empty()
             prepared = self._fresh(self.geometry.grounded(chosen), finite)
@@ -969,7 +1002,19 @@ class SafetyFilter:
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
             index=np.empty(count, dtype=np.intp),
             footprints=PlanarPolygons.from_batch(obstacles.footprints) if self._braking
-            else None, velocity_errors=self._velocity_errors(obstacles.velocities, obstacles))
+            else None, velocity_errors=self._velocity_errors(obstacles.velocities, obstacles),
+            accelerations=self._accelerations(obstacles), steady=np.zeros((count, 2)))
+
+    def _accelerations(self, obstacles):
+        """Return (N, 2) the parts' stated planar accelerations (``_Prepared``).
+
+        Zeros without them, and for a model with a ground part (whose rows the set's do
+        not match).
+        """
+        stated = obstacles.accelerations
+        if stated is None or self.geometry.ground is not None:
+            return np.zeros((len(obstacles), 2))
+        return np.ascontiguousarray(stated[:, :2], dtype=np.float64)
 
     def _velocity_errors(self, velocities, obstacles):
         """Return (3, N): how far each part's velocity may be off.

@@ -15,8 +15,11 @@ from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFi
 from strategies import convex_polygons, examples, long_path
 
 PERIOD = 0.01
-POINT_BODY = (np.zeros((2, 0)), 0.0)
-"""``path_clearance``'s footprint and cover for a guarded point (no footprint)."""
+POINT_BODY = (np.zeros((2, 0)), 0.0, np.empty(0))
+"""``path_clearance``'s footprint and cover for a guarded point (no footprint), and no
+``per_part`` values."""
+PER_PART_ARGUMENTS = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 15}
+"""``path_clearance``'s arguments with a row per part (polygons, velocities, ..., errors)."""
 
 
 @pytest.mark.parametrize('speed', [0.0, 0.3, 1.0, 2.0])
@@ -51,18 +54,20 @@ def test_point_mass_braking_path_ends_at_rest():
     assert make_model('point_mass_3d').braking_path(np.zeros(6), PERIOD).shape == (1, 6)
 
 
-def _clearance_by_brute_force(polygons, velocities, errors, path, age, cutoff):
+def _clearance_by_brute_force(polygons, velocities, accelerations, errors, path, age, cutoff):
     """Return (static, moving) distances along the path; moving ones where it closes.
 
-    A part with a velocity error e counts as moving, e t nearer at time t.
+    A part at velocity v and acceleration a has moved by v t + a t^2 / 2 at time t; one
+    with a velocity error e counts as moving, e t nearer.
     """
     distances, moving = [cutoff], [cutoff]
-    for polygon, velocity, error in zip(polygons, velocities, errors):
+    for polygon, velocity, acceleration, error in zip(polygons, velocities, accelerations,
+                                                      errors):
         for k, row in enumerate(path):
             t = age + (k + 1) * PERIOD
-            moved = polygon + t * velocity
+            moved = polygon + t * velocity + 0.5 * t * t * acceleration
             distance = signed_distance(row[:2], moved)
-            if not velocity.any() and error == 0.0:
+            if not velocity.any() and not acceleration.any() and error == 0.0:
                 distances.append(distance)
             elif distance <= 0.0 or row[2:4] @ (_nearest_point(row[:2], moved) - row[:2]) > 0:
                 moving.append(distance - error * t)
@@ -96,16 +101,19 @@ def test_path_clearance_matches_brute_force(polygons, seed, cutoff):
     rng = np.random.default_rng(seed)
     path = _straight_path(rng, rng.integers(1, 60), rng.choice([-1.0, 0.0, 1.0]))
     velocities = rng.uniform(-0.5, 0.5, (len(polygons), 2)) * rng.integers(0, 2)
+    accelerations = rng.uniform(-3.0, 3.0, (len(polygons), 2)) * rng.integers(0, 2)
     errors = rng.choice([0.0, 0.0, 1.5], len(polygons))  # 1.5: a velocity not known
     age = float(rng.uniform(0.0, 0.2))
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
     answer = path_clearance(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                             prepared.inv_sq, prepared.counts, prepared.boxes, velocities,
-                            np.zeros_like(velocities), age, path, PERIOD, cutoff, 0.0, errors,
-                            True, *POINT_BODY)
-    expected = _clearance_by_brute_force(polygons, velocities, errors, path, age, cutoff)
+                            np.zeros_like(velocities), accelerations, age, path, PERIOD, cutoff,
+                            0.0, errors, True, *POINT_BODY)
+    expected = _clearance_by_brute_force(polygons, velocities, accelerations, errors, path, age,
+                                         cutoff)
     assert answer == pytest.approx(expected, abs=1e-9)
-    assert not (velocities.any(axis=1) | (errors > 0.0)).all() or answer[0] == cutoff
+    moves = velocities.any(axis=1) | accelerations.any(axis=1) | (errors > 0.0)
+    assert not moves.all() or answer[0] == cutoff
 
 
 @settings(max_examples=examples(150), deadline=None)
@@ -117,23 +125,34 @@ def test_path_clearance_is_its_row_by_row_form_bit_for_bit(polygons, seed, cutof
     """Skipping groups of rows far from a part changes no bit of the answer.
 
     Against every row measured (``oracles.path_clearance_by_rows``): long braking paths
-    and random walks, static and moving parts, offsets, ages, and a part's velocity error
-    and a moving part's acceleration.
+    and random walks, static and moving parts, offsets, ages, a part's velocity error,
+    its stated acceleration and the bound on how a moving part may speed up.
     """
     rng = np.random.default_rng(seed)
     path = long_path(rng, polygons[0][0])
     count = len(polygons)
     velocities = rng.uniform(-1.0, 1.0, (count, 2)) * (rng.random((count, 1)) < 0.5)
     offsets = rng.uniform(-0.5, 0.5, (count, 2)) * rng.integers(0, 2)
+    accelerations = rng.uniform(-3.0, 3.0, (count, 2)) * (rng.random((count, 1)) < 0.5)
     age = float(rng.choice([0.0, rng.uniform(-0.05, 0.3)]))
     period = float(rng.choice([0.001, 0.01, 0.05]))
     accel = float(rng.choice([0.0, 1.0]))
     error = rng.choice([0.0, 0.2, 1.5], count)  # 1.5: a velocity not known
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons(polygons))
     arguments = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-                 prepared.counts, prepared.boxes, velocities, offsets, age, path, period,
-                 cutoff, accel, error, closing_only, *POINT_BODY)
-    assert path_clearance(*arguments) == path_clearance_by_rows(*arguments)
+                 prepared.counts, prepared.boxes, velocities, offsets, accelerations, age,
+                 path, period, cutoff, accel, error, closing_only, *POINT_BODY[:2])
+    answer = path_clearance(*arguments, np.empty(0))
+    assert answer == path_clearance_by_rows(*arguments, np.empty(0))
+    # Each moving part's own value, pruned against itself: the same bits part by part.
+    parts, by_rows = np.empty(count), np.empty(count)
+    assert path_clearance(*arguments, parts) == answer
+    path_clearance_by_rows(*arguments, by_rows)
+    assert parts.tolist() == by_rows.tolist()
+    assert parts.min(initial=cutoff) == answer[1]
+    for n in np.flatnonzero(parts < cutoff):  # a moving part's value is its own
+        alone = [a[n:n + 1] if i in PER_PART_ARGUMENTS else a for i, a in enumerate(arguments)]
+        assert path_clearance(*alone, np.empty(0))[1] == parts[n]
 
 
 @settings(max_examples=examples(100), deadline=None)
@@ -155,7 +174,8 @@ def test_a_part_coming_at_a_robot_that_backs_away_does_not_count():
     backing = np.array([[-0.01 * (k + 1), 0.0, -0.5, 0.0] for k in range(50)])
     closing = backing * [-1.0, 1.0, -1.0, 1.0]
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-            prepared.counts, prepared.boxes, np.array([[-1.4, 0.0]]), np.zeros((1, 2)), 0.0)
+            prepared.counts, prepared.boxes, np.array([[-1.4, 0.0]]), np.zeros((1, 2)),
+            np.zeros((1, 2)), 0.0)
     bounds, exact = np.array([0.5]), np.zeros(1)
     assert path_clearance(*args, backing, PERIOD, 0.5, 2.0, bounds, True, *POINT_BODY) == (
         0.5, 0.5)
@@ -164,7 +184,7 @@ def test_a_part_coming_at_a_robot_that_backs_away_does_not_count():
     assert path_clearance(*args, backing, PERIOD, 0.5, 0.0, exact, False, *POINT_BODY)[1] < 0.5
     near = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box - [0.3, 0.0]]))
     static = (near.x, near.y, near.edge_x, near.edge_y, near.inv_sq, near.counts, near.boxes,
-              np.zeros((1, 2)), np.zeros((1, 2)), 0.0)
+              np.zeros((1, 2)), np.zeros((1, 2)), np.zeros((1, 2)), 0.0)
     assert path_clearance(*static, backing, PERIOD, 0.5, 2.0, exact, True,
                           *POINT_BODY) == pytest.approx(
         (0.31, 0.5))
@@ -182,8 +202,8 @@ def test_a_moving_part_may_stray_from_its_velocity_by_the_bounds():
     prepared = PlanarPolygons.from_batch(PolygonBatch.from_polygons([box]))
     path = np.array([[0.1, 0.0, 1.0, 0.2]])
     args = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-            prepared.counts, prepared.boxes, np.array([[1.0, 0.0]]), np.zeros((1, 2)), 0.0,
-            path, 0.5, 5.0)
+            prepared.counts, prepared.boxes, np.array([[1.0, 0.0]]), np.zeros((1, 2)),
+            np.zeros((1, 2)), 0.0, path, 0.5, 5.0)
     _, plain = path_clearance(*args, 0.0, np.zeros(1), True, *POINT_BODY)
     _, robust = path_clearance(*args, 2.0, np.array([0.2]), True, *POINT_BODY)
     assert robust == pytest.approx(plain - 0.5 * (0.2 + 0.5 * 2.0 * 0.5))
@@ -272,8 +292,8 @@ def test_clear_around_promises_what_path_clearance_returns(polygons, seed, cutof
     around = (prepared.boxes, velocities, offsets, errors, accel, age + len(path) * PERIOD,
               float(centre[0]), float(centre[1]), rho + cutoff)
     clearance = (prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-                 prepared.counts, prepared.boxes, velocities, offsets, age, path, PERIOD,
-                 cutoff, accel, errors)
+                 prepared.counts, prepared.boxes, velocities, offsets,
+                 np.zeros((len(polygons), 2)), age, path, PERIOD, cutoff, accel, errors)
     if clear_around(*around, False):
         assert path_clearance(*clearance, True, *POINT_BODY) == (cutoff, cutoff)
     # Moving parts only, their bounds with them (an evasion's look ahead, ``SafetyFilter``).

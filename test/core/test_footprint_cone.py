@@ -313,9 +313,9 @@ def _box_path_clearance(path, scene, period):
     count = len(scene)
     return path_clearance(
         polygons.x, polygons.y, polygons.edge_x, polygons.edge_y, polygons.inv_sq,
-        polygons.counts, polygons.boxes, np.zeros((count, 2)), np.zeros((count, 2)), 0.0,
-        path, period, 10.0, 0.0, np.zeros(count), True, cone.points,
-        float(np.hypot(0.254, 0.215)))
+        polygons.counts, polygons.boxes, np.zeros((count, 2)), np.zeros((count, 2)),
+        np.zeros((count, 2)), 0.0, path, period, 10.0, 0.0, np.zeros(count), True, cone.points,
+        float(np.hypot(0.254, 0.215)), np.empty(0))
 
 
 @settings(max_examples=examples(100), deadline=None)

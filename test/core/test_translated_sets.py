@@ -132,19 +132,41 @@ def test_translated_set_moves_vertices_and_z_and_keeps_the_rest():
     np.testing.assert_array_equal(twice.z_ranges[0], [0.5, 2.5])
     np.testing.assert_array_equal(twice.velocities, np.ones((2, 3)))
     assert base.base is None and base.offsets is None
+    assert twice.accelerations is None
+    speeding = twice.translated(np.zeros((2, 2)), accelerations=[[1.0, 0.0], [0.0, -2.0]])
+    np.testing.assert_array_equal(speeding.accelerations, [[1.0, 0.0], [0.0, -2.0]])
+    np.testing.assert_array_equal(speeding.translated(np.zeros((2, 2))).accelerations,
+                                  speeding.accelerations)  # kept, as velocities are
+    assert speeding.is_finite()
+    assert not twice.translated(np.zeros((2, 2)), accelerations=[[np.nan, 0.0],
+                                                                 [0.0, 0.0]]).is_finite()
+
+
+def test_accelerations_follow_each_part_of_a_split_footprint():
+    """``from_obstacles``: a non-convex obstacle's parts share its acceleration; none: None."""
+    ell = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [1.0, 1.0], [1.0, 2.0], [0.0, 2.0]])
+    square = np.array([[5.0, 0.0], [6.0, 0.0], [6.0, 1.0], [5.0, 1.0]])
+    obstacles = [Obstacle(polygon=ell, acceleration=np.array([0.5, -1.0])),
+                 Obstacle(polygon=square)]
+    split = ObstacleSet.from_obstacles(obstacles)
+    assert len(split) == 3
+    np.testing.assert_array_equal(split.accelerations,
+                                  [[0.5, -1.0], [0.5, -1.0], [0.0, 0.0]])
+    assert ObstacleSet.from_obstacles([Obstacle(polygon=square)]).accelerations is None
 
 
 @pytest.mark.parametrize('offsets, velocities, message', [
     (np.zeros((1, 2)), None, 'offsets must have shape'),
     (np.zeros((2, 4)), None, 'offsets must have shape'),
     (np.zeros((2, 2)), np.zeros((2, 2)), 'velocities must have shape'),
+    (np.zeros((2, 2)), np.zeros((2, 3)), 'accelerations must have shape'),
 ])
 def test_translated_refuses_wrong_shapes(offsets, velocities, message):
-    """Offsets (N, 2 or 3) and velocities (N, 3) only, with the expected shape named."""
+    """Offsets (N, 2 or 3), velocities (N, 3), accelerations (N, 2), the shape named."""
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     base = ObstacleSet.from_obstacles([Obstacle(polygon=square), Obstacle(polygon=square + 2)])
     with pytest.raises(ValueError, match=message):
-        base.translated(offsets, velocities)
+        base.translated(offsets, velocities, np.zeros((2, 3)))
 
 
 def test_non_finite_offsets_brake_and_the_base_is_reused_after():

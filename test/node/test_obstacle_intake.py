@@ -1,5 +1,6 @@
 """Obstacle intake: conflation, caps and snapshots, in process (no DDS, no node)."""
 import numpy as np
+import pytest
 from hypothesis import given, strategies as st
 from rclpy.serialization import serialize_message
 from visualization_msgs.msg import Marker
@@ -149,6 +150,13 @@ def test_the_worker_process_publishes_snapshots_and_moved_sets_keep_their_base()
         assert second.received == 6.0 and second.obstacles.base is first.obstacles.base
         np.testing.assert_allclose(second.obstacles.footprints.vertices[0, :4, 0] -
                                    first.obstacles.footprints.vertices[0, :4, 0], 0.5)
+        for k in range(1, 21):  # speeding up along x: the acceleration crosses the seam too
+            moved.pose.position.x = 0.5 + 0.5 * (0.1 * k) ** 2
+            moved.header.stamp.sec, moved.header.stamp.nanosec = 10 + k // 10, k % 10 * 10 ** 8
+            intake.submit(serialize_message(markers(moved)), 6.0 + 0.1 * k)
+            last = intake.process()
+        assert last.obstacles.base is first.obstacles.base
+        assert last.obstacles.accelerations[0, 0] == pytest.approx(1.0, abs=0.2)
     finally:
         intake.stop()
 

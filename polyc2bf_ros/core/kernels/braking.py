@@ -131,10 +131,11 @@ def group_box(group, first_time, last_time, vx, vy, ox, oy):
 
 
 
-@kernel(signature('UniTuple(f8, 2)', F2, F2, F2, F2, F2, I1, F2, F2, F2, 'f8', F2, 'f8',
-                  'f8', 'f8', F1, 'b1', F2, 'f8'))
-def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offsets, age,
-                   path, period, cutoff, accel, velocity_errors, closing_only, footprint, cover):
+@kernel(signature('UniTuple(f8, 2)', F2, F2, F2, F2, F2, I1, F2, F2, F2, F2, 'f8', F2, 'f8',
+                  'f8', 'f8', F1, 'b1', F2, 'f8', F1))
+def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offsets,
+                   accelerations, age, path, period, cutoff, accel, velocity_errors,
+                   closing_only, footprint, cover, per_part):
     """Return min(cutoff, the smallest signed distance of a ``path`` row's x, y to a polygon).
 
     Or, with a ``footprint`` (2, m > 0; ``barrier.footprint_cone``), of the footprint turned
@@ -145,13 +146,20 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
 
     Two values: over the static polygons, and over the moving ones.  Negative inside.
     Polygon n (CCW, rows of ``x``, ``y``, ``boxes`` as ``cones.PlanarPolygons``) has moved
-    by ``offsets[n]`` and moves at ``velocities[n]``; path row k ([x, y, vx, vy]) is at
-    age + (k + 1) period.  A moving polygon, or one with ``velocity_errors[n]`` > 0,
-    counts less ``velocity_errors[n]`` t + ``accel`` t^2 / 2, t = age + (k + 1) period: as
-    far as it may stray from its stated velocity by then; with ``closing_only`` (the
+    by ``offsets[n]`` and moves at ``velocities[n]``, speeding up at ``accelerations[n]``
+    (x, y): by t it has moved by v t + a t^2 / 2 more (zeros: the constant velocity of
+    the braking check); path row k ([x, y, vx, vy]) is at age + (k + 1) period.  A moving
+    polygon, or one with ``velocity_errors[n]`` > 0, counts less ``velocity_errors[n]`` t +
+    ``accel`` t^2 / 2, t = age + (k + 1) period: as far as it may stray from its stated
+    velocity by then; with ``closing_only`` (the
     braking check) only at the rows where the path's velocity closes on it (points towards
     its nearest point) or that lie inside it (module docstring), else at every row (an
     evasion's look ahead, ``SafetyFilter``).
+
+    ``per_part`` (N,), or empty: when it has a row per polygon, each moving polygon's own
+    value (the smallest over its rows, as counted above; cutoff where none counts, and for
+    static polygons) is written there, and each moving polygon is pruned against its own
+    running value instead of all polygons' (the braking check compares them part by part).
 
     Pruning, exact: a polygon whose bounding box stays farther than ``cutoff`` from the
     path's is not measured.  Nor is a group of consecutive rows (``path_groups``) whose
@@ -163,6 +171,9 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
     a footprint's row whose ``_footprint_bound``, so counted, is ``SLACK`` above it.
     """
     rows = path.shape[0]
+    parts = per_part.shape[0] == counts.shape[0]
+    if parts:
+        per_part[:] = cutoff
     if rows == 0:
         return cutoff, cutoff
     size = group_size(rows)
@@ -173,44 +184,65 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
     feet = np.empty(width, dtype=np.int64)
     best, best_moving = cutoff, cutoff
     for n in range(counts.shape[0]):
-        moving, far = part_prospect(boxes, velocities, offsets, velocity_errors, n, accel, age,
-                                    age + rows * period, cutoff + cover, bounds)
+        moving, far = part_prospect(boxes, velocities, offsets, accelerations,
+                                    velocity_errors, n, accel, age, age + rows * period,
+                                    cutoff + cover, bounds)
         if far:
             continue
         vx, vy, ox, oy = velocities[n, 0], velocities[n, 1], offsets[n, 0], offsets[n, 1]
+        hx, hy = 0.5 * accelerations[n, 0], 0.5 * accelerations[n, 1]
         for g in range(groups.shape[0]):
             first, end = g * size, min((g + 1) * size, rows)
-            if group_skipped(groups[g], boxes, velocities, offsets, velocity_errors, n, moving,
-                             accel, age + (first + 1) * period, age + end * period, cover,
-                             best_moving if moving else best):
+            running = (per_part[n] if parts else best_moving) if moving else best
+            if group_skipped(groups[g], boxes, velocities, offsets, accelerations,
+                             velocity_errors, n, moving, accel, age + (first + 1) * period,
+                             age + end * period, cover, running):
                 continue
             for k in range(first, end):
                 t = age + (k + 1) * period
-                qx, qy = path[k, 0] - t * vx - ox, path[k, 1] - t * vy - oy
+                qx = path[k, 0] - t * vx - hx * t * t - ox
+                qy = path[k, 1] - t * vy - hy * t * t - oy
                 if footprint.shape[1]:
-                    cos, sin = math.cos(path[k, 4]), math.sin(path[k, 4])
                     bound = _footprint_bound(x, y, edge_x, edge_y, inv_sq, counts[n], n, qx,
-                                             qy, footprint, cos, sin)
+                                             qy, footprint, math.cos(path[k, 4]),
+                                             math.sin(path[k, 4]))
                     if moving:
                         bound -= t * (velocity_errors[n] + 0.5 * accel * t)
-                    if bound >= (best_moving if moving else best) + SLACK:
+                    running = (per_part[n] if parts else best_moving) if moving else best
+                    if bound >= running + SLACK:
                         continue
-                    count = configuration_polygon(x, y, counts[n], n, footprint, cos, sin,
-                                                  cx, cy, feet)
-                    _, _, wx, wy, inside = nearest_boundary(cx, cy, count, qx, qy)
-                    distance, dx, dy = math.hypot(wx, wy), -wx, -wy
-                    if inside:
-                        distance = -distance
-                else:
-                    distance, dx, dy = _signed_distance(x, y, edge_x, edge_y, inv_sq, counts[n],
-                                                        n, qx, qy)
+                distance, dx, dy = _body_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
+                                                  qx, qy, path[k, 4] if footprint.shape[1]
+                                                  else 0.0, footprint, cx, cy, feet)
                 if not moving:
                     best = min(best, distance)
                 elif (not closing_only or distance <= 0.0
                       or path[k, 2] * dx + path[k, 3] * dy < 0.0):
-                    best_moving = min(best_moving,
-                                      distance - t * (velocity_errors[n] + 0.5 * accel * t))
+                    value = distance - t * (velocity_errors[n] + 0.5 * accel * t)
+                    best_moving = min(best_moving, value)
+                    if parts:
+                        per_part[n] = min(per_part[n], value)
     return best, best_moving
+
+
+
+@kernel
+def _body_distance(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, theta, footprint, cx, cy,
+                   feet):
+    """Return (signed distance, its offset d) of a body at q to polygon n.
+
+    A point (``footprint`` (2, 0)): ``_signed_distance``.  A footprint turned to ``theta``:
+    of q to the configuration polygon C(theta) (``footprint.configuration_polygon``, built
+    in the scratch ``cx``, ``cy``, ``feet``), the bodies' distance apart.  d = q - the
+    nearest boundary point; the distance is negative inside.
+    """
+    if not footprint.shape[1]:
+        return _signed_distance(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)
+    size = configuration_polygon(x, y, count, n, footprint, math.cos(theta), math.sin(theta),
+                                 cx, cy, feet)
+    _, _, wx, wy, inside = nearest_boundary(cx, cy, size, qx, qy)
+    distance = math.hypot(wx, wy)
+    return (-distance if inside else distance), -wx, -wy
 
 
 
@@ -227,17 +259,19 @@ def path_box(groups):
 
 
 @kernel
-def part_prospect(boxes, velocities, offsets, velocity_errors, n, accel, age, last, reach,
-                  bounds):
+def part_prospect(boxes, velocities, offsets, accelerations, velocity_errors, n, accel, age,
+                  last, reach, bounds):
     """Return (moving, far) of part n for a path ``path_box`` ``bounds`` over [age, last].
 
-    Moving: it moves or may stray (``velocity_errors[n]`` > 0); far: its box, grown by how
-    far it moves and strays by then, stays farther than ``reach`` from the path's box.
+    Moving: it moves, speeds up or may stray (``velocity_errors[n]`` > 0); far: its box,
+    grown by how far it moves (|v| t + |a| t^2 / 2) and strays by then, stays farther than
+    ``reach`` from the path's box.
     """
     vx, vy = velocities[n, 0], velocities[n, 1]
-    moving = vx != 0.0 or vy != 0.0 or velocity_errors[n] > 0.0
+    speeding = math.hypot(accelerations[n, 0], accelerations[n, 1])
+    moving = vx != 0.0 or vy != 0.0 or speeding != 0.0 or velocity_errors[n] > 0.0
     horizon = max(abs(age), abs(last))
-    reach += horizon * math.sqrt(vx * vx + vy * vy)
+    reach += horizon * (math.sqrt(vx * vx + vy * vy) + 0.5 * horizon * speeding)
     if moving:
         reach += horizon * (velocity_errors[n] + 0.5 * accel * horizon)
     low_x, high_x, low_y, high_y = bounds
@@ -248,18 +282,23 @@ def part_prospect(boxes, velocities, offsets, velocity_errors, n, accel, age, la
 
 
 @kernel
-def group_skipped(group, boxes, velocities, offsets, velocity_errors, n, moving, accel,
-                  first_time, last_time, cover, best):
+def group_skipped(group, boxes, velocities, offsets, accelerations, velocity_errors, n,
+                  moving, accel, first_time, last_time, cover, best):
     """Return True when no row of a group can bring part n's distance below ``best``.
 
-    The group's box relative to the part over its times (``group_box``) lies a gap g > 0
-    from the part's box less ``cover`` (a body within that of each row), and g less the
-    part's straying at the group's end times (convex in t) is ``SLACK`` above ``best``.
+    The group's box relative to the part over its times (``group_box``, widened on each
+    side by the part's largest a t^2 / 2 over them) lies a gap g > 0 from the part's box
+    less ``cover`` (a body within that of each row), and g less the part's straying at the
+    group's end times (convex in t) is ``SLACK`` above ``best``.
     """
     vx, vy = velocities[n, 0], velocities[n, 1]
     low_qx, high_qx, low_qy, high_qy = group_box(group, first_time, last_time, vx, vy,
                                                  offsets[n, 0], offsets[n, 1])
-    gap = box_gap(low_qx, high_qx, low_qy, high_qy, boxes[n]) - cover
+    square = max(first_time * first_time, last_time * last_time)
+    spread_x = 0.5 * abs(accelerations[n, 0]) * square
+    spread_y = 0.5 * abs(accelerations[n, 1]) * square
+    gap = box_gap(low_qx - spread_x, high_qx + spread_x, low_qy - spread_y, high_qy + spread_y,
+                  boxes[n]) - cover
     bound = gap
     if moving:
         error = velocity_errors[n]

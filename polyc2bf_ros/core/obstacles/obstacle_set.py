@@ -33,7 +33,8 @@ class Obstacle:
 
     ``velocity_error`` [m/s] >= 0: how far its true velocity may be from ``velocity`` (an
     obstacle whose velocity is not known: ``scan_tracker``, step 5); the braking check
-    allows for it (``barrier.braking_check``).
+    allows for it (``barrier.braking_check``).  ``acceleration`` (2,): its estimated planar
+    acceleration (``marker_tracker``), which an evasion's look ahead follows.
     """
 
     polygon: np.ndarray
@@ -42,6 +43,7 @@ class Obstacle:
     z_max: float = np.inf
     key: str = ''
     velocity_error: float = 0.0
+    acceleration: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
 
 @dataclass(frozen=True)
@@ -54,7 +56,8 @@ class ObstacleSet:
     in x, y and z; otherwise both are None.  ``capped``: keys of the footprints replaced by
     their convex hull (more than ``max_parts`` parts); ``geometry``: prepared views by
     filter geometry (``SafetyFilter.prepare``); ``velocity_errors`` (N,): the parts'
-    ``Obstacle.velocity_error``, None when all are 0.
+    ``Obstacle.velocity_error``, None when all are 0; ``accelerations`` (N, 2): the parts'
+    ``Obstacle.acceleration``, None when all are 0.
     """
 
     footprints: PolygonBatch
@@ -67,6 +70,7 @@ class ObstacleSet:
     capped: tuple = ()
     geometry: dict = field(default_factory=dict, repr=False, compare=False)
     velocity_errors: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
+    accelerations: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
     @classmethod
     def empty(cls):
@@ -90,6 +94,9 @@ class ObstacleSet:
         owner = np.arange(len(obstacles))
         errors = [obstacle.velocity_error for obstacle in obstacles]
         errors = np.array(errors, dtype=np.float64) if any(errors) else None
+        accelerations = np.array([np.asarray(o.acceleration, dtype=np.float64)[:2]
+                                  for o in obstacles]).reshape(-1, 2)
+        accelerations = accelerations if accelerations.any() else None
         capped = ()
         if not convex.all():
             pieces, hulled = zip(*[_convex_parts(o.polygon, ok, max_parts)
@@ -99,14 +106,16 @@ class ObstacleSet:
             footprints = PolygonBatch.from_polygons([part for parts in pieces for part in parts])
             velocities, z_ranges = velocities[owner], z_ranges[owner]
             errors = None if errors is None else errors[owner]
+            accelerations = None if accelerations is None else accelerations[owner]
         return cls(footprints=footprints, velocities=velocities, z_ranges=z_ranges, owner=owner,
                    keys=tuple(obstacle.key for obstacle in obstacles), capped=capped,
-                   velocity_errors=errors)
+                   velocity_errors=errors, accelerations=accelerations)
 
-    def translated(self, offsets, velocities=None):
+    def translated(self, offsets, velocities=None, accelerations=None):
         """Return the set with part n moved by ``offsets[n]`` ((N, 2) x, y or (N, 3) x, y, z).
 
-        ``velocities`` (N, 3) replaces the parts' velocities (default: kept).  The result's
+        ``velocities`` (N, 3) replaces the parts' velocities, ``accelerations`` (N, 2)
+        their planar accelerations (default: both kept).  The result's
         ``base`` is this set's base, or this set if it has none, with the offsets added up,
         so a chain of translations computes every vertex from the base in one addition
         (``PolygonBatch.translated``, which reuses the base's edge table).
@@ -120,6 +129,13 @@ class ObstacleSet:
                                                                           dtype=np.float64)
         if velocities.shape != (count, 3):
             raise ValueError(f'velocities must have shape ({count}, 3), got {velocities.shape}')
+        if accelerations is None:
+            accelerations = self.accelerations
+        else:
+            accelerations = np.asarray(accelerations, dtype=np.float64)
+            if accelerations.shape != (count, 2):
+                raise ValueError(f'accelerations must have shape ({count}, 2), '
+                                 f'got {accelerations.shape}')
         moves = np.zeros((count, 3))
         moves[:, :offsets.shape[1]] = offsets
         base = self
@@ -128,15 +144,17 @@ class ObstacleSet:
         return ObstacleSet(footprints=base.footprints.translated(moves[:, :2]),
                            velocities=velocities, z_ranges=base.z_ranges + moves[:, 2:],
                            owner=base.owner, keys=base.keys, base=base, offsets=moves,
-                           capped=base.capped, velocity_errors=self.velocity_errors)
+                           capped=base.capped, velocity_errors=self.velocity_errors,
+                           accelerations=accelerations)
 
     def __len__(self):
         """Return the number of convex parts."""
         return len(self.footprints)
 
     def is_finite(self):
-        """Return True when vertices and velocities are finite (z bounds may be infinite)."""
-        return _finite(self.footprints.vertices, self.velocities, self.z_ranges)
+        """Return True when vertices, velocities and accelerations are finite (z may be inf)."""
+        return (_finite(self.footprints.vertices, self.velocities, self.z_ranges)
+                and (self.accelerations is None or bool(np.isfinite(self.accelerations).all())))
 
 
 def _convex_parts(polygon, convex_ccw, max_parts):
