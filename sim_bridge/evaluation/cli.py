@@ -8,6 +8,7 @@ Usage::
     evaluate --suite barn [--worlds FILE] [--nominal path|goal ...] [--filters ...]
              [--jobs N] [--limit K] [--out runs/barn] [--no-plots] [--obstacle-source ...]
     evaluate --suite dynamic [--worlds 0-19 45 ...] [--difficulty easy medium hard]
+             [--generator-seed SEED]
              [--nominal goal|path ...] [--filters ...] [--jobs N] [--out runs/dynamic]
              [--no-plots] [--obstacle-source ...]
     every suite also: [--latency S] [--actuator-tau S] [--odom-noise M] [-p NAME:=VALUE ...]
@@ -46,7 +47,7 @@ from pathlib import Path
 
 from polyc2bf_ros.core.decision import RESOLUTIONS
 from sim_bridge.closed_loop import NOMINALS
-from sim_bridge.dynamic_worlds import DIFFICULTIES
+from sim_bridge.dynamic_worlds import DEFAULT_SEED, DIFFICULTIES
 from sim_bridge.evaluation.arguments import run_or_exit, run_settings
 from sim_bridge.evaluation.barn_suite import main_barn
 from sim_bridge.evaluation.dynamic_suite import main_dynamic
@@ -124,12 +125,15 @@ def _parser():
                       "nominal's, 1 m/s)")
     barn.add_argument('--difficulty', nargs='+', choices=list(DIFFICULTIES), default=None,
                       help='dynamic: only worlds of these difficulties (default: all)')
+    barn.add_argument('--generator-seed', type=int, default=None, metavar='SEED',
+                      help=f"dynamic: the world generator's seed (default {DEFAULT_SEED}, the "
+                      'recorded worlds; another seed makes 60 unseen ones)')
     return parser
 
 
 SUITE_OPTIONS = {'scenarios': ('scenarios', 'seeds', 'random_seeds', 'duration'),
                  'barn': ('worlds', 'nominal', 'jobs', 'limit', 'robot', 'speed'),
-                 'dynamic': ('worlds', 'nominal', 'jobs', 'difficulty')}
+                 'dynamic': ('worlds', 'nominal', 'jobs', 'difficulty', 'generator_seed')}
 
 
 def _misplaced_options(suite, args):

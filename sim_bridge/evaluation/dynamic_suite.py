@@ -302,7 +302,8 @@ def main_dynamic(parser, args, command):
     ids = [i for i in ids if difficulty_of(i) in difficulties]
     if not ids:
         parser.error('no dynamic world matches --worlds and --difficulty')
-    worlds = [dynamic_world(i, DEFAULT_SEED) for i in ids]
+    seed = DEFAULT_SEED if args.generator_seed is None else args.generator_seed
+    worlds = [dynamic_world(i, seed) for i in ids]
     combos, jobs, settings = world_suite_plan(parser, args, 'goal')
     out = Path(args.out or 'runs/dynamic')
     start = time.monotonic()

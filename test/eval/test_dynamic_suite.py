@@ -336,3 +336,10 @@ def test_cli_writes_records_table_and_plots(tmp_path):
         with Image.open(tmp_path / name) as image:
             assert image.size[0] > 300
     assert '100.0 %' in stderr.getvalue()
+    unseen = tmp_path / 'unseen'
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+        assert main(['--suite', 'dynamic', '--worlds', '21', '--filters', 'none', '--jobs', '1',
+                     '--generator-seed', '2023', '--no-plots', '--out', str(unseen)]) == 0
+    (other,) = json.loads((unseen / 'results.json').read_text())
+    assert other['generator_seed'] == 2023 and record['generator_seed'] == 2022
+    assert other['cylinder_speed_m_s'] != record['cylinder_speed_m_s']
