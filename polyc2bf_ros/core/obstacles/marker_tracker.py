@@ -20,7 +20,8 @@ an exponential average of the filter's velocity differences, once the velocity i
 capped at ``max_accel`` in norm.  Why not a constant-acceleration Kalman filter: this one
 reuses the velocity filter the scan tracker shares, and on the dynamic suite's cylinders
 (smooth loops, up to 2 m/s^2) the average with 0.3 s and 3 m/s^2 took the look ahead from
-10 to 13 of the 20 medium worlds (bench/README.md, Moving obstacles).  A new or restarted
+10 to 13 of the 20 medium worlds of the recorded seed, and 11 either way on unseen ones
+(bench/README.md, Moving obstacles).  A new or restarted
 estimate, and a standing marker, have zero acceleration.
 
 The previous update is remembered across DELETE/DELETEALL for ``max_gap``
