@@ -314,8 +314,7 @@ class _Prepared:
     check, then for an evasion's look ahead, then the part's own bound alone
     (``_velocity_errors``); ``accelerations`` (N, 2) their stated planar accelerations
     (``ObstacleSet.accelerations``; zeros when none), which only an evasion's look ahead
-    follows (``_look_ahead``); ``steady`` (N, 2) zeros, the braking check's, which keeps
-    the constant-velocity bound.
+    follows (``_look_ahead``).
     """
 
     count: int
@@ -328,13 +327,17 @@ class _Prepared:
     index: np.ndarray
     velocity_errors: np.ndarray
     accelerations: np.ndarray
-    steady: np.ndarray
     footprints: Optional[object] = None
 
     @functools.cached_property
     def moving(self):
         """Return True when some part moves in the plane (``velocities``' first two columns)."""
         return bool(self.velocities[:, :2].any())
+
+    @functools.cached_property
+    def steady(self):
+        """Return (N, 2) zeros: the braking check's accelerations (constant velocity)."""
+        return np.zeros((self.count, 2))
 
     @functools.cached_property
     def fastest_speeding_up(self):
@@ -346,8 +349,7 @@ class _Prepared:
         return _Prepared(count=self.count, views=self.views, velocities=velocities,
                          offsets=offsets, finite=self.finite, rows_a=self.rows_a,
                          rows_b=self.rows_b, index=self.index, footprints=self.footprints,
-                         velocity_errors=velocity_errors, accelerations=accelerations,
-                         steady=self.steady)
+                         velocity_errors=velocity_errors, accelerations=accelerations)
 
 
 def compile_kernels():
@@ -387,15 +389,12 @@ class _BrakingNow:
     @functools.cached_property
     def clearance(self):
         """Return c(B(x)), capped at the margin: (static parts, moving parts)."""
-        self._moving_parts = np.empty(self._prepared.count)
-        return self._filter._path_clearance(self.path, self._prepared, self._age,
-                                            self._moving_parts)
+        return self._filter._path_clearance(self.path, self._prepared, self._age)
 
-    @property
+    @functools.cached_property
     def moving_parts(self):
         """Return (N,) each moving part's own c(B(x)) (the margin for the others)."""
-        _ = self.clearance
-        return self._moving_parts
+        return self._filter._moving_parts(self.path, self._prepared, self._age)
 
     @functools.cached_property
     def min_h(self):
@@ -595,22 +594,17 @@ class SafetyFilter:
         period = self.config.control_period
         rows = self._paths.braking_after(state, u, period)  # the point at x+, then B(x+)
         after_path = rows[1:]
-        parts = np.empty(prepared.count) if moving else _NO_PARTS
-        after, after_moving = self._path_clearance(after_path, prepared, age + period, parts)
+        after, after_moving = self._path_clearance(after_path, prepared, age + period)
         # c(B(x)) is computed only where c(B(x+)) falls under the margin.
         if after < self._clearance and after < now.clearance[0] - CLEARANCE_ROUNDING:
             return True
         if not moving:
             return False
-        if after_moving < self._clearance:
-            if now.clearance[1] >= self._contact:  # B(x) meets no moving part: the nearest
-                if after_moving < now.clearance[1] - CLEARANCE_ROUNDING:  # decides
-                    return True
-            # B(x) meets one: part by part, so that it does not hide an input closing on
-            # another.
-            elif np.any((parts < self._clearance)
-                        & (parts < now.moving_parts - CLEARANCE_ROUNDING)):
-                return True
+        if after_moving < self._clearance and (
+                after_moving < now.clearance[1] - CLEARANCE_ROUNDING
+                if now.clearance[1] >= self._contact  # B(x) meets no moving part
+                else self._closes_on_a_part(after_path, prepared, age + period, now)):
+            return True
         if not self._barrier_check:
             return False
         after = self._min_h_along(rows[0], after_path, prepared, age + period)
@@ -840,7 +834,23 @@ class SafetyFilter:
         """Return B(x), the braking path the check measures (a turning footprint's axle's)."""
         return self._paths.braking_path(state, self.config.control_period)
 
-    def _path_clearance(self, path, prepared, age, per_part=None):
+    def _closes_on_a_part(self, after_path, prepared, age, now):
+        """Return True when B(x+) is nearer some moving part than B(x), part by part.
+
+        Asked only once B(x) meets a moving part: then the smallest clearance over the
+        parts is that part's, and would hide an input closing on another (design.md 3.10).
+        """
+        after = self._moving_parts(after_path, prepared, age)
+        return bool(np.any((after < self._clearance)
+                           & (after < now.moving_parts - CLEARANCE_ROUNDING)))
+
+    def _moving_parts(self, path, prepared, age):
+        """Return (N,) each moving part's own c(B) of a braking ``path`` (``per_part``)."""
+        parts = np.empty(prepared.count)
+        self._path_clearance(path, prepared, age, parts)
+        return parts
+
+    def _path_clearance(self, path, prepared, age, per_part=_NO_PARTS):
         """Return c(B), capped at the margin, of a braking ``path``: (static, moving parts).
 
         ``path_clearance``: of the guarded point, or of a turning footprint (``_body``);
@@ -855,7 +865,7 @@ class SafetyFilter:
             footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
             prepared.offsets, prepared.steady, float(age), path, self.config.control_period,
             self._clearance, self._braking_accel, prepared.velocity_errors[0], True, self._body,
-            self._cover, _NO_PARTS if per_part is None else per_part)
+            self._cover, per_part)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""
@@ -1003,7 +1013,7 @@ class SafetyFilter:
             index=np.empty(count, dtype=np.intp),
             footprints=PlanarPolygons.from_batch(obstacles.footprints) if self._braking
             else None, velocity_errors=self._velocity_errors(obstacles.velocities, obstacles),
-            accelerations=self._accelerations(obstacles), steady=np.zeros((count, 2)))
+            accelerations=self._accelerations(obstacles))
 
     def _accelerations(self, obstacles):
         """Return (N, 2) the parts' stated planar accelerations (``_Prepared``).

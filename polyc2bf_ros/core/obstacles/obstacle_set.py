@@ -33,8 +33,9 @@ class Obstacle:
 
     ``velocity_error`` [m/s] >= 0: how far its true velocity may be from ``velocity`` (an
     obstacle whose velocity is not known: ``scan_tracker``, step 5); the braking check
-    allows for it (``barrier.braking_check``).  ``acceleration`` (2,): its estimated planar
-    acceleration (``marker_tracker``), which an evasion's look ahead follows.
+    allows for it (``barrier.braking_check``).  ``acceleration`` (2,) or None (none known):
+    its estimated planar acceleration (``marker_tracker``), which an evasion's look ahead
+    follows.
     """
 
     polygon: np.ndarray
@@ -43,7 +44,7 @@ class Obstacle:
     z_max: float = np.inf
     key: str = ''
     velocity_error: float = 0.0
-    acceleration: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    acceleration: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -94,9 +95,13 @@ class ObstacleSet:
         owner = np.arange(len(obstacles))
         errors = [obstacle.velocity_error for obstacle in obstacles]
         errors = np.array(errors, dtype=np.float64) if any(errors) else None
-        accelerations = np.array([np.asarray(o.acceleration, dtype=np.float64)[:2]
-                                  for o in obstacles]).reshape(-1, 2)
-        accelerations = accelerations if accelerations.any() else None
+        accelerations = None
+        if any(o.acceleration is not None for o in obstacles):
+            accelerations = np.zeros((len(obstacles), 2))
+            for row, obstacle in zip(accelerations, obstacles):
+                if obstacle.acceleration is not None:
+                    row[:] = obstacle.acceleration[:2]
+            accelerations = accelerations if accelerations.any() else None
         capped = ()
         if not convex.all():
             pieces, hulled = zip(*[_convex_parts(o.polygon, ok, max_parts)
