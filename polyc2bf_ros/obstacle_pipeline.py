@@ -167,7 +167,8 @@ class ObstaclePipeline:
                 self._tracking = tracking
             estimates = self._scan_tracker.update(clock, scan.clusters, scan.view[:2])
             obstacles = with_velocities(scan.obstacles, scan.owner, estimates,
-                                        float(settings.scan_unknown_speed))
+                                        float(settings.scan_unknown_speed),
+                                        float(settings.scan_hidden_speed))
             unseen = unseen_obstacles(self._scan_tracker, f'{topic}:')
         self._scans[topic] = (scan.stamp, [
             dataclasses.replace(o, key=f'{topic}:{o.key}') for o in obstacles] + unseen

@@ -691,7 +691,8 @@ class SafetyFilter:
         """Return True when a part with its own velocity bound may come as near.
 
         ``_moving_near`` over the parts whose velocity is not known
-        (``ObstacleSet.velocity_errors``: a scan track that is not trusted), each grown by
+        (``ObstacleSet.velocity_errors``: a scan track that is not trusted, or one that
+        moves and may hide another), each grown by
         its bound over the horizon: a committed evasion wagers on stated velocities, which
         such a part does not have.
         """

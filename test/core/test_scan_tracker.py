@@ -210,12 +210,15 @@ def test_with_velocities_gives_moving_obstacles_their_track_velocity():
     moved = with_velocities(obstacles, owner, estimates)
     cylinder = _cluster_of(clusters, centre, 0.4)
     assert len(moved) == len(obstacles) and (owner == cylinder).any()
-    for before, after, index in zip(obstacles, moved, owner):
+    hiding = with_velocities(obstacles, owner, estimates, unknown_speed=1.5, hidden_speed=0.7)
+    for before, after, hidden, index in zip(obstacles, moved, hiding, owner):
         if index == cylinder:
             assert after.key == before.key and after.polygon is before.polygon
             assert np.linalg.norm(after.velocity - [*velocity, 0.0]) <= 0.1
+            assert after.velocity_error == 0.0 and hidden.velocity_error == 0.7
+            assert np.array_equal(hidden.velocity, after.velocity)
         else:
-            assert after is before
+            assert after is before and hidden is before
 
 
 def test_a_track_is_trusted_only_while_its_registrations_explain_its_cluster():
@@ -251,6 +254,13 @@ def test_a_track_is_trusted_only_while_its_registrations_explain_its_cluster():
     marked = with_velocities(obstacles, owner, estimates, unknown_speed=1.5)
     assert all((obstacle.velocity_error == 1.5) == (index == first)
                for obstacle, index in zip(marked, owner))
+    # The larger bound holds where a track is both moving and untrusted.
+    for hidden_speed in (0.5, 2.5):
+        marked = with_velocities(obstacles, owner, estimates, unknown_speed=1.5,
+                                 hidden_speed=hidden_speed)
+        expected = max(1.5, hidden_speed) if estimates[first].moving else 1.5
+        assert all(obstacle.velocity_error == (expected if index == first else 0.0)
+                   for obstacle, index in zip(marked, owner))
     assert not any(obstacle.velocity_error for obstacle in with_velocities(obstacles, owner,
                                                                            estimates))
 

@@ -276,11 +276,29 @@ def test_from_scans_an_object_whose_track_is_not_trusted_is_not_run_into(worlds)
     barrier = default_barrier('diff_drive')
     for world in (worlds[1], worlds[34]):
         ((trusting, _),) = run_world(world, [(barrier, 'goal')], obstacle_source='scan',
-                                     parameters={'scan_unknown_speed': 0.0})
+                                     parameters={'scan_unknown_speed': 0.0,
+                                                 'scan_hidden_speed': 0.0})
         assert trusting['at_fault_contact'], trusting['outcome']
-        ((record, _),) = run_world(world, [(barrier, 'goal')], obstacle_source='scan')
+        ((record, _),) = run_world(world, [(barrier, 'goal')], obstacle_source='scan',
+                                   parameters={'scan_hidden_speed': 0.0})
         assert record['obstacle_source'] == 'scan'
         assert not record['at_fault_contact'], record['contact']
+
+
+def test_from_scans_what_a_moving_track_may_hide_is_not_run_into():
+    """Unseen world 50 (generator seed 2024) from scans: at fault unless moving tracks may hide.
+
+    A cylinder came out from behind another as a new track, published still, and the robot
+    closed on it.  With ``scan_hidden_speed`` (2 m/s) the obstacles of every moving track
+    get an unknown velocity, and the robot keeps far enough from them to stop.
+    """
+    barrier = default_barrier('diff_drive')
+    world = dynamic_world(50, 2024)
+    ((trusting, _),) = run_world(world, [(barrier, 'goal')], obstacle_source='scan',
+                                 parameters={'scan_hidden_speed': 0.0})
+    assert trusting['at_fault_contact'], trusting['outcome']
+    ((record, _),) = run_world(world, [(barrier, 'goal')], obstacle_source='scan')
+    assert not record['at_fault_contact'], record['contact']
 
 
 def test_evasion_takes_the_robot_out_of_a_cylinders_way(worlds):
