@@ -358,3 +358,40 @@ def footprint_barrier(state, obstacle, velocity, footprint, tau=1.0, eps=0.05):
     lf = geometric + dh_dv @ drift
     lg = np.array([-(dh_dv @ e), -sigma * (dh_dv @ (_J @ rot @ f_star))])
     return h, lf, lg
+
+
+def split_to_tolerance_by_levels(px, py, ends, tolerance):
+    """``kernels.scan.split_to_tolerance`` in numpy: every piece split one level at a time.
+
+    Per level, each piece's points' squared distances to its chord
+    (``geometry._segment_square_distances``); a piece whose largest exceeds ``tolerance^2``
+    is split at the first point that reaches it.  Returns the sorted ends.
+    """
+    tolerance_sq = tolerance ** 2
+    interior = np.ones(len(px), dtype=bool)
+    interior[ends] = False
+    candidates = interior.nonzero()[0]
+    cx, cy = px[candidates], py[candidates]
+    while candidates.size:
+        bounds = candidates.searchsorted(ends)
+        counts = bounds[1:] - bounds[:-1]
+        filled = counts.nonzero()[0]
+        counts, starts = counts[filled], bounds[filled]
+        ax, ay = px[ends[filled]], py[ends[filled]]
+        ex, ey = px[ends[filled + 1]] - ax, py[ends[filled + 1]] - ay
+        inv_sq = geometry._inverse_square_lengths(ex, ey)
+        deviation = geometry._segment_square_distances(
+            cx - ax.repeat(counts), cy - ay.repeat(counts), ex.repeat(counts),
+            ey.repeat(counts), inv_sq.repeat(counts))
+        worst = np.maximum.reduceat(deviation, starts)
+        split = worst > tolerance_sq
+        if not split.any():
+            break
+        at_worst = (deviation == worst.repeat(counts)).nonzero()[0]
+        chosen = at_worst[at_worst.searchsorted(starts[split])]
+        ends = np.concatenate((ends, candidates[chosen]))
+        ends.sort()
+        keep = split.repeat(counts)
+        keep[chosen] = False
+        candidates, cx, cy = candidates[keep], cx[keep], cy[keep]
+    return ends

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from oracles import split_to_tolerance_by_levels
 from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.obstacles.scan_conversion import (
+    _split_to_tolerance,
     beam_endpoints,
     pose_at,
     scan_obstacles,
@@ -567,3 +569,36 @@ def test_a_chord_beside_the_robot_is_still_brought_to_its_points():
     obstacles = scan_obstacles(points, (0.0, 0.0), settings)
     assert _nearest_polygon_distances(points, obstacles).max() <= 1e-9
     assert min(_distances(np.zeros((1, 2)), o.polygon)[0] for o in obstacles) >= 0.2 - 1e-9
+
+
+@st.composite
+def _chains(draw):
+    """Random point chains (noisy arcs and corners, repeated points) and their cluster ends."""
+    count = draw(st.integers(2, 120))
+    seed = draw(st.integers(0, 2 ** 32 - 1))
+    rng = np.random.default_rng(seed)
+    angles = np.cumsum(rng.normal(0.0, draw(st.sampled_from([0.0, 0.05, 0.5])), count))
+    steps = np.where(rng.random(count) < 0.1, 0.0, rng.uniform(0.001, 0.05, count))
+    points = np.cumsum(np.column_stack((np.cos(angles), np.sin(angles))) * steps[:, None],
+                       axis=0)
+    points = np.round(points, draw(st.sampled_from([2, 3, 12])))  # ties between deviations
+    inner = rng.choice(np.arange(1, count - 1), size=min(count - 2, draw(st.integers(0, 4))),
+                       replace=False) if count > 2 else np.zeros(0, dtype=np.int64)
+    ends = np.unique(np.concatenate(([0, count - 1], inner))).astype(np.int64)
+    return points, ends, draw(st.sampled_from([0.0, 0.001, 0.01, 0.05]))
+
+
+@SETTINGS
+@given(_chains())
+def test_the_compiled_split_gives_the_ends_of_splitting_a_level_at_a_time(chain):
+    """``kernels.scan.split_to_tolerance`` against its numpy form, bit for bit.
+
+    Depth first, left first, every piece split at its first farthest point: the same sorted
+    ends as the numpy oracle that splits every piece one level at a time.
+    """
+    points, ends, tolerance = chain
+    px, py = np.ascontiguousarray(points[:, 0]), np.ascontiguousarray(points[:, 1])
+    expected = split_to_tolerance_by_levels(px, py, ends.copy(), tolerance)
+    got = _split_to_tolerance(px, py, ends, tolerance)
+    assert np.array_equal(got, expected)
+    assert np.all(np.diff(got) > 0) and got[0] == ends[0] and got[-1] == ends[-1]

@@ -26,8 +26,8 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
 4. Pieces: the split step of split-and-merge (Ramer-Douglas-Peucker).  A cluster starts as
    one piece from its first to its last point; a piece is split at its point farthest from
    its chord (the segment joining its end points) while that distance exceeds
-   ``split_tolerance``.  Every piece of every cluster is examined in the same numpy pass,
-   one pass per level of splitting.  Then a piece whose chord passes within
+   ``split_tolerance`` (a compiled kernel, ``kernels.scan.split_to_tolerance``, one pass
+   over all pieces).  Then a piece whose chord passes within
    ``footprint_radius`` of q is split at its middle point and splitting resumes, until no
    chord does (rare: the chord cuts across the robot).  A piece of two consecutive points is
    never split, and both rules were checked for it in step 3, so splitting ends.  Pieces
@@ -99,12 +99,12 @@ Limits.
   time; here the thickening goes away from the base, so that it can never cover it, and is
   done for all pieces at once.
 
-Cost.  O(N) numpy work for endpoints, links and polygons, plus O(K) per level of splitting
-over the K points of the pieces still being split (levels: about log2 of a cluster's length
-for smooth outlines, at most its number of pieces); then one ``Obstacle`` per polygon.  A
-level is about 55 numpy calls whatever K, so at N = 1081 call overhead dominates: a median of
-0.4-0.6 ms per scan on the benchmark VM (``bench/bench_scan.py``; 2 to 3 levels in a room or
-clutter), up to about 1 ms while another process loads both cores.  ``with_clusters`` adds
+Cost.  O(N) numpy work for endpoints, links and polygons, the split in one compiled pass
+(O(K) per level of splitting over the K points still being split; levels: about log2 of a
+cluster's length for smooth outlines, at most its number of pieces), then one ``Obstacle``
+per polygon.  At N = 1081 numpy's call overhead dominates: a median of 0.3-0.5 ms per scan
+on the benchmark VM in a room with 0-30 moving objects (``bench/bench_tracking.py``), up to
+about twice that while the VM is slow or another process loads both cores.  ``with_clusters`` adds
 one (K, 2) array and a view per cluster: a few hundredths of a millisecond
 (``bench/bench_tracking.py``).
 """
@@ -116,6 +116,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from polyc2bf_ros.core.geometry.polygons import _inverse_square_lengths, _segment_square_distances
+from polyc2bf_ros.core.kernels.scan import split_to_tolerance
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle
 
 FULL_TURN = 2.0 * math.pi
@@ -307,35 +308,16 @@ def _chain(px, py, links):
 
 
 def _split_to_tolerance(px, py, ends, tolerance):
-    """Return the sorted piece ends once no piece deviates more than ``tolerance`` (step 4)."""
-    tolerance_sq = tolerance ** 2
-    interior = np.ones(len(px), dtype=bool)
-    interior[ends] = False
-    candidates = interior.nonzero()[0]
-    cx, cy = px[candidates], py[candidates]
-    while candidates.size:
-        bounds = candidates.searchsorted(ends)
-        counts = bounds[1:] - bounds[:-1]
-        filled = counts.nonzero()[0]
-        counts, starts = counts[filled], bounds[filled]
-        ax, ay = px[ends[filled]], py[ends[filled]]
-        ex, ey = px[ends[filled + 1]] - ax, py[ends[filled + 1]] - ay
-        inv_sq = _inverse_square_lengths(ex, ey)  # 0 for a 0-length chord: distance to a
-        deviation = _segment_square_distances(
-            cx - ax.repeat(counts), cy - ay.repeat(counts), ex.repeat(counts),
-            ey.repeat(counts), inv_sq.repeat(counts))
-        worst = np.maximum.reduceat(deviation, starts)
-        split = worst > tolerance_sq
-        if not split.any():
-            break
-        at_worst = (deviation == worst.repeat(counts)).nonzero()[0]
-        chosen = at_worst[at_worst.searchsorted(starts[split])]
-        ends = np.concatenate((ends, candidates[chosen]))
-        ends.sort()
-        keep = split.repeat(counts)
-        keep[chosen] = False
-        candidates, cx, cy = candidates[keep], cx[keep], cy[keep]
-    return ends
+    """Return the sorted piece ends once no piece deviates more than ``tolerance`` (step 4).
+
+    ``kernels.scan.split_to_tolerance``: one compiled pass over the pieces.  (Split a level
+    at a time in numpy, about 55 calls a level, it took 0.25 ms of a 1081-beam scan among 30
+    moving objects, a third of the conversion: ``bench/bench_tracking.py``.)
+    """
+    out = np.empty(len(px) + 1, dtype=np.int64)
+    count = split_to_tolerance(px, py, ends, tolerance * tolerance, out,
+                               np.empty(2 * len(px) + 2, dtype=np.int64))
+    return out[:count]
 
 
 def _split(px, py, ends, base, settings):
