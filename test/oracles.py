@@ -16,7 +16,7 @@ import numpy as np
 from polyc2bf_ros.conversions import rotation
 from polyc2bf_ros.core.barrier.cone_barrier import BarrierTerms
 from polyc2bf_ros.core.geometry import polygons as geometry
-from polyc2bf_ros.core.kernels import geometry_batch as batch_geometry
+from polyc2bf_ros.core.kernels import geometry_batch as batch_geometry, scan as scan_kernels
 from polyc2bf_ros.core.kernels.barrier import barrier_column
 from polyc2bf_ros.core.kernels.braking import _signed_distance, box_gap
 from polyc2bf_ros.core.kernels.horizon import _misses_box, _value
@@ -395,3 +395,53 @@ def split_to_tolerance_by_levels(px, py, ends, tolerance):
         keep[chosen] = False
         candidates, cx, cy = candidates[keep], cx[keep], cy[keep]
     return ends
+
+
+def front_by_arrays(polygons, px, py, first, last, base, footprint_radius):
+    """``kernels.scan.front`` in numpy (``scan_conversion._front``): the pieces' polygons.
+
+    Segment reductions (``reduceat``) over every piece's points at once.
+    """
+    count = len(polygons)
+    if not count:
+        return []
+    counts = last - first + 1
+    starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
+    points = first.repeat(counts) + np.arange(counts.sum()) - starts.repeat(counts)
+    ax, ay = polygons[:, 0, 0], polygons[:, 0, 1]
+    ex, ey = polygons[:, 1, 0] - ax, polygons[:, 1, 1] - ay
+    length = np.sqrt(ex * ex + ey * ey)
+    ex, ey = ex / length, ey / length
+    nx, ny = -ey, ex  # counter-clockwise corners: the normal away from the base is e turned left
+    rel_x, rel_y = px[points] - ax.repeat(counts), py[points] - ay.repeat(counts)
+    along = rel_x * ex.repeat(counts) + rel_y * ey.repeat(counts)
+    ahead = -(rel_x * nx.repeat(counts) + rel_y * ny.repeat(counts))
+    depth = np.maximum.reduceat(ahead, starts)
+    deepest = (ahead == depth.repeat(counts)).nonzero()[0]
+    apex = deepest[deepest.searchsorted(starts)]
+    apex_along = along[apex]
+    height = (ax - base[0]) * nx + (ay - base[1]) * ny  # of the chord's line above the base
+    room = height - footprint_radius
+    pointed = ((depth > scan_kernels.MIN_APEX_DEPTH) & (apex_along > 0.0) & (apex_along < length)
+               & (room >= depth))
+    rise = np.where(pointed, depth / np.where(pointed, apex_along, 1.0), 0.0)
+    fall = np.where(pointed, depth / np.where(pointed, length - apex_along, 1.0), 0.0)
+    chain = np.maximum(np.minimum(rise.repeat(counts) * along,
+                                  fall.repeat(counts) * (length.repeat(counts) - along)), 0.0)
+    residual = np.maximum(np.maximum.reduceat(ahead - chain, starts), 0.0)
+    # A rectangle may come as near as its near edge, a segment: beside the base (lateral
+    # offset w > 0 of the base beyond the chord's span) its corner stays footprint_radius
+    # away while the shift is at most height - sqrt(R^2 - w^2), and any shift is fine once
+    # w >= R.
+    lateral = np.maximum(np.maximum(-(base[0] - ax) * ex - (base[1] - ay) * ey,
+                                    (base[0] - ax) * ex + (base[1] - ay) * ey - length), 0.0)
+    clear = footprint_radius ** 2 - lateral * lateral
+    edge_room = np.where(clear > 0.0, height - np.sqrt(np.maximum(clear, 0.0)), np.inf)
+    shift = np.minimum(residual, np.maximum(np.where(pointed, room - depth, edge_room), 0.0))
+    corners = np.empty((count, 5, 2))
+    corners[:, 0], corners[:, 2:] = polygons[:, 0], polygons[:, 1:]
+    corners[:, 1, 0], corners[:, 1, 1] = px[points[apex]], py[points[apex]]
+    corners[:, :3, 0] -= (shift * nx)[:, None]
+    corners[:, :3, 1] -= (shift * ny)[:, None]
+    rectangles = corners[:, (0, 2, 3, 4)]
+    return [corners[k] if pointed[k] else rectangles[k] for k in range(count)]

@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from oracles import split_to_tolerance_by_levels
+from oracles import front_by_arrays, split_to_tolerance_by_levels
 from polyc2bf_ros.core.obstacles.obstacle_set import ObstacleSet
 from polyc2bf_ros.core.obstacles.scan_conversion import (
+    _front,
+    _rectangles,
     _split_to_tolerance,
     beam_endpoints,
     pose_at,
@@ -602,3 +604,23 @@ def test_the_compiled_split_gives_the_ends_of_splitting_a_level_at_a_time(chain)
     got = _split_to_tolerance(px, py, ends, tolerance)
     assert np.array_equal(got, expected)
     assert np.all(np.diff(got) > 0) and got[0] == ends[0] and got[-1] == ends[-1]
+
+
+@SETTINGS
+@given(_chains(), st.floats(-1.5, 1.5), st.floats(0.3, 2.0), st.floats(0.0, 0.3))
+def test_the_compiled_front_gives_the_polygons_of_the_numpy_steps(chain, across, away, radius):
+    """``kernels.scan.front`` against its numpy form, bit for bit, on pieces of random chains.
+
+    The chain's pieces (split at 1 cm) become ``_rectangles`` seen from a base beside the
+    chain; both bring their near sides to the points (step 6) and agree on every corner.
+    """
+    points, ends, _ = chain
+    px, py = np.ascontiguousarray(points[:, 0]), np.ascontiguousarray(points[:, 1])
+    ends = _split_to_tolerance(px, py, ends, 0.01)
+    first, last = ends[:-1].copy(), ends[1:].copy()
+    base = np.array([points[:, 0].mean() + across, points[:, 1].min() - away])
+    polygons = _rectangles(px[first], py[first], px[last], py[last], base, 0.02, 0.1)
+    got = _front(polygons, px, py, first, last, base, radius)
+    expected = front_by_arrays(polygons, px, py, first, last, base, radius)
+    assert len(got) == len(expected) == len(first)
+    assert all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(got, expected))

@@ -99,14 +99,15 @@ Limits.
   time; here the thickening goes away from the base, so that it can never cover it, and is
   done for all pieces at once.
 
-Cost.  O(N) numpy work for endpoints, links and polygons, the split in one compiled pass
-(O(K) per level of splitting over the K points still being split; levels: about log2 of a
-cluster's length for smooth outlines, at most its number of pieces), then one ``Obstacle``
-per polygon.  At N = 1081 numpy's call overhead dominates: a median of 0.3-0.5 ms per scan
-on the benchmark VM in a room with 0-30 moving objects (``bench/bench_tracking.py``), up to
-about twice that while the VM is slow or another process loads both cores.  ``with_clusters`` adds
-one (K, 2) array and a view per cluster: a few hundredths of a millisecond
-(``bench/bench_tracking.py``).
+Cost.  O(N) numpy work for endpoints, links and rectangles, the split (step 4: O(K) per
+level of splitting over the K points still being split; levels: about log2 of a cluster's
+length for smooth outlines, at most its number of pieces) and the front (step 6) each in
+one compiled pass (``kernels.scan``), then one ``Obstacle`` per polygon.  At N = 1081
+numpy's call overhead and the ``Obstacle`` objects dominate: a median of 0.2-0.4 ms per
+scan on the benchmark VM in a room with 0-30 moving objects (``bench/bench_tracking.py``),
+about half of what the same steps took in numpy, and up to about twice that while the VM
+is slow or another process loads both cores.  ``with_clusters`` adds one (K, 2) array and
+a view per cluster: a few hundredths of a millisecond.
 """
 import functools
 import math
@@ -116,14 +117,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from polyc2bf_ros.core.geometry.polygons import _inverse_square_lengths, _segment_square_distances
-from polyc2bf_ros.core.kernels.scan import split_to_tolerance
+from polyc2bf_ros.core.kernels.scan import front, split_to_tolerance
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle
 
 FULL_TURN = 2.0 * math.pi
 STILL = np.zeros(3)  # the velocity of every scan obstacle: one shared read-only array
 STILL.flags.writeable = False
-MIN_APEX_DEPTH = 1.0e-4
-"""How far [m] a piece's deepest point must lie in front of its chord to become a corner."""
 
 
 @dataclass(frozen=True)
@@ -377,54 +376,24 @@ def _front(polygons, px, py, first, last, base, footprint_radius):
     Piece k is points ``first[k] .. last[k]`` and rectangle ``a, b, b', a'`` (``_rectangles``;
     near edge a b of length L, unit e along it, unit normal n from a to a').  Per point
     u = (p - a) . e and f = -(p - a) . n, how far it lies in front of the chord.  The point m
-    of largest f, when f_m > ``MIN_APEX_DEPTH`` and 0 < u_m < L, becomes a fifth corner
-    between a and b (convex: m lies in front of the chord, within its span), where the near
-    side then runs a m b, in front of u by c(u) = f_m min(u / u_m, (L - u) / (L - u_m));
-    else c = 0.  The near corners then move along -n by max(0, max f - c(u)) over the piece,
-    capped so that the line through the nearest corner parallel to a b stays
-    ``footprint_radius`` from the base; a piece whose apex line is closer keeps 4 corners.
+    of largest f, when f_m > ``kernels.scan.MIN_APEX_DEPTH`` and 0 < u_m < L, becomes a
+    fifth corner between a and b (convex: m lies in front of the chord, within its span),
+    where the near side then runs a m b, in front of u by c(u) = f_m min(u / u_m, (L - u) /
+    (L - u_m)); else c = 0.  The near corners then move along -n by max(0, max f - c(u))
+    over the piece, capped so that the line through the nearest corner parallel to a b
+    stays ``footprint_radius`` from the base; a piece whose apex line is closer keeps 4
+    corners.
+
+    ``kernels.scan.front``, a compiled pass over the pieces.  (In numpy, about 50 calls, it
+    took 0.17 ms of a 1081-beam scan among 30 moving objects.)
     """
     count = len(polygons)
     if not count:
         return []
-    counts = last - first + 1
-    starts = np.concatenate(([0], np.cumsum(counts)[:-1]))
-    points = first.repeat(counts) + np.arange(counts.sum()) - starts.repeat(counts)
-    ax, ay = polygons[:, 0, 0], polygons[:, 0, 1]
-    ex, ey = polygons[:, 1, 0] - ax, polygons[:, 1, 1] - ay
-    length = np.sqrt(ex * ex + ey * ey)
-    ex, ey = ex / length, ey / length
-    nx, ny = -ey, ex  # counter-clockwise corners: the normal away from the base is e turned left
-    rel_x, rel_y = px[points] - ax.repeat(counts), py[points] - ay.repeat(counts)
-    along = rel_x * ex.repeat(counts) + rel_y * ey.repeat(counts)
-    ahead = -(rel_x * nx.repeat(counts) + rel_y * ny.repeat(counts))
-    depth = np.maximum.reduceat(ahead, starts)
-    deepest = (ahead == depth.repeat(counts)).nonzero()[0]
-    apex = deepest[deepest.searchsorted(starts)]
-    apex_along = along[apex]
-    height = (ax - base[0]) * nx + (ay - base[1]) * ny  # of the chord's line above the base
-    room = height - footprint_radius
-    pointed = ((depth > MIN_APEX_DEPTH) & (apex_along > 0.0) & (apex_along < length)
-               & (room >= depth))
-    rise = np.where(pointed, depth / np.where(pointed, apex_along, 1.0), 0.0)
-    fall = np.where(pointed, depth / np.where(pointed, length - apex_along, 1.0), 0.0)
-    chain = np.maximum(np.minimum(rise.repeat(counts) * along,
-                                  fall.repeat(counts) * (length.repeat(counts) - along)), 0.0)
-    residual = np.maximum(np.maximum.reduceat(ahead - chain, starts), 0.0)
-    # A rectangle may come as near as its near edge, a segment: beside the base (lateral
-    # offset w > 0 of the base beyond the chord's span) its corner stays footprint_radius
-    # away while the shift is at most height - sqrt(R^2 - w^2), and any shift is fine once
-    # w >= R.
-    lateral = np.maximum(np.maximum(-(base[0] - ax) * ex - (base[1] - ay) * ey,
-                                    (base[0] - ax) * ex + (base[1] - ay) * ey - length), 0.0)
-    clear = footprint_radius ** 2 - lateral * lateral
-    edge_room = np.where(clear > 0.0, height - np.sqrt(np.maximum(clear, 0.0)), np.inf)
-    shift = np.minimum(residual, np.maximum(np.where(pointed, room - depth, edge_room), 0.0))
     corners = np.empty((count, 5, 2))
-    corners[:, 0], corners[:, 2:] = polygons[:, 0], polygons[:, 1:]
-    corners[:, 1, 0], corners[:, 1, 1] = px[points[apex]], py[points[apex]]
-    corners[:, :3, 0] -= (shift * nx)[:, None]
-    corners[:, :3, 1] -= (shift * ny)[:, None]
+    pointed = np.empty(count, dtype=bool)
+    front(polygons, px, py, first, last, float(base[0]), float(base[1]), footprint_radius,
+          footprint_radius ** 2, corners, pointed)
     rectangles = corners[:, (0, 2, 3, 4)]
     return [corners[k] if pointed[k] else rectangles[k] for k in range(count)]
 
