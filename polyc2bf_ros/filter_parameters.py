@@ -141,9 +141,10 @@ NODE_PARAMETERS = {
                            'holding two objects; core/obstacles/scan_tracker.py); the braking '
                            'check allows for it; 0 = off', False),
     'scan_hidden_speed': (2.0, (0.0, 10.0), 'bound [m/s] on the speed of what a moving scan '
-                          'track may hide behind or inside its cluster: its obstacles get it '
-                          'as unknown velocity, which the braking check allows for and no '
-                          'evasion commits past; 0 = off (a moving track is taken at its '
+                          'track may hide behind or inside its cluster: its obstacles (and '
+                          'its predicted outline while a scan misses it) get it as unknown '
+                          'velocity, which the braking check allows for and no evasion '
+                          'commits past; 0 = off (a moving track is taken at its '
                           'velocity)', False),
     'scan_memory_time': (10.0, (0.0, 3600.0), 'a laser with a blind sector: endpoints it saw '
                          'are kept this long [s] while no beam can see them '

@@ -169,7 +169,8 @@ class ObstaclePipeline:
             obstacles = with_velocities(scan.obstacles, scan.owner, estimates,
                                         float(settings.scan_unknown_speed),
                                         float(settings.scan_hidden_speed))
-            unseen = unseen_obstacles(self._scan_tracker, f'{topic}:')
+            unseen = unseen_obstacles(self._scan_tracker, f'{topic}:',
+                                      float(settings.scan_hidden_speed))
         self._scans[topic] = (scan.stamp, [
             dataclasses.replace(o, key=f'{topic}:{o.key}') for o in obstacles] + unseen
             + self._remembered(topic, scan, estimates, settings))

@@ -293,8 +293,10 @@ def test_a_moving_track_the_scan_misses_is_kept_where_it_goes():
             continue
         hidden += 1
         (obstacle,) = unseen
-        assert obstacle.key == 'front:unseen/0'
+        assert obstacle.key == 'front:unseen/0' and obstacle.velocity_error == 0.0
         assert np.linalg.norm(obstacle.velocity - [*velocity, 0.0]) <= 0.1
+        (hiding,) = unseen_obstacles(tracker, 'front:', velocity_error=1.5)
+        assert hiding.velocity_error == 1.5 and np.array_equal(hiding.polygon, obstacle.polygon)
         distances = np.linalg.norm(obstacle.polygon - centre, axis=1)
         assert distances.max() <= radius + 0.05 and distances.max() >= radius - 0.05
         assert np.linalg.norm(obstacle.polygon.mean(axis=0) - centre) <= radius

@@ -103,9 +103,11 @@ last matched).  Per scan, with ``dt`` the time since the newest stamp:
    cluster: a cylinder hidden there comes out as a new track, published still until it has
    been registered moving, or as a cluster that stops being explained, each often under a
    second before it reaches the robot.  ``with_velocities`` gives a moving track's
-   obstacles an unknown velocity too (``scan_hidden_speed``).  (Measured from scans on
-   three seeds of the dynamic suite: 0, 3 and 6 at-fault contacts in 60 worlds each became
-   none, at the cost of half the easy worlds' successes.)
+   obstacles an unknown velocity too (``scan_hidden_speed``), and so does
+   ``unseen_obstacles`` to a moving track the scan misses: its cluster may come back as a
+   new track, published still.  (Measured from scans on three seeds of the dynamic suite:
+   0, 3 and 6 at-fault contacts in 60 worlds each became none, at the cost of half the easy
+   worlds' successes.)
 
 Birth, confirmation, deletion.  A cluster no track takes starts a track at its centroid
 (position variance ``point_std^2``, velocity ``speed_std`` per axis) with one hit; each
@@ -512,12 +514,14 @@ def with_velocities(obstacles, owner, estimates, unknown_speed=0.0, hidden_speed
     return result
 
 
-def unseen_obstacles(tracker, prefix=''):
+def unseen_obstacles(tracker, prefix='', velocity_error=0.0):
     """Return obstacles for the moving tracks the last scan missed (``unseen_moving``).
 
     Each is its outline's enclosing polygon (at most ``UNSEEN_VERTICES`` vertices; a
-    straight outline ``UNSEEN_THICKNESS`` thick) with the track's velocity, keyed
-    ``<prefix>unseen/<i>``; an outline that makes no polygon is left out.
+    straight outline ``UNSEEN_THICKNESS`` thick) with the track's velocity and
+    ``velocity_error`` [m/s] (``Obstacle.velocity_error``: what a moving track may hide,
+    ``with_velocities``), keyed ``<prefix>unseen/<i>``; an outline that makes no polygon
+    is left out.
     """
     result = []
     for index, (outline, velocity) in enumerate(tracker.unseen_moving()):
@@ -526,5 +530,6 @@ def unseen_obstacles(tracker, prefix=''):
         except ValueError:
             continue
         result.append(Obstacle(polygon=polygon, velocity=np.array([*velocity, 0.0]),
-                               key=f'{prefix}unseen/{index}'))
+                               key=f'{prefix}unseen/{index}',
+                               velocity_error=float(velocity_error)))
     return result
