@@ -65,18 +65,16 @@ def split_to_tolerance(px, py, ends, tolerance_sq, out, stack):
     return count
 
 
-@kernel(signature('void', F3, F1, F1, I1, I1, 'f8', 'f8', 'f8', 'f8', F3, B1))
-def front(polygons, px, py, first, last, base_x, base_y, radius, radius_sq, corners,
-          pointed):
+@kernel(signature('void', F3, F1, F1, I1, I1, 'f8', 'f8', 'f8', F3, B1))
+def front(polygons, px, py, first, last, base_x, base_y, radius, corners, pointed):
     """Bring each piece's near side to its points (step 6); fill ``corners`` and ``pointed``.
 
     Piece k is points ``first[k] .. last[k]`` and rectangle ``polygons[k]`` (near edge
     corners 0, 1).  ``corners`` (M, 5, 2): corner 0, the apex point, corners 1-3, the near
     ones (0-2) moved back by the shift; ``pointed[k]``: the apex is a corner (else corners
-    0, 2, 3, 4 are the polygon).  ``radius``, ``radius_sq``: the footprint radius and its
-    square.  Term by term as the numpy steps it replaced
-    (``scan_conversion._front``'s docstring has the math), so the polygons are the same to
-    the bit.
+    0, 2, 3, 4 are the polygon).  ``radius``: the footprint radius.  Term by term as the
+    numpy steps it replaced (``scan_conversion._front``'s docstring has the math), so the
+    polygons are the same to the bit.
     """
     for k in range(polygons.shape[0]):
         ax, ay = polygons[k, 0, 0], polygons[k, 0, 1]
@@ -106,7 +104,7 @@ def front(polygons, px, py, first, last, base_x, base_y, radius, radius_sq, corn
         residual = max(residual, 0.0)
         lateral = max(max(-(base_x - ax) * ex - (base_y - ay) * ey,
                           (base_x - ax) * ex + (base_y - ay) * ey - length), 0.0)
-        clear = radius_sq - lateral * lateral
+        clear = radius * radius - lateral * lateral
         edge_room = height - math.sqrt(max(clear, 0.0)) if clear > 0.0 else math.inf
         shift = min(residual, max(room - depth if sharp else edge_room, 0.0))
         corners[k, 0, 0], corners[k, 0, 1] = ax, ay

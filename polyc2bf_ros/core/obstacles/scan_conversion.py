@@ -393,7 +393,7 @@ def _front(polygons, px, py, first, last, base, footprint_radius):
     corners = np.empty((count, 5, 2))
     pointed = np.empty(count, dtype=bool)
     front(polygons, px, py, first, last, float(base[0]), float(base[1]), footprint_radius,
-          footprint_radius ** 2, corners, pointed)
+          corners, pointed)
     rectangles = corners[:, (0, 2, 3, 4)]
     return [corners[k] if pointed[k] else rectangles[k] for k in range(count)]
 
