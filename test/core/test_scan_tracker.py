@@ -265,6 +265,38 @@ def test_a_track_is_trusted_only_while_its_registrations_explain_its_cluster():
                                                                            estimates))
 
 
+@pytest.mark.parametrize('beside_mover', [1.0, 0.0])
+def test_a_track_born_beside_a_mover_is_not_trusted_until_it_registers(beside_mover):
+    """A cylinder that comes out beside a moving one is not trusted at once; a post far off is.
+
+    A 0.3 m cylinder crosses 3 m ahead at 1 m/s until its track moves.  Then two clusters
+    appear: a cylinder 0.7 m beyond the mover's box (as one hidden there would come out)
+    and a post 3 m from it.  The post's new track is trusted at once, as every young track is.
+    The other's is not, with ``beside_mover`` set: it counts as moving at birth and is
+    trusted once ``trust_scans`` registrations each explain its cluster (it stands).  With
+    ``beside_mover`` 0 it is trusted at once, as before.
+    """
+    rng = np.random.default_rng(11)
+    tracker = ScanTracker(TrackerSettings(beside_mover=beside_mover),
+                          link=SCAN.cluster_tolerance)
+    post, behind = np.array([1.0, 3.0]), np.array([3.8, -1.3])
+    for k in range(13):
+        mover = np.array([3.0, 0.8 - k / 10])
+        circles = [(mover, 0.3)] + ([(behind, 0.3), (post, 0.3)] if k >= 8 else [])
+        _, _, clusters = _clusters((0.0, 0.0, 0.0), (), circles, noise=0.005, rng=rng)
+        estimates = tracker.update(k / 10, clusters)
+        moving = estimates[_cluster_of(clusters, mover, 0.35)]
+        if k == 7:
+            assert moving.moving and moving.trusted
+        if k < 8:
+            continue
+        assert estimates[_cluster_of(clusters, post, 0.35)].trusted
+        born = estimates[_cluster_of(clusters, behind, 0.35)]
+        young = k - 8 < tracker.settings.trust_scans
+        assert born.trusted == (not young or beside_mover == 0.0), (k, born)
+    assert not born.moving
+
+
 def test_a_moving_track_the_scan_misses_is_kept_where_it_goes():
     """A cylinder hidden for a few scans stays an obstacle, moved along its velocity.
 
@@ -420,7 +452,8 @@ BAD_SETTINGS = [('gate', 0.0), ('gate', math.inf), ('accel_std', -1.0), ('speed_
                 ('max_coast', -1.0), ('moving_speed', 'fast'), ('n_sigma', -1.0),
                 ('moving_scans', 0), ('max_velocity_std', 0.0), ('static_extent', 0.0),
                 ('max_backstep', -0.1), ('pose_std', -0.01), ('heading_std', math.nan),
-                ('trust_share', -0.1), ('trust_scans', 0), ('distrust_time', -1.0)]
+                ('trust_share', -0.1), ('trust_scans', 0), ('distrust_time', -1.0),
+                ('beside_mover', -0.5)]
 
 
 @pytest.mark.parametrize('name, value', BAD_SETTINGS)

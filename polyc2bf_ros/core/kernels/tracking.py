@@ -37,8 +37,8 @@ ID, HITS, STREAK, MOVING, FIRST, SIZE, TRUST, TRACK_INTS = range(8)
 
 # Entries of the settings vector the kernels read.
 (GATE, ACCEL, SPEED, POINT, TRIM, SPAN, ITERATIONS, OVERLAP, CONFIRM, COAST, MOVING_SPEED,
- SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING, SHARE, TRUSTED, DISTRUST, ORIGIN_X,
- ORIGIN_Y, PARAMETERS) = range(24)
+ SIGMAS, SCANS, KNOWN, EXTENT, LINK, POSE, HEADING, SHARE, TRUSTED, DISTRUST, BESIDE, ORIGIN_X,
+ ORIGIN_Y, PARAMETERS) = range(25)
 I2 = 'i8[:, ::1]'
 B2 = 'b1[:, ::1]'
 
@@ -267,6 +267,18 @@ def register_outline(new, old, guess, reach, params, result):
 
 
 
+@kernel
+def _gap_sq(box, track, gx, gy):
+    """Return the squared gap between ``box`` and a track's box moved by (gx, gy).
+
+    Boxes as ``_gate``'s ``stats`` rows and the per-track floats: low (x, y), high (x, y).
+    """
+    wx = max(max(box[0] - track[HIGH] - gx, track[LOW] + gx - box[2]), 0.0)
+    wy = max(max(box[1] - track[HIGH + 1] - gy, track[LOW + 1] + gy - box[3]), 0.0)
+    return wx * wx + wy * wy
+
+
+
 @kernel(signature('UniTuple(i8, 2)', F2, I1, F2, F3, F2, 'i8', 'f8', F1, F2, B1, F2, I1, I1,
                   I1, I1, F1))
 def _gate(points, starts, states, covariances, tracks, count, dt, params, stats, structure,
@@ -317,10 +329,7 @@ def _gate(points, starts, states, covariances, tracks, count, dt, params, stats,
             if structure[c] != large:
                 cost[t, c] = FAR  # structure pairs with structure only
                 continue
-            wx = max(max(stats[c, 0] - track[HIGH] - gx, track[LOW] + gx - stats[c, 2]), 0.0)
-            wy = max(max(stats[c, 1] - track[HIGH + 1] - gy,
-                         track[LOW + 1] + gy - stats[c, 3]), 0.0)
-            if wx * wx + wy * wy <= gate_sq:
+            if _gap_sq(stats[c], track, gx, gy) <= gate_sq:
                 cost[t, c] = 0.5 * (math.hypot(stats[c, 0] - track[LOW] - gx,
                                                stats[c, 1] - track[LOW + 1] - gy)
                                     + math.hypot(stats[c, 2] - track[HIGH] - gx,
@@ -471,6 +480,25 @@ def _measure(smoothed, starts, c, box, storage, state, P, floats, ints, params, 
 
 
 
+@kernel
+def _beside_a_mover(box, states, floats, ints, count, gap):
+    """Return True when ``box`` lies within ``gap`` of a moving track's predicted box.
+
+    The first ``count`` tracks, their boxes moved by ``p - c`` (0 for those the scan matched,
+    whose clone has restarted).  A cluster born there may be an object that was hidden
+    behind or inside the mover (``scan_tracker``, step 5).
+    """
+    gap_sq = gap * gap
+    for t in range(count):
+        if ints[t, MOVING] != 1:
+            continue
+        if _gap_sq(box, floats[t], states[t, 0] - states[t, 4],
+                   states[t, 1] - states[t, 5]) <= gap_sq:
+            return True
+    return False
+
+
+
 @kernel(signature('UniTuple(i8, 2)', F2, I1, F2, B1, I1, I1, F2, F3, F2, I2, 'i8', 'f8', F1,
                   F2, F2, I1, F2, B2, I1))
 def _advance(points, starts, stats, structure, match, claimed, states, covariances, floats,
@@ -486,7 +514,9 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
     trusted streak counts its successive registrations that paired at least ``SHARE`` of
     the cluster's whole windows (anything else, a failed registration included, ends it).
     A track that has not been moving (``_classify``) for ``DISTRUST`` s is trusted; one
-    that has is trusted while its streak is ``TRUSTED`` or more.
+    that has is trusted while its streak is ``TRUSTED`` or more.  A track born within
+    ``BESIDE`` of a moving track's predicted box counts as moving at birth
+    (``_beside_a_mover``).
     """
     clusters = starts.shape[0] - 1
     smoothed = np.empty((points.shape[0], 7))
@@ -541,7 +571,8 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
         for k in range(6):
             floats[total, LOW + k] = stats[c, k]
         floats[total, SEEN] = stamp
-        floats[total, MOVED] = -np.inf
+        beside = _beside_a_mover(stats[c], states, floats, ints, count, params[BESIDE])
+        floats[total, MOVED] = stamp if beside else -np.inf
         ints[total, :] = 0
         ints[total, ID] = next_id[0]
         ints[total, HITS] = 1
