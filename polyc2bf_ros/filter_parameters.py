@@ -140,7 +140,7 @@ NODE_PARAMETERS = {
                            'track is not trusted (once moving, then not registered or '
                            'holding two objects; core/obstacles/scan_tracker.py); the braking '
                            'check allows for it; 0 = off', False),
-    'scan_hidden_speed': (2.0, (0.0, 10.0), 'bound [m/s] on the speed of what a moving scan '
+    'scan_hidden_speed': (1.0, (0.0, 10.0), 'bound [m/s] on the speed of what a moving scan '
                           'track may hide behind or inside its cluster: its obstacles (and '
                           'its predicted outline while a scan misses it) get it as unknown '
                           'velocity, which the braking check allows for and no evasion '

@@ -25,7 +25,7 @@ class IntakeSettings(NamedTuple):
     scan_split_tolerance: float = 0.05
     scan_tracking: bool = True
     scan_unknown_speed: float = 2.0
-    scan_hidden_speed: float = 2.0
+    scan_hidden_speed: float = 1.0
     scan_memory_time: float = 10.0
     scan_memory_range: float = 1.5
     odom_position_std: float = 0.0
