@@ -166,11 +166,10 @@ class ObstaclePipeline:
                     pose_std=tracking[1], heading_std=tracking[2]), link=link)
                 self._tracking = tracking
             estimates = self._scan_tracker.update(clock, scan.clusters, scan.view[:2])
+            hidden = float(settings.scan_hidden_speed)
             obstacles = with_velocities(scan.obstacles, scan.owner, estimates,
-                                        float(settings.scan_unknown_speed),
-                                        float(settings.scan_hidden_speed))
-            unseen = unseen_obstacles(self._scan_tracker, f'{topic}:',
-                                      float(settings.scan_hidden_speed))
+                                        float(settings.scan_unknown_speed), hidden)
+            unseen = unseen_obstacles(self._scan_tracker, f'{topic}:', hidden)
         self._scans[topic] = (scan.stamp, [
             dataclasses.replace(o, key=f'{topic}:{o.key}') for o in obstacles] + unseen
             + self._remembered(topic, scan, estimates, settings))
