@@ -297,6 +297,42 @@ def test_a_track_born_beside_a_mover_is_not_trusted_until_it_registers(beside_mo
     assert not born.moving
 
 
+def test_a_track_that_stopped_moving_keeps_the_hidden_speed_for_distrust_time():
+    """A cylinder crosses at 1 m/s, then stands: its track publishes 0 but may still hide one.
+
+    Once its registrations stop passing, the track is still again and publishes velocity
+    0.  For ``distrust_time`` after it last moved, ``moved_lately`` holds and
+    ``with_velocities`` gives its obstacles ``hidden_speed``: two movers merged into one
+    cluster register as one outline whose displacement averages theirs out, and such a
+    track was published still while one of them came at the robot (dynamic world 16,
+    generator seed 2029, from scans).  After that, nothing; a post never moved at all.
+    """
+    rng = np.random.default_rng(5)
+    tracker = ScanTracker(link=SCAN.cluster_tolerance)
+    post = np.array([1.0, 3.0])
+    seen = []
+    for k in range(45):
+        t = k / 10
+        mover = np.array([3.0, 0.8 - min(t, 1.0)])        # 1 m/s for 1 s, then stands
+        obstacles, owner, clusters = _clusters((0.0, 0.0, 0.0), (), [(mover, 0.3), (post, 0.3)],
+                                               noise=0.005, rng=rng)
+        estimates = tracker.update(t, clusters)
+        index = _cluster_of(clusters, mover, 0.35)
+        estimate = estimates[index]
+        assert not estimates[_cluster_of(clusters, post, 0.35)].moved_lately
+        marked = with_velocities(obstacles, owner, estimates, hidden_speed=0.7)
+        errors = {o.velocity_error for o, c in zip(marked, owner.tolist()) if c == index}
+        seen.append((t, estimate.moving, estimate.moved_lately, errors))
+    moving = [t for t, m, _, _ in seen if m]
+    stopped = max(moving) + 0.1                              # the first scan still again
+    assert 0.3 <= min(moving) and 1.0 <= stopped <= 1.6
+    for t, m, lately, errors in seen:
+        if t >= stopped:
+            assert not m
+            assert lately == (t - max(moving) <= tracker.settings.distrust_time + 1e-9), t
+            assert errors == ({0.7} if lately else {0.0}), (t, errors)
+
+
 def test_a_moving_track_the_scan_misses_is_kept_where_it_goes():
     """A cylinder hidden for a few scans stays an obstacle, moved along its velocity.
 

@@ -317,6 +317,21 @@ def test_from_scans_a_cylinder_born_beside_a_mover_is_not_taken_as_still():
     assert not record['at_fault_contact'], record['contact']
 
 
+def test_from_scans_a_track_that_stopped_moving_is_not_taken_as_still():
+    """Unseen world 16 (generator seed 2029) from scans: two movers merged into one cluster.
+
+    Two cylinders, one crossing the robot's way, met in one cluster; its track registered
+    the merged outline as one, its velocity averaged out to below ``moving_speed``, and it
+    was published still and trusted while the crossing cylinder came on at 0.6 m/s: the
+    robot sped up into it.  A confirmed track that moved within ``distrust_time`` keeps
+    ``scan_hidden_speed`` (``scan_tracker.with_velocities``), and the robot is not at fault.
+    """
+    world = dynamic_world(16, 2029)
+    ((record, _),) = run_world(world, [(default_barrier('diff_drive'), 'goal')],
+                               obstacle_source='scan')
+    assert not record['at_fault_contact'], record['contact']
+
+
 def test_evasion_takes_the_robot_out_of_a_cylinders_way(worlds):
     """World 21 with markers: evasion takes the robot to the goal.
 
