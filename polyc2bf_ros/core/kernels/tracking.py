@@ -509,10 +509,11 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
     ``count`` + clusters), the smoothed outlines' ``storage`` and ``new_storage`` (7
     columns, rows at least ``len(points) + len(storage)``; structure tracks keep none),
     ``next_id`` (1,); per cluster ``out`` (C, 3): the published velocity and the worst-axis
-    velocity standard deviation, ``flags`` (C, 4): confirmed, moving, published, trusted,
-    and ``ids`` (C,).  Every cluster but structure is smoothed once, here.  A track's
-    trusted streak counts its successive registrations that paired at least ``SHARE`` of
-    the cluster's whole windows (anything else, a failed registration included, ends it).
+    velocity standard deviation, ``flags`` (C, 5): confirmed, moving, published, trusted,
+    moved lately (within ``DISTRUST`` s; never structure), and ``ids`` (C,).  Every
+    cluster but structure is smoothed once, here.  A track's trusted streak counts its
+    successive registrations that paired at least ``SHARE`` of the cluster's whole
+    windows (anything else, a failed registration included, ends it).
     A track that has not been moving (``_classify``) for ``DISTRUST`` s is trusted; one
     that has is trusted while its streak is ``TRUSTED`` or more.  A track born within
     ``BESIDE`` of a moving track's predicted box counts as moving at birth
@@ -613,9 +614,10 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
         vx, vy = _known_velocity(states[t], P, params[KNOWN])
         out[c, 0] = vx if published else 0.0
         out[c, 1] = vy if published else 0.0
+        lately = not structure[c] and stamp - floats[t, MOVED] <= params[DISTRUST]
         flags[c, 0], flags[c, 1], flags[c, 2] = confirmed, moving, published
-        flags[c, 3] = (structure[c] or stamp - floats[t, MOVED] > params[DISTRUST]
-                       or ints[t, TRUST] >= params[TRUSTED])
+        flags[c, 3] = not lately or ints[t, TRUST] >= params[TRUSTED]
+        flags[c, 4] = lately
         ids[c] = ints[t, ID]
     return kept, used
 

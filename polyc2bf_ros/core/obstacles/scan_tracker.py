@@ -187,7 +187,6 @@ from polyc2bf_ros.core.kernels.tracking import (
     ITERATIONS,
     KNOWN,
     LINK,
-    MOVED,
     MOVING,
     MOVING_SPEED,
     ORIGIN_X,
@@ -234,7 +233,7 @@ class TrackEstimate(NamedTuple):
     confirmed: bool
     moving: bool
     trusted: bool
-    moved_lately: bool = False
+    moved_lately: bool
 
 
 @dataclass(frozen=True)
@@ -447,15 +446,13 @@ class ScanTracker:
                               padded, match, claimed)
         storage = np.empty((len(points) + len(self._storage), 7))
         out = np.empty((cluster_count, 3))
-        flags = np.empty((cluster_count, 4), dtype=bool)
+        flags = np.empty((cluster_count, 5), dtype=bool)
         ids = np.empty(cluster_count, dtype=np.int64)
         self._count, used = _advance.unchecked(
             points, starts, stats, structure, match, claimed, self._states, self._covariances,
             self._floats, self._ints, count, stamp, self._params, self._storage, storage,
             self._next_id, out, flags, ids)
         self._storage = storage[:used]
-        lately = ((stamp - self._floats[claimed, MOVED] <= self.settings.distrust_time)
-                  & ~structure)
         velocities = out[:, :2]
         velocities.flags.writeable = False
         published = flags[:, 2].nonzero()[0].tolist()
@@ -465,7 +462,7 @@ class ScanTracker:
         # tuple.__new__ straight from C: a NamedTuple's own constructor is a Python call.
         return list(map(tuple.__new__, repeat(TrackEstimate),
                         zip(ids.tolist(), shown, out[:, 2].tolist(), flags[:, 0].tolist(),
-                            flags[:, 1].tolist(), flags[:, 3].tolist(), lately.tolist())))
+                            flags[:, 1].tolist(), flags[:, 3].tolist(), flags[:, 4].tolist())))
 
     def unseen_moving(self):
         """Return (outline (k, 2), velocity (2,)) of each moving track the last scan missed.
@@ -517,7 +514,8 @@ def with_velocities(obstacles, owner, estimates, unknown_speed=0.0, hidden_speed
     changed = {}
     for index, estimate in enumerate(estimates):
         published = estimate.moving and estimate.confirmed and estimate.velocity.any()
-        hiding = published or (estimate.confirmed and estimate.moved_lately)
+        # A moving track has moved lately: this holds for every published one too.
+        hiding = estimate.confirmed and estimate.moved_lately
         error = max(hidden_speed if hiding else 0.0,
                     0.0 if estimate.trusted else unknown_speed)
         if published or error > 0.0:
