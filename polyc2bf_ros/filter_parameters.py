@@ -147,7 +147,8 @@ NODE_PARAMETERS = {
                           'commits past; 0 = off (a moving track is taken at its '
                           'velocity)', False),
     'scan_memory_time': (10.0, (0.0, 3600.0), 'a laser with a blind sector: endpoints it saw '
-                         'are kept this long [s] while no beam can see them '
+                         'are kept while no beam can see them, and once farther than '
+                         'scan_memory_range for this long [s] at most '
                          '(core/obstacles/scan_memory.py), so a turning or backing body '
                          'knows what passed behind it; 0 = off',
                          False),

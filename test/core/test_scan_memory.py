@@ -75,8 +75,13 @@ def _post_behind(memory, position=(0.0, 0.0), stamp=0.1, distance=0.6):
     return _look(memory, stamp, math.pi, 1.5 * math.pi, [post], position, keep=False)[0]
 
 
-def test_only_what_is_near_and_recent_is_kept():
-    """A post 0.6 m away is kept for ``keep_time``, and only while within ``reach``."""
+def test_what_is_near_is_kept_and_drawn_and_what_is_far_ages_out():
+    """A post 0.6 m away is drawn only within ``reach``; it ages out once also farther.
+
+    Held beside it, out of view, for longer than ``keep_time``, the robot still has it;
+    once the robot is farther than ``reach`` from it, a post older than ``keep_time`` is
+    dropped.
+    """
     assert _post_behind(ScanMemory(keep_time=1.0, reach=1.0))
     assert not _post_behind(ScanMemory(keep_time=1.0, reach=0.5))
     memory = ScanMemory(keep_time=1.0, reach=1.0)
@@ -84,7 +89,9 @@ def test_only_what_is_near_and_recent_is_kept():
     view = ScanView(0.0, 0.0, math.pi, -0.75 * math.pi, 0.75 * math.pi, 0.01, 0.05, 10.0,
                     (0.0, 0.0))
     assert memory.update(0.9, view, np.zeros((0, 2)), SETTINGS)
-    assert not memory.update(1.2, view, np.zeros((0, 2)), SETTINGS) and not len(memory)
+    assert memory.update(30.0, view, np.zeros((0, 2)), SETTINGS) and len(memory)
+    away = view._replace(x=-1.0, base=(-1.0, 0.0))
+    assert not memory.update(30.1, away, np.zeros((0, 2)), SETTINGS) and not len(memory)
 
 
 def test_a_post_seen_beyond_reach_is_drawn_once_the_robot_backs_within_reach():

@@ -29,7 +29,12 @@ Per scan of one source, taken at ``stamp`` from ``ScanView`` ``view``:
    (Measured: dropped when hidden, a post that a nearer post hid from the laser was gone
    by the time it passed into the blind sector, and a Jackal box backing at 0.9 m/s
    grazed it by 4 mm; BARN world 119 from the laser.)  It is also dropped when it is
-   older than ``keep_time``.
+   older than ``keep_time`` and farther than ``reach`` from the sensor.  Near points do
+   not age: odometry drifts as the robot drives, not as it stands, and a robot held
+   beside a post in its blind sector (a deadlock, then its route) must not forget it.
+   (Measured: aged out after 10 s, a post whose lit faces the memory had dropped, and
+   whose side facing the robot was never lit, was backed into at 0.87 m/s by a Jackal
+   box following a faster route than the shipped one; BARN world 115 from the laser.)
 3. The rest within ``reach`` of the sensor is drawn as the laser would see it from here:
    by bearing, in bins of the scan's increment from the blind sector's first bearing on,
    the nearest point per bin, in bearing order.  ``scan_obstacles`` turns them into
@@ -39,9 +44,10 @@ Per scan of one source, taken at ``stamp`` from ``ScanView`` ``view``:
    pushed back by the filter, reversed 2 m onto it; BARN world 4 from the laser.)
 
 Limits.  Points live in the odometry frame, so they drift with odometry (``keep_time``
-bounds that); a standing object that leaves the view, or is hidden, and then moves away
-stays a phantom until it ages out or a beam passes through where it was, which only keeps
-the robot from turning or backing into that place.  Only a scan with a blind sector keeps
+bounds that once the robot has driven away); a standing object that leaves the view, or is
+hidden, and then moves away stays a phantom until a beam passes through where it was, or
+the robot is farther than ``reach`` from it and it ages out, which only keeps the robot
+from turning or backing into that place.  Only a scan with a blind sector keeps
 anything.  A body is taken as ``depth`` thick along the beams that lit it: a thinner one
 leaves a phantom behind it, a thicker one (a BARN post is 0.15 m across, against the
 default 0.10) may reach past its backs on the side never lit.
@@ -151,7 +157,7 @@ class ScanMemory:
                              settings.depth + settings.split_tolerance)
         tolerance = np.where(backs, back_tolerance, settings.cluster_tolerance)
         keep = (view.unseen(ranges, after, tolerance) & (age >= 0.0)
-                & (age <= self.keep_time))
+                & ((age <= self.keep_time) | (ranges <= self.reach)))
         self._points, self._stamps, self._backs = points[keep], stamps[keep], backs[keep]
         near = keep & (ranges <= self.reach)
         if not near.any():
