@@ -156,10 +156,11 @@ class ScanMemory:
         back_tolerance = max(settings.cluster_tolerance,
                              settings.depth + settings.split_tolerance)
         tolerance = np.where(backs, back_tolerance, settings.cluster_tolerance)
+        within = ranges <= self.reach
         keep = (view.unseen(ranges, after, tolerance) & (age >= 0.0)
-                & ((age <= self.keep_time) | (ranges <= self.reach)))
+                & ((age <= self.keep_time) | within))
         self._points, self._stamps, self._backs = points[keep], stamps[keep], backs[keep]
-        near = keep & (ranges <= self.reach)
+        near = keep & within
         if not near.any():
             return []
         points, ranges, after = points[near], ranges[near], after[near]
