@@ -86,6 +86,7 @@ class ObstaclePipeline:
         self._scans = {}  # topic: (stamp [s], its obstacles)
         self._scan_tracker = self._tracking = None  # made on the first tracked scan
         self._memories = {}  # topic: ScanMemory
+        self._views = {}  # topic: the newest accepted scan's ScanView
         self._static = StaticTransforms()
         self.scan_status = {}  # topic: ScanStatus
 
@@ -125,7 +126,8 @@ class ObstaclePipeline:
             obstacles=obstacles, t_ref=t_ref, received=self._received,
             rejected=tracker.rejected, wrong_frame=wrong_frame, invalid=tracker.has_invalid,
             unreadable=self._unreadable, error=error, tracked=len(tracker),
-            simplified=tracker.simplified, hulled=obstacles.capped)
+            simplified=tracker.simplified, hulled=obstacles.capped,
+            views=tuple(self._views.values()))
 
     def _combined(self, frame, dim, settings):
         """Return (markers and scans as one ``ObstacleSet``, t_ref, wrong_frame).
@@ -173,6 +175,7 @@ class ObstaclePipeline:
         self._scans[topic] = (scan.stamp, [
             dataclasses.replace(o, key=f'{topic}:{o.key}') for o in obstacles] + unseen
             + self._remembered(topic, scan, estimates, settings))
+        self._views[topic] = scan.view
         self.scan_status[topic] = status._replace(accepted=received, received=received)
 
 

@@ -63,7 +63,8 @@ class ObstacleSnapshot:
     ``rejected`` / ``wrong_frame``: ``{key: reason}``; ``invalid``: some marker had NaN/Inf;
     ``unreadable`` / ``error``: why the last message could not be read / the set not be
     built ('' if fine); ``simplified``: obstacles whose outline was replaced by an enclosing
-    polygon; ``hulled``: keys replaced by their hull (too many convex parts).
+    polygon; ``hulled``: keys replaced by their hull (too many convex parts); ``views``: the
+    ``ScanView`` of each laser's newest scan (what it saw: a route avoids the rest).
     """
 
     obstacles: ObstacleSet = field(default_factory=ObstacleSet.empty)
@@ -77,6 +78,7 @@ class ObstacleSnapshot:
     tracked: int = 0
     simplified: int = 0
     hulled: tuple = ()
+    views: tuple = ()
 
     @property
     def usable(self):
@@ -246,11 +248,11 @@ class ControlDecision:
             circulation.observe(info)
             if self.deadlock.onsets > onsets:
                 circulation.engage(now, position, self.yaw, self.command_vector,
-                                   snapshot.obstacles)
+                                   snapshot.obstacles, views=snapshot.views)
             elif self.deadlock.held and not circulation.active:
                 # Still held after a circulation ran out of time: try the other side.
                 circulation.engage(now, position, self.yaw, self.command_vector,
-                                   snapshot.obstacles, renew=True)
+                                   snapshot.obstacles, renew=True, views=snapshot.views)
         return Decision('filter', safe, info, deadlocked=deadlocked)
 
     def _passes(self, command, snapshot, age):

@@ -15,9 +15,12 @@ from polyc2bf_ros.core.liveness.escape_route import (
     PATIENCE,
     plan_route,
     RouteEscape,
+    SEEN_AROUND,
+    unseen_cells,
     WIDEN,
 )
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
+from polyc2bf_ros.core.obstacles.scan_memory import ScanView
 from strategies import convex_polygons
 
 FREE = 0.522
@@ -68,6 +71,55 @@ def test_the_route_goes_round_the_wall_ahead_keeping_the_clearance():
     beside = route[(route[:, 0] > 2.0) & (route[:, 0] < 2.3)]
     assert len(beside) and np.abs(beside[:, 1]).min() >= 1.5 + FREE - 1e-9
     assert np.all(np.hypot(*np.diff(route, axis=0).T) <= 0.1 * math.sqrt(2) + 0.06)
+
+
+def quarter_view(start, wall_x, wall_top):
+    """Return the ``ScanView`` of a laser at ``start`` facing +x, beams over [0, 90] degrees.
+
+    Its beams stop at the face x = ``wall_x`` of a wall up to y = ``wall_top``; above it they
+    pass.  Everything at negative bearings lies in its blind sector.
+    """
+    step = math.radians(0.5)
+    bearings = np.arange(0.0, 0.5 * math.pi + 1e-9, step)
+    distance = wall_x - start[0]
+    ranges = np.where(start[1] + distance * np.tan(bearings) <= wall_top,
+                      distance / np.cos(bearings), np.inf)
+    return ScanView(start[0], start[1], 0.0, 0.0, float(bearings[-1]), step, 0.05, 10.0,
+                    start, ranges)
+
+
+def test_unseen_cells_are_those_no_beam_reached():
+    """Behind the wall and in the blind sector: unseen; before it and near the robot: seen."""
+    start, cell, count = (0.5, 0.0), 0.1, 61
+    x0, y0 = start[0] - 3.0, start[1] - 3.0
+    unseen = unseen_cells((quarter_view(start, 2.0, 2.0),), x0, y0, cell, count, start)
+
+    def at(x, y):
+        return unseen[int(round((y - y0) / cell)), int(round((x - x0) / cell))]
+
+    assert at(1.5, 1.0) == 0.0 and at(1.9, 0.1) == 0.0    # lit, before the wall's face
+    assert at(1.0, 2.8) == 0.0                            # above the wall: the beams passed
+    assert at(3.0, 1.0) == 1.0 and at(2.5, 0.1) == 1.0    # behind the wall
+    assert at(1.5, -1.0) == 1.0 and at(-1.0, 0.5) == 1.0  # in the blind sector
+    assert at(start[0] + 0.8 * SEEN_AROUND, -0.1) == 0.0  # where the robot stands
+    assert not unseen_cells((), x0, y0, cell, count, start).any()   # markers: all seen
+
+
+def test_the_route_keeps_to_what_the_laser_saw():
+    """A wall ahead, shorter round its lower end: that side is unseen, so the route goes over.
+
+    Without a view (obstacles from markers) the shorter way round stands.
+    """
+    start, wall = (0.5, 0.0), box(2.0, -1.0, 2.3, 2.0)
+    blind = plan_route(obstacle_set(wall), start, (1.0, 0.0), FREE)
+    seen = plan_route(obstacle_set(wall), start, (1.0, 0.0), FREE,
+                      views=(quarter_view(start, 2.0, 2.0),))
+    assert blind is not None and seen is not None
+    assert blind[:, 1].min() < -1.0 - FREE + 1e-9 and blind[:, 1].max() <= start[1] + 1e-9
+    assert seen[:, 1].max() > 2.0 + FREE - 1e-9 and seen[:, 1].min() >= start[1] - 1e-9
+    assert seen[-1, 0] - start[0] >= 3.0 - 1e-9
+    far = np.hypot(*(seen - start).T) > 0.35
+    assert clearance_along(seen[far], [wall]).min() >= FREE - 1e-9
 
 
 def test_from_a_held_robot_the_route_never_starts_closer_to_a_part():

@@ -174,10 +174,12 @@ def test_pipeline_combines_markers_and_scans_and_keeps_a_topic_on_a_bad_scan():
     keys = snapshot.obstacles.keys
     assert 'walls/0' in keys and any(k.startswith('scan:scan/') for k in keys)
     assert pipeline.scan_status['scan'].accepted == 1.0 and snapshot.usable
+    view, = snapshot.views  # what the laser saw, for the route (``escape_route``)
+    assert (view.x, view.y) == pytest.approx(ODOMETRY[0][1:3]) and view.ranges is not None
     bad = ObstacleJob([], 'odom', IntakeSettings(), SPEC, 2.0,
                       (('scan', _data(nan=True), 2.0, ODOMETRY, 'base_link'),))
     again = pipeline.run(bad)
-    assert again.obstacles.keys == keys
+    assert again.obstacles.keys == keys and again.views == snapshot.views
     status = pipeline.scan_status['scan']
     assert (status.accepted, status.received, status.rejected) == (1.0, 2.0, 1)
 

@@ -122,3 +122,20 @@ def test_a_jackal_at_2_m_s_crosses_a_barn_world_from_its_laser_without_contact(n
     assert not record['collision'] and record['success'], record
     assert record['min_clearance_m'] is None or record['min_clearance_m'] > 0.0
     assert np.isfinite(record['barn_metric']) and record['barn_metric'] > 0.2
+
+
+@pytest.mark.slow
+def test_from_its_laser_a_jackal_routes_through_what_the_laser_saw():
+    """BARN world 181, go-to-goal from the laser: the deadlock route keeps to the lit space.
+
+    Planned as if the space no beam reached were free, route after route led into posts
+    hidden behind others, and the robot stood, planned again and wandered (14 routes, no
+    arrival in 100 s); a route that keeps to what the laser saw leads through at once.
+    """
+    world, = [w for w in barn.load_worlds(barn.WORLDS_FILE) if w.world == 181]
+    (record, _), = run_world(world, [(default_barrier('jackal'), 'goal')],
+                             obstacle_source='scan',
+                             lidar=lidar_settings((), **ROBOT_TYPES['jackal'].lidar),
+                             robot='jackal', speed=2.0)
+    assert record['success'] and not record['collision'], record
+    assert record['time_s'] < 20.0 and record['deadlock_detections'] <= 2, record

@@ -76,17 +76,18 @@ def _pop(heap_cost, heap_index, size):
 
 
 
-@kernel(signature('i8', F2, 'i8', 'i8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', I1, F1,
-                  I1))
-def route_search(clearance, start_i, start_j, dir_x, dir_y, ahead, free, start_free,
-                 preferred, weight, parent, cost, heap_index):
+@kernel(signature('i8', F2, F2, 'i8', 'i8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8',
+                  I1, F1, I1))
+def route_search(clearance, unseen, start_i, start_j, dir_x, dir_y, ahead, free, start_free,
+                 preferred, weight, unseen_weight, parent, cost, heap_index):
     """Return the flat index of the route's end cell, or -1; ``parent`` holds the route.
 
     Dijkstra from (start_i, start_j) over 8-connected cells with clearance >= ``free``
     (>= ``start_free`` within ``START_CELLS`` of the start), step cost = length in cells
-    times 1 + weight max(0, preferred - c) / (preferred - free).  The end is the first cell
-    popped whose offset from the start, in cells, along (dir_x, dir_y) is >= ``ahead`` with
-    clearance >= (free + preferred) / 2.  Scratch: ``cost`` (9 rows x columns: the cells'
+    times 1 + weight max(0, preferred - c) / (preferred - free), and times 1 +
+    ``unseen_weight`` into a cell whose ``unseen`` is 1 (0: seen).  The end is the first
+    cell popped whose offset from the start, in cells, along (dir_x, dir_y) is >= ``ahead``
+    with clearance >= (free + preferred) / 2.  Scratch: ``cost`` (9 rows x columns: the cells'
     costs, then the heap's keys) and ``heap_index`` (8 rows x columns: each cell enters the
     heap at most once per neighbour).
     """
@@ -120,6 +121,7 @@ def route_search(clearance, start_i, start_j, dir_x, dir_y, ahead, free, start_f
                     continue
                 step = _DIAGONAL if di != 0 and dj != 0 else 1.0
                 step *= 1.0 + weight * max(0.0, preferred - c) / span
+                step *= 1.0 + unseen_weight * unseen[ni, nj]
                 neighbour = ni * columns + nj
                 if here + step < cost[neighbour] and size < heap_index.shape[0]:
                     cost[neighbour] = here + step

@@ -95,11 +95,11 @@ class Circulation:
             if float(np.hypot(*axis)) > 0.0:
                 self._axis = np.array(axis, dtype=float)
 
-    def engage(self, now, position, yaw, nominal, obstacles=None, renew=False):
+    def engage(self, now, position, yaw, nominal, obstacles=None, renew=False, views=()):
         """Start (or, while circulating, flip) circulation at the robot's reference point.
 
         ``nominal``: the command [v, omega] the robot was held against; its |v| is kept.
-        ``obstacles``: unused (the blocking part's axis comes from ``observe``).
+        ``obstacles``, ``views``: unused (the blocking part's axis comes from ``observe``).
         ``renew``: the deadlock outlasted the last circulation; start on its other side.
         """
         if self._axis is None:
