@@ -96,7 +96,9 @@ PATIENCE = 3.0   # s: a route the robot has not moved 0.1 m along in this long i
 WIDEN = 0.1      # m: each blocked route in a row plans the next this much wider ...
 MAX_WIDEN = 2    # ... this many times; one more, and circulation takes over
 INTENT_TIME = 1.0  # s: d leans by omega * INTENT_TIME, at most 90 degrees
-UNSEEN_WEIGHT = 2.0  # a step into a cell no laser saw costs 1 + this times more ("Unseen")
+UNSEEN_WEIGHT = 2.0  # a step into a cell no laser saw costs 1 + this times more ("Unseen";
+#                     BARN, Jackal from its laser, 40 worlds: metric 0.404 / 0.416 / 0.412
+#                     for 1 / 2 / 5)
 SEEN_AROUND = 0.5    # m: the cells this near the robot count as seen (it stands there)
 
 
