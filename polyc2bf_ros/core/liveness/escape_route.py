@@ -128,7 +128,7 @@ def plan_route(obstacles, position, direction, free, window=10.0, cell=0.1, ahea
     end = route_search(clearance, unseen, centre, centre, float(direction[0]),
                        float(direction[1]), ahead / cell, free,
                        min(free, clearance[centre, centre]), preferred, weight,
-                       UNSEEN_WEIGHT if views else 0.0, parent, scratch, heap)
+                       UNSEEN_WEIGHT, parent, scratch, heap)
     if end < 0:
         return None
     indices = [int(end)]
