@@ -136,10 +136,9 @@ def test_from_the_laser_a_base_later_and_slower_than_told_stays_clear_with_the_e
     The base is 30 ms late with tau 0.1 s and 1 cm odometry noise; the filter is told
     20 ms and 0.07 s with a 2 cm braking margin, and that the base may be 10 ms later and
     0.03 s slower (``braking_plan``): it reaches the goal without contact.  Without the
-    bounds it stays clear too (it touched a cylinder until the check refused stops deeper
-    inside an obstacle where braking cannot stop clear; it then took four times as long,
-    which was the deadlock route running into posts the laser had not seen: since the route
-    keeps to what the laser saw, 17.0 s against 14.1 s with the bounds).
+    bounds it stays clear too: the braking check refuses stops deeper inside an obstacle
+    where braking cannot stop clear.  The bounds change the stops it plans, so the runs
+    differ.
     """
     world, = [w for w in load_worlds(WORLDS_FILE) if w.world == 212]
     plant = Actuation(latency=0.03, actuator_tau=0.1, odom_noise=0.01)
