@@ -210,6 +210,9 @@ FILTER_PARAMETERS = {
     'evasion_max_speed': ((0.0, 100.0), 'evasion: the fastest [m/s] a look ahead taken may '
                           'drive the robot, or its speed now if faster; a lagging base stops '
                           'later than planned, sooner from a slower evasion (0: no limit)'),
+    'max_reverse_speed': ((0.0, 100.0), 'unicycle: the fastest [m/s] the filter backs the '
+                          'robot, or as fast as the nominal asks if faster; a laser facing '
+                          'forward does not see where the robot backs (0: no limit)'),
     'ground_z': (None, '3-D models: height of the ground [m], an obstacle like any other '
                  '(core/obstacles/ground.py); -.inf: no ground'),
 }

@@ -185,6 +185,7 @@ class FilterConfig:
     evasion_horizon: float = 1.0
     evasion_commit: bool = False
     evasion_max_speed: float = 0.0
+    max_reverse_speed: float = 0.0
 
     @property
     def body_radius(self):
@@ -213,7 +214,7 @@ class FilterConfig:
                     'escape_gain')
         non_negative = ('robot_radius', 'margin_gain', 'escape_speed', 'braking_margin',
                         'braking_obstacle_accel', 'obstacle_accel', 'obstacle_velocity_error',
-                        'evasion_horizon', 'evasion_max_speed')
+                        'evasion_horizon', 'evasion_max_speed', 'max_reverse_speed')
         for name in positive + non_negative:
             value = getattr(self, name)
             if not np.isfinite(value) or value < 0 or (name in positive and value == 0):
@@ -422,6 +423,11 @@ class SafetyFilter:
         self._weights = np.ascontiguousarray(model.input_weights, dtype=np.float64)
         self._lower = np.ascontiguousarray(model.input_lower, dtype=np.float64)
         self._upper = np.ascontiguousarray(model.input_upper, dtype=np.float64)
+        # The step's input box: a unicycle's lower drive bound follows the reverse limit
+        # (``_bound_reverse``), in place, so the row kernel's settings below see it.
+        self._reverse = (float(self.config.max_reverse_speed) or math.inf
+                         if model.name == 'unicycle' else math.inf)
+        self._drive_lower = float(self._lower[0])
         # Plain floats and bools, so every filter shares one compiled version of each kernel.
         self._row_settings = (float(self.config.margin), float(self.config.gamma),
                               self._lower, self._upper, bool(self.config.prune))
@@ -506,6 +512,8 @@ class SafetyFilter:
             # No obstacle, no row: the QP's solution is u_nom clipped to the box.
             return self.model.clip_input(u_nom), FilterInfo(
                 status=FilterStatus.OK, solve_time_s=time.perf_counter() - start)
+        if self._reverse < math.inf:
+            self._bound_reverse(state, u_nom)
         ref = self.model.reference(state, self._reference)
         evaluation = self._evaluate(prepared, ref, obstacle_age)
         h, x = np.empty(prepared.count), np.empty(self.model.input_dim)
@@ -546,6 +554,23 @@ class SafetyFilter:
             solve_time_s=time.perf_counter() - start, num_obstacles=prepared.count,
             num_constraints=count, slack=float(slack),
             message=message, evaluation=evaluation)
+
+    def _bound_reverse(self, state, u_nom):
+        """Keep a unicycle's next speed v + a T at or above min(-v_r, v + a_nom T).
+
+        v_r = ``max_reverse_speed``: the filter backs the robot no faster than that, or than
+        the nominal asks.  A box whose laser faces forward backs blind: pushed off a post
+        ahead, the filter (turning its nose clear at the nominal's rate) reversed it at up
+        to 1.4 m/s (BARN world 188, a Jackal from its laser, go-to-goal) and, following a
+        faster route, at 2 m/s into a post no beam had ever lit (contact).  The drive
+        bound a >= (floor - v) / T, within the model's +-a_max (already backing faster: the
+        hardest braking).
+        """
+        period = self.config.control_period
+        speed = float(state[3])
+        floor = min(-self._reverse, speed + float(u_nom[0]) * period)
+        self._lower[0] = min(max((floor - speed) / period, self._drive_lower),
+                             float(self._upper[0]))
 
     def _solve_rows(self, prepared, count, inside, ref, evaluation, u_nom, active):
         """Solve the QP on the step's ``count`` rows where the one-pass kernel could not.
@@ -769,6 +794,8 @@ class SafetyFilter:
 
         -inf when their shared first row is faster than ``limit`` (``_speed_limit``).
         """
+        if candidate[0] < self._lower[0]:  # backs faster than ``max_reverse_speed``
+            return -math.inf
         paths = self._evasion_paths(state, candidate)
         if _speed(paths[0][0]) > limit:
             return -math.inf

@@ -333,3 +333,55 @@ def test_odd_array_layouts_give_the_same_step(model_name, barrier, seed, polygon
     assert got.status == want.status
     np.testing.assert_array_equal(got_u, want_u)
     np.testing.assert_array_equal(got.h, want.h)
+
+
+JACKAL = '[[0.254, 0.215], [-0.254, 0.215], [-0.254, -0.215], [0.254, -0.215]]'
+
+
+def _jackal_filter(limit):
+    """Return a filter guarding the Jackal's box with its controller's limits (jackal.yaml)."""
+    model = make_model('unicycle', offset_l=0.01, max_accel=20.0, max_angular_accel=25.0)
+    return model, SafetyFilter(model, FilterConfig(
+        barrier='polyc2bf_footprint', footprint=JACKAL, gamma=5.0, max_reverse_speed=limit))
+
+
+def _post(x, y, radius=0.075):
+    """Return a BARN post as an octagon about (x, y)."""
+    angles = np.arange(8) * np.pi / 4
+    return Obstacle(polygon=np.c_[x + radius * np.cos(angles), y + radius * np.sin(angles)])
+
+
+def test_the_filter_backs_a_box_no_faster_than_max_reverse_speed():
+    """Backing at 0.67 m/s beside a post, asked to drive on and turn hard.
+
+    Unlimited, the filter backs faster to swing the nose clear (0.87 m/s); limited to
+    0.5 m/s, it sheds the excess at once, though the nominal asks for no reverse at all.
+    """
+    state = np.array([0.0, 0.0, 0.0, -0.673, -0.01])
+    command = np.array([0.963, -3.925])
+    obstacles = ObstacleSet.from_obstacles([_post(-0.316, 0.372)])
+    u_nom = (command - state[3:]) / FilterConfig.control_period
+    speeds = {}
+    for limit in (0.0, 0.5):
+        _, filt = _jackal_filter(limit)
+        u, _ = filt.step(state, obstacles, u_nom)
+        speeds[limit] = state[3] + FilterConfig.control_period * u[0]
+    assert speeds[0.0] < -0.8
+    assert speeds[0.5] >= -0.5 - 1e-9
+
+
+@SETTINGS
+@given(speed=st.floats(-1.5, 2.0), turn=st.floats(-3.0, 3.0), asked=st.floats(-1.0, 2.0),
+       asked_turn=st.floats(-4.0, 4.0),
+       posts=st.lists(st.tuples(st.floats(-0.7, 0.7), st.floats(-0.7, 0.7)), min_size=1,
+                      max_size=4))
+def test_every_step_keeps_the_reverse_limit_or_the_nominals_own(speed, turn, asked,
+                                                               asked_turn, posts):
+    """Every step: v + a T >= min(-v_r, v + a_nom T), or brakes hardest if backing faster."""
+    _, filt = _jackal_filter(0.5)
+    period = FilterConfig.control_period
+    state = np.array([0.0, 0.0, 0.0, speed, turn])
+    u_nom = (np.array([asked, asked_turn]) - state[3:]) / period
+    u, info = filt.step(state, ObstacleSet.from_obstacles([_post(*p) for p in posts]), u_nom)
+    floor = min(-0.5, speed + period * float(np.clip(u_nom[0], -20.0, 20.0)))
+    assert speed + period * u[0] >= min(floor, speed + period * 20.0) - 1e-7, info.status
