@@ -425,9 +425,9 @@ class SafetyFilter:
         self._upper = np.ascontiguousarray(model.input_upper, dtype=np.float64)
         # The step's input box: a unicycle's lower drive bound follows the reverse limit
         # (``_bound_reverse``), in place, so the row kernel's settings below see it.
-        self._reverse = (float(self.config.max_reverse_speed) or math.inf
-                         if model.name == 'unicycle' else math.inf)
-        self._drive_lower = float(self._lower[0])
+        reverse = float(self.config.max_reverse_speed)
+        self._reverse = reverse if reverse > 0.0 and model.name == 'unicycle' else math.inf
+        self._drive_box = (float(self._lower[0]), float(self._upper[0]))
         # Plain floats and bools, so every filter shares one compiled version of each kernel.
         self._row_settings = (float(self.config.margin), float(self.config.gamma),
                               self._lower, self._upper, bool(self.config.prune))
@@ -569,8 +569,8 @@ class SafetyFilter:
         period = self.config.control_period
         speed = float(state[3])
         floor = min(-self._reverse, speed + float(u_nom[0]) * period)
-        self._lower[0] = min(max((floor - speed) / period, self._drive_lower),
-                             float(self._upper[0]))
+        lowest, highest = self._drive_box
+        self._lower[0] = min(max((floor - speed) / period, lowest), highest)
 
     def _solve_rows(self, prepared, count, inside, ref, evaluation, u_nom, active):
         """Solve the QP on the step's ``count`` rows where the one-pass kernel could not.

@@ -18,6 +18,9 @@ def examples(count):
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 
+JACKAL = '[[0.254, 0.215], [-0.254, 0.215], [-0.254, -0.215], [0.254, -0.215]]'
+"""The Clearpath Jackal's 0.508 x 0.430 m body about its centre, Nav2's footprint string."""
+
 
 @st.composite
 def convex_polygons(draw, centre_range=6.0, min_size=0.2, max_size=2.0):

@@ -15,9 +15,7 @@ from polyc2bf_ros.core.geometry.footprint import (
 from polyc2bf_ros.core.geometry.polygons import signed_area
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.safety_filter import FilterConfig, SafetyFilter
-from strategies import convex_polygons
-
-JACKAL = '[[0.254, 0.215], [-0.254, 0.215], [-0.254, -0.215], [0.254, -0.215]]'
+from strategies import convex_polygons, JACKAL
 
 
 def test_a_nav2_footprint_string_is_read_as_a_counter_clockwise_polygon():

@@ -10,7 +10,7 @@ from polyc2bf_ros.core.models import make_model, MODEL_NAMES
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.qp.solver import QPSolver, QPStatus
 from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
-from strategies import convex_polygons, examples, random_state
+from strategies import convex_polygons, examples, JACKAL, random_state
 
 SETTINGS = settings(max_examples=examples(40), deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -335,13 +335,10 @@ def test_odd_array_layouts_give_the_same_step(model_name, barrier, seed, polygon
     np.testing.assert_array_equal(got.h, want.h)
 
 
-JACKAL = '[[0.254, 0.215], [-0.254, 0.215], [-0.254, -0.215], [0.254, -0.215]]'
-
-
 def _jackal_filter(limit):
     """Return a filter guarding the Jackal's box with its controller's limits (jackal.yaml)."""
     model = make_model('unicycle', offset_l=0.01, max_accel=20.0, max_angular_accel=25.0)
-    return model, SafetyFilter(model, FilterConfig(
+    return SafetyFilter(model, FilterConfig(
         barrier='polyc2bf_footprint', footprint=JACKAL, gamma=5.0, max_reverse_speed=limit))
 
 
@@ -363,7 +360,7 @@ def test_the_filter_backs_a_box_no_faster_than_max_reverse_speed():
     u_nom = (command - state[3:]) / FilterConfig.control_period
     speeds = {}
     for limit in (0.0, 0.5):
-        _, filt = _jackal_filter(limit)
+        filt = _jackal_filter(limit)
         u, _ = filt.step(state, obstacles, u_nom)
         speeds[limit] = state[3] + FilterConfig.control_period * u[0]
     assert speeds[0.0] < -0.8
@@ -378,7 +375,7 @@ def test_the_filter_backs_a_box_no_faster_than_max_reverse_speed():
 def test_every_step_keeps_the_reverse_limit_or_the_nominals_own(speed, turn, asked,
                                                                asked_turn, posts):
     """Every step: v + a T >= min(-v_r, v + a_nom T), or brakes hardest if backing faster."""
-    _, filt = _jackal_filter(0.5)
+    filt = _jackal_filter(0.5)
     period = FilterConfig.control_period
     state = np.array([0.0, 0.0, 0.0, speed, turn])
     u_nom = (np.array([asked, asked_turn]) - state[3:]) / period
