@@ -32,10 +32,11 @@ check on); or such a value with ``:no_braking`` (the braking check off).  ``eq7`
 measured too: the configurations of a case step interleaved (each its own
 rollout, the order rotating every step), and each row gives its p50 and p99 as
 ratios to eq. 7's of the same repeat.  ``check`` is the share of steps on which
-the braking check ran past its box test, ``evade`` the share on which the evasion
-looked ahead (a moving part near); both from the filter's own tests
-(``_far_from_all``, ``_moving_near``), asked again after the timed step, since the
-filter keeps no count.  Each case runs ``--repeats`` times; p50, p99 and the
+the braking check ran past its box test, ``paths`` the share on which it computed the
+braking paths (its stop bands did not certify the input), ``evade`` the share on which
+the evasion looked ahead (a moving part near); all from the filter's own tests
+(``_far_from_all``, ``_stop_certified``, ``_moving_near``), asked again after the timed
+step, since the filter keeps no count.  Each case runs ``--repeats`` times; p50, p99 and the
 ratios are the medians over the repeats, max the largest.
 
 Rebuild (``core_rebuild``): every new obstacle set (each obstacle message;
@@ -191,8 +192,8 @@ def make_filter(model_name, backend, period, configuration):
                                      **CONFIGURATIONS[configuration]))
 
 
-def check_and_evasion(filt, x, obstacles, age, status):
-    """Return (braking check ran, evasion looked ahead) on the step just taken, or None each.
+def check_and_evasion(filt, x, u, obstacles, age, status):
+    """Return (check ran, it computed paths, evasion looked) on the step just taken, or Nones.
 
     The filter keeps no count: its own quick tests are asked again on the same state and
     obstacle set (a cache hit), outside the timed step.  None: the filter has no such part
@@ -203,10 +204,12 @@ def check_and_evasion(filt, x, obstacles, age, status):
         prepared = filt._prepare(obstacles)
         checked = braking and status in CHECKED
         ran = checked and not filt._far_from_all(x, prepared, age)
+        computed = ran and not filt._stop_certified(x, u, prepared, age)
         looked = checked and evasion and filt._moving_near(x, prepared, age)
     except AttributeError:
-        return None, None
-    return (ran if braking else None), (looked if evasion else None)
+        return None, None, None
+    return ((ran if braking else None), (computed if braking else None),
+            (looked if evasion else None))
 
 
 class _Rollout:
@@ -227,7 +230,7 @@ class _Rollout:
         self.filter.step(self.x, obstacles, self.controller(self.x, self.goal))
         self.samples = np.empty(steps)
         self.statuses = {}
-        self.checks, self.evasions = [], []
+        self.checks, self.paths, self.evasions = [], [], []
 
     def step(self, i):
         """Time step ``i``, count what ran, and integrate the plant over the period."""
@@ -239,8 +242,10 @@ class _Rollout:
         self.samples[i] = time.perf_counter() - begin
         status = info.status.value
         self.statuses[status] = self.statuses.get(status, 0) + 1
-        ran, looked = check_and_evasion(self.filter, x, self.obstacles, age, status)
+        ran, computed, looked = check_and_evasion(self.filter, x, u, self.obstacles, age,
+                                                  status)
         self.checks.append(ran)
+        self.paths.append(computed)
         self.evasions.append(looked)
         for _ in range(self.substeps):
             x = rk4_step(self.model, x, u, self.period / self.substeps)
@@ -292,6 +297,7 @@ def time_case(model_name, backend, count, steps, rng, names=(DEFAULT, EQ7),
             'p50_us_runs': [round(v, 1) for v in p50[name]],
             'p99_us_runs': [round(v, 1) for v in p99[name]],
             'braking_check_share': _share(first.checks),
+            'braking_paths_share': _share(first.paths),
             'evasion_share': _share(first.evasions),
             'steps': steps, 'repeats': repeats, 'statuses': first.statuses,
             'kernels': KERNELS, 'load_avg_1min': round(os.getloadavg()[0], 2)})
@@ -413,7 +419,7 @@ def step_records(args, names, layout, counts):
     width = max(len(name) for name in [*names, 'configuration'])
     print(f'{"model":<10} {"backend":<10} {"layout":<9} {"N":>4} {"configuration":<{width}} '
           f'{"p50 us":>8} {"p99 us":>8} {"max us":>8} {"p50/eq7":>7} {"p99/eq7":>7} '
-          f'{"check":>6} {"evade":>6}  statuses')
+          f'{"check":>6} {"paths":>6} {"evade":>6}  statuses')
     for model_name in args.models:
         for backend in args.backends:
             for count in counts:
@@ -428,6 +434,7 @@ def step_records(args, names, layout, counts):
                           f'{record["p50_ratio_to_eq7"]:>7.2f} '
                           f'{record["p99_ratio_to_eq7"]:>7.2f} '
                           f'{_cell(record["braking_check_share"], 6, ".0%")} '
+                          f'{_cell(record["braking_paths_share"], 6, ".0%")} '
                           f'{_cell(record["evasion_share"], 6, ".0%")}  '
                           f'{record["statuses"]}', flush=True)
     return records

@@ -100,7 +100,7 @@ from polyc2bf_ros.core.barrier.obstacle_geometry import ObstacleGeometry
 from polyc2bf_ros.core.geometry.footprint import covering_radius, NO_FOOTPRINT, parse_footprint
 from polyc2bf_ros.core.geometry.views import choose_planes
 from polyc2bf_ros.core.kernels.barrier import tighten_for_obstacle_accel
-from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance
+from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance, stop_clear
 from polyc2bf_ros.core.kernels.cones import PLANE_ROWS
 from polyc2bf_ros.core.kernels.filter_rows import _active_parts, _rows_and_answer, ACTIVE_TOLERANCE
 from polyc2bf_ros.core.models import make_model, MODEL_NAMES, ReferenceKinematics
@@ -537,7 +537,8 @@ class SafetyFilter:
         if self._braking and status in (FilterStatus.OK, FilterStatus.RECOVERING,
                                         FilterStatus.SLACK, FilterStatus.ESCAPE):
             now = None
-            if not self._far_from_all(state, prepared, obstacle_age):
+            if not (self._stop_certified(state, u, prepared, obstacle_age)
+                    or self._far_from_all(state, prepared, obstacle_age)):
                 now = _BrakingNow(self, state, prepared, obstacle_age)
                 if self._must_brake(state, u, prepared, obstacle_age, now):
                     u, message = self._backup_input(state, u, prepared, obstacle_age, now,
@@ -661,6 +662,33 @@ class SafetyFilter:
             footprints.boxes, prepared.velocities, prepared.offsets, prepared.velocity_errors[0],
             self._braking_accel, max(abs(age), abs(age + duration)), float(state[0]),
             float(state[1]), reach + self._reach_margin, False)
+
+    def _stop_certified(self, state, u, prepared, age):
+        """Return True when the check surely keeps ``u``, its path bounded, not computed.
+
+        ``RobotModel.stop_bands`` bounds x+ and B(x+) under ``u`` (their rows' positions,
+        velocities by speed band, times); when no part, grown by its motion, comes within
+        the check's clearance of that box (``stop_clear``: c(B(x+)) is the margin, also
+        over the moving parts) and the cone model's pruning tests hold on every band
+        (``ConeModel.stop_skipped``: H(x+) >= 0), ``_must_brake`` returns False.  The same
+        decision, with none of its paths: among obstacles the stop's box mostly misses
+        them (``bench/bench_core.py --in-reach``).
+        """
+        period = self.config.control_period
+        bound = self._paths.stop_bands(state, u, period)
+        if bound is None:
+            return False
+        bands, rows = bound
+        first = age + period
+        last = first + rows * period
+        footprints = prepared.footprints
+        return stop_clear.unchecked(
+            bands, first, last, footprints.boxes, prepared.velocities, prepared.offsets,
+            prepared.steady, prepared.velocity_errors[0], self._braking_accel,
+            self._clearance + self._cover) and (
+            not self._barrier_check or self.cone_model.stop_skipped(
+                prepared.views[0].prepared, prepared.velocities, prepared.offsets, first, last,
+                bands))
 
     def _backup_input(self, state, u, prepared, age, now, count):
         """Return (input, message) once the braking check refused ``u``.

@@ -5,14 +5,19 @@ from hypothesis import given, settings, strategies as st
 
 from oracles import path_clearance_by_rows
 from polyc2bf_ros.core.barrier.cones import InflatedCone, PlanarPolygons
-from polyc2bf_ros.core.geometry.polygons import PolygonBatch, signed_distance
-from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance
+from polyc2bf_ros.core.geometry.polygons import convex_hull, PolygonBatch, signed_distance
+from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance, stop_clear
 from polyc2bf_ros.core.kernels.unicycle import _braking_after
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.models.base import RobotModel
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
-from polyc2bf_ros.core.safety_filter import FilterConfig, FilterStatus, SafetyFilter
-from strategies import convex_polygons, examples, long_path
+from polyc2bf_ros.core.safety_filter import (
+    _BrakingNow,
+    FilterConfig,
+    FilterStatus,
+    SafetyFilter,
+)
+from strategies import convex_polygons, examples, JACKAL, long_path
 
 PERIOD = 0.01
 POINT_BODY = (np.zeros((2, 0)), 0.0, np.empty(0))
@@ -306,10 +311,177 @@ def test_clear_around_promises_what_path_clearance_returns(polygons, seed, cutof
                         rho + cutoff, False)
 
 
-@pytest.mark.parametrize('wall_x, checked', [(1.0, True), (30.0, False)])
-def test_the_check_is_skipped_only_when_no_obstacle_is_within_reach(wall_x, checked,
-                                                                    monkeypatch):
-    """A wall 1 m ahead of a robot at 1 m/s is checked; one 30 m away is not."""
+@settings(max_examples=examples(200), deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), period=st.sampled_from([0.001, 0.01, 0.02, 0.05]),
+       offset=st.sampled_from([0.0, 0.01, 0.2, -0.1]), axle=st.booleans(),
+       plan=st.sampled_from([(1.0, 0.0), (0.65, 0.08)]), far=st.booleans())
+def test_stop_bands_hold_every_row_the_check_would_compute(seed, period, offset, axle, plan,
+                                                          far):
+    """``RobotModel.stop_bands`` bounds ``braking_after``'s rows without computing them.
+
+    Every row's position lies in the position box, its velocity in some band's box, |v|^2
+    and |omega| under the bounds, and the rows are no more than the count; also far from
+    the origin (rounding), turning fast, at rest, planned slower and later, and for the
+    axle's rows (a turning footprint).
+    """
+    rng = np.random.default_rng(seed)
+    model = make_model('unicycle', offset_l=offset).plan_braking(*plan)
+    paths = model.body_paths() if axle else model
+    state = np.array([*rng.uniform(-1, 1, 2) * (1e3 if far else 5.0),
+                      rng.uniform(-10, 10), rng.uniform(-2.5, 2.5), rng.uniform(-5.0, 5.0)])
+    state[3:] *= rng.random(2) < 0.8  # some at rest or not turning
+    u = rng.uniform(model.input_lower, model.input_upper)
+    bands, count = paths.stop_bands(state, u, period)
+    rows = paths.braking_after(state, u, period)
+    assert len(rows) <= count
+    low_x, high_x, low_y, high_y = bands[0, :4]
+    assert np.all((low_x <= rows[:, 0]) & (rows[:, 0] <= high_x))
+    assert np.all((low_y <= rows[:, 1]) & (rows[:, 1] <= high_y))
+    assert np.all(np.all(bands[:, :4] == bands[0, :4], axis=1))
+    inside = ((bands[None, :, 4] <= rows[:, 2, None]) & (rows[:, 2, None] <= bands[None, :, 5])
+              & (bands[None, :, 6] <= rows[:, 3, None]) & (rows[:, 3, None] <= bands[None, :, 7]))
+    assert np.all(inside.any(axis=1))
+    assert np.all(rows[:, 2] ** 2 + rows[:, 3] ** 2 <= bands[:, 8].max())
+    if axle:
+        assert np.all(np.abs(rows[:, 5]) <= bands[0, 9])
+    assert model.stop_bands(state, u, 2 * model.brake_time_constant) is None
+
+
+def _scene(rng, path, spread):
+    """Return 1-6 convex parts near ``path``, a third of them moving.
+
+    Each 0-``spread`` m beyond its size from a row, mostly the stop's end, so that some
+    come within the check's clearance of the stop and some just miss it.
+    """
+    obstacles = []
+    for _ in range(rng.integers(1, 7)):
+        size = rng.uniform(0.05, 0.6)
+        row = path[-1] if rng.random() < 0.7 else path[rng.integers(len(path))]
+        turn = rng.uniform(-np.pi, np.pi)
+        centre = row[:2] + (size + rng.uniform(0.0, spread)) * np.array(
+            [np.cos(turn), np.sin(turn)])
+        angles = np.sort(rng.uniform(0.0, 2 * np.pi, rng.integers(3, 9)))
+        polygon = convex_hull(centre + size * np.column_stack([np.cos(angles), np.sin(angles)]))
+        velocity = np.zeros(3)
+        if rng.random() < 0.3:
+            velocity[:2] = rng.uniform(-1.5, 1.5, 2)
+        obstacles.append(Obstacle(polygon=polygon, velocity=velocity))
+    return ObstacleSet.from_obstacles(obstacles)
+
+
+def _checked_filter(footprint, period):
+    """Return the disc's default filter, or a Jackal box's, counting moving parts' errors."""
+    extra = {'barrier': 'polyc2bf_footprint', 'footprint': JACKAL} if footprint else {}
+    return SafetyFilter(make_model('unicycle', offset_l=0.01), FilterConfig(
+        robot_radius=0.2, control_period=period, braking_obstacle_accel=1.0,
+        obstacle_velocity_error=0.1, **extra))
+
+
+def _random_motion(rng, filt):
+    """Return (state, input, obstacle age): up to 2.5 m/s, a third not turning."""
+    state = np.array([*rng.uniform(-0.5, 0.5, 2), rng.uniform(-4, 4),
+                      rng.uniform(-2.5, 2.5), rng.uniform(-3, 3) * (rng.random() < 0.7)])
+    u = rng.uniform(filt.model.input_lower, filt.model.input_upper)
+    return state, u, float(rng.uniform(0.0, 0.3))
+
+
+@settings(max_examples=examples(60), deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), footprint=st.booleans(),
+       period=st.sampled_from([0.001, 0.01]))
+def test_the_stop_bands_promise_what_the_computed_path_gives(seed, footprint, period):
+    """Each part of the certificate holds on the path it did not compute.
+
+    Where ``stop_clear`` passes, ``path_clearance`` of B(x+) is the cutoff for static and
+    moving parts; where the cone model's ``stop_skipped`` passes, H(x+) >= 0
+    (``min_h_along``): parts placed 0-0.6 m beyond their size from the stop, many within
+    the clearance and the horizon.
+    """
+    rng = np.random.default_rng(seed)
+    filt = _checked_filter(footprint, period)
+    for _ in range(20):
+        state, u, age = _random_motion(rng, filt)
+        rows = filt._paths.braking_after(state, u, period)
+        prepared = filt._prepare(_scene(rng, rows, 0.6))
+        bands, count = filt._paths.stop_bands(state, u, period)
+        first = age + period
+        last = first + count * period
+        footprints = prepared.footprints
+        if stop_clear(bands, first, last, footprints.boxes, prepared.velocities,
+                      prepared.offsets, prepared.steady, prepared.velocity_errors[0],
+                      filt._braking_accel, filt._clearance + filt._cover):
+            assert filt._path_clearance(rows[1:], prepared, first) == (filt._clearance,) * 2
+        if filt.cone_model.stop_skipped(prepared.views[0].prepared, prepared.velocities,
+                                        prepared.offsets, first, last, bands):
+            assert filt._min_h_along(rows[0], rows[1:], prepared, first) >= 0.0
+
+
+@settings(max_examples=examples(60), deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), footprint=st.booleans(),
+       period=st.sampled_from([0.001, 0.01]))
+def test_an_input_the_stop_bands_certify_is_one_the_check_keeps(seed, footprint, period):
+    """``SafetyFilter._stop_certified`` is True only where ``_must_brake`` is False.
+
+    Random states (up to 2.5 m/s, turning), inputs in the box and parts around the robot,
+    standing and moving (with the velocity error and acceleration the check counts),
+    for the guarded disc's horizon barrier and for a turning box footprint.
+    """
+    rng = np.random.default_rng(seed)
+    filt = _checked_filter(footprint, period)
+    for _ in range(20):
+        state, u, age = _random_motion(rng, filt)
+        prepared = filt._prepare(_scene(rng, filt.model.braking_after(state, u, period), 1.2))
+        if filt._stop_certified(state, u, prepared, age):
+            now = _BrakingNow(filt, state, prepared, age)
+            assert not filt._must_brake(state, u, prepared, age, now)
+
+
+@pytest.mark.parametrize('barrier', ['polyc2bf_horizon', 'polyc2bf_footprint'])
+def test_between_rows_of_parts_the_check_decides_without_a_path(barrier, monkeypatch):
+    """Driving between two rows of parts, the stop bands certify every step's input.
+
+    And the filter's inputs are those of the check computing every path, bit for bit
+    (``_stop_certified`` replaced by False).  A wall inside the stop is not certified.
+    """
+    def rollout(certify):
+        extra = {'footprint': JACKAL} if barrier == 'polyc2bf_footprint' else {}
+        filt = SafetyFilter(make_model('unicycle', offset_l=0.01), FilterConfig(
+            barrier=barrier, robot_radius=0.2, control_period=PERIOD, **extra))
+        certified = []
+        original = filt._stop_certified
+
+        def spy(*args):
+            certified.append(original(*args))
+            return certified[-1] and certify
+        monkeypatch.setattr(filt, '_stop_certified', spy)
+        state, inputs = np.array([0.0, 0.0, 0.02, 0.0, 0.0]), []
+        for _ in range(300):
+            u, _ = filt.step(state, rows, np.array([1.0, -0.5 * state[2] - state[4]]))
+            inputs.append(u)
+            state = filt.model.one_period(state, u, PERIOD)
+        return np.array(inputs), certified, filt
+
+    rows = ObstacleSet.from_obstacles([
+        Obstacle(polygon=np.array([[x, low], [x + 0.3, low], [x + 0.3, low + 0.4],
+                                   [x, low + 0.4]]))
+        for x in np.arange(-0.3, 6.0, 0.6) for low in (1.0, -1.4)])
+    fast, certified, filt = rollout(True)
+    slow, checked, _ = rollout(False)
+    assert len(certified) >= 100 and all(certified)
+    assert np.array_equal(fast, slow) and checked == certified
+    wall = ObstacleSet.from_obstacles([Obstacle(polygon=np.array(
+        [[0.5, -1.0], [0.7, -1.0], [0.7, 1.0], [0.5, 1.0]]))])
+    moving = np.array([0.0, 0.0, 0.0, 1.0, 0.0])
+    assert not filt._stop_certified(moving, np.zeros(2), filt._prepare(wall), 0.0)
+
+
+@pytest.mark.parametrize('wall_x, checked', [(0.4, True), (1.0, False), (30.0, False)])
+def test_the_check_computes_paths_only_when_an_obstacle_is_within_reach(wall_x, checked,
+                                                                        monkeypatch):
+    """A wall 0.4 m ahead of a robot at 1 m/s is checked, one 1 m or 30 m ahead is not.
+
+    One 1 m ahead is beyond its stop (``_stop_certified``), one 30 m away beyond any
+    (``_far_from_all``).
+    """
     filt, _ = _wall_ahead_filter(True)
     wall = Obstacle(polygon=np.array([[wall_x, -2.0], [wall_x + 0.2, -2.0],
                                       [wall_x + 0.2, 2.0], [wall_x, 2.0]]))

@@ -213,6 +213,16 @@ class ConeModel(abc.ABC):
         """
         return math.inf
 
+    def stop_skipped(self, prepared, velocities, offsets, first_time, last_time, bands):
+        """Return True when ``min_h_along`` is surely >= 0 on every path ``bands`` bound.
+
+        ``bands`` (``RobotModel.stop_bands``) hold every row, the start at ``first_time``
+        and the last row by ``last_time``; the braking check then keeps an input without
+        computing its path (``SafetyFilter._stop_certified``).  True here, where
+        ``min_h_along`` is +inf.
+        """
+        return True
+
 
 class _PolygonCone(ConeModel):
     """PolyC2BF cones of (prepared) polygons, silhouette segment extended by ``extension``."""

@@ -63,7 +63,7 @@ import numpy as np
 from polyc2bf_ros.core.barrier.cones import InflatedCone
 from polyc2bf_ros.core.geometry.footprint import covering_radius
 from polyc2bf_ros.core.kernels.footprint import _footprint_exits, _footprint_plane
-from polyc2bf_ros.core.kernels.footprint_path import footprint_min_h_along
+from polyc2bf_ros.core.kernels.footprint_path import footprint_min_h_along, stop_sweeps_past
 
 
 class FootprintCone(InflatedCone):
@@ -112,6 +112,12 @@ class FootprintCone(InflatedCone):
         """Run the exit kernel on C(theta) (class docstring)."""
         _footprint_exits(prepared.x, prepared.y, prepared.counts, self._points, self._heading,
                          viewpoints, out)
+
+    def stop_skipped(self, prepared, velocities, offsets, first_time, last_time, bands):
+        """Return ``stop_sweeps_past`` (the kernel) on the axle's ``bands``."""
+        return stop_sweeps_past.unchecked(bands, float(first_time), float(last_time),
+                                          prepared.boxes, velocities, offsets, self._cover,
+                                          1.0 / self.horizon)
 
     def min_h_along(self, prepared, velocities, offsets, age, start, path, period,
                     velocity_epsilon, checked=True):

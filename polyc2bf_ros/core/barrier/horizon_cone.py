@@ -58,7 +58,12 @@ Two cone axes (``axis``), both on the inflated polygon (``cones.InflatedCone``):
 """
 
 from polyc2bf_ros.core.barrier.cones import InflatedCone
-from polyc2bf_ros.core.kernels.horizon import _horizon_cones, _horizon_plane, min_h_along
+from polyc2bf_ros.core.kernels.horizon import (
+    _horizon_cones,
+    _horizon_plane,
+    min_h_along,
+    stop_heads_past,
+)
 
 AXES = ('midpoint', 'bisector')
 
@@ -95,6 +100,12 @@ class HorizonCone(InflatedCone):
                       prepared.inv_sq, prepared.counts, prepared.boxes, 1.0 / self.horizon,
                       self.axis == 'bisector', velocities, offsets, float(age), start, path,
                       float(period), velocity_epsilon * velocity_epsilon)
+
+    def stop_skipped(self, prepared, velocities, offsets, first_time, last_time, bands):
+        """Return ``stop_heads_past`` (the kernel); False on the midpoint axis (no pruning)."""
+        return self.axis == 'bisector' and stop_heads_past.unchecked(
+            bands, float(first_time), float(last_time), prepared.boxes, velocities, offsets,
+            1.0 / self.horizon)
 
     def fill_plane(self, prepared, projections, velocities, offsets, age, reference,
                    velocity_epsilon, block, valid, checked):

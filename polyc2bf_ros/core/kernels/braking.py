@@ -308,6 +308,26 @@ def group_skipped(group, boxes, velocities, offsets, accelerations, velocity_err
 
 
 
+@kernel(signature('b1', F2, 'f8', 'f8', F2, F2, F2, F2, F1, 'f8', 'f8'))
+def stop_clear(bands, first_time, last_time, boxes, velocities, offsets, accelerations,
+               velocity_errors, accel, reach):
+    """Return True when every part stays farther than ``reach`` from a stop's position box.
+
+    ``bands`` (``RobotModel.stop_bands``): its rows at times in [first_time, last_time]
+    lie in ``bands[0]``'s position box, which holds ``path_box`` of them; ``part_prospect``
+    grows each part by what it may move by the larger time (monotone in it).  Far from
+    every part, ``path_clearance`` of those rows with cutoff + cover <= ``reach``
+    measures none and returns (cutoff, cutoff).
+    """
+    bounds = bands[0, 0], bands[0, 1], bands[0, 2], bands[0, 3]
+    for n in range(boxes.shape[0]):
+        if not part_prospect(boxes, velocities, offsets, accelerations, velocity_errors, n,
+                             accel, first_time, last_time, reach, bounds)[1]:
+            return False
+    return True
+
+
+
 @kernel(signature('b1', F2, F2, F2, F1, 'f8', 'f8', 'f8', 'f8', 'f8', 'b1'))
 def clear_around(boxes, velocities, offsets, velocity_errors, accel, elapsed, cx, cy, reach,
                  moving_only):

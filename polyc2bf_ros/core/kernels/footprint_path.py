@@ -115,6 +115,44 @@ def _group_sweeps_past(box, cover, qx, qy, dx, dy, spread):
 
 
 
+@kernel(signature('b1', F2, 'f8', 'f8', F2, F2, F2, 'f8', 'f8'))
+def stop_sweeps_past(bands, first_time, last_time, boxes, velocities, offsets, cover,
+                     inv_horizon):
+    """Return True when ``footprint_min_h_along`` skips every row a stop's bands hold.
+
+    ``bands`` (``RobotModel.stop_bands`` of the axle): every row, the start too, at a
+    time in [first_time, last_time], has its axle in the bands' box, its velocity in one
+    band's and |omega| at most column 9; each band passes the group tests
+    (``_far_from_box``, ``_group_sweeps_past``) for every part, so every row's tests hold
+    and the minimum is +inf.
+    """
+    square, turn = bands[0, 8], bands[0, 9]
+    for b in range(1, bands.shape[0]):
+        square, turn = max(square, bands[b, 8]), max(turn, bands[b, 9])
+    moved = max(abs(first_time), abs(last_time))
+    for n in range(boxes.shape[0]):
+        ovx, ovy, ox, oy = velocities[n, 0], velocities[n, 1], offsets[n, 0], offsets[n, 1]
+        obstacle_speed = math.hypot(ovx, ovy)
+        box = boxes[n]
+        reach = moved * obstacle_speed
+        if _far_from_box(box, cover, (bands[0, 0] - ox - reach, bands[0, 1] - ox + reach),
+                         (bands[0, 2] - oy - reach, bands[0, 3] - oy + reach), square, turn,
+                         obstacle_speed, inv_horizon):
+            continue  # footprint_min_h_along's own test on the whole path
+        for b in range(bands.shape[0]):
+            band = bands[b]
+            low_qx, high_qx, low_qy, high_qy = group_box(band, first_time, last_time, ovx,
+                                                         ovy, ox, oy)
+            if not (_far_from_box(box, cover, (low_qx, high_qx), (low_qy, high_qy), band[8],
+                                  band[9], obstacle_speed, inv_horizon)
+                    or _group_sweeps_past(box, cover, (low_qx, high_qx), (low_qy, high_qy),
+                                          (band[4] - ovx, band[5] - ovx),
+                                          (band[6] - ovy, band[7] - ovy), band[9] * cover)):
+                return False
+    return True
+
+
+
 @kernel(signature('f8', F2, F2, I1, F2, F2, 'f8', 'f8', 'f8', F2, F2, 'f8', F1, F2, 'f8'))
 def footprint_min_h_along(x, y, counts, boxes, footprint, cover, inv_horizon, eps_sq,
                           velocities, offsets, age, start, path, period):

@@ -4,6 +4,8 @@ The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_
 """
 import math
 
+import numpy as np
+
 from polyc2bf_ros.core.kernels.barrier import barrier_column, plane_motion, store_input_column
 from polyc2bf_ros.core.kernels.braking import (
     box_gap,
@@ -261,6 +263,67 @@ def _group_heads_past(group, box, first_time, last_time, ovx, ovy, ox, oy, inv_h
     ahead_x = _product_range(low_dx, high_dx, front_x - high_qx, front_x - low_qx)
     ahead_y = _product_range(low_dy, high_dy, front_y - high_qy, front_y - low_qy)
     return ahead_x[1] + ahead_y[1] <= 0.0
+
+
+
+@kernel(signature('b1', F2, 'f8', 'f8', F2, F2, F2, 'f8'))
+def stop_heads_past(bands, first_time, last_time, boxes, velocities, offsets, inv_horizon):
+    """Return True when ``min_h_along`` (bisector axis) skips every row a stop's bands hold.
+
+    ``bands`` (``RobotModel.stop_bands``): every row, the start too, at a time in
+    [first_time, last_time], has its position in the bands' box and its velocity in one
+    band's; each band passes ``_group_heads_past`` for every part, whole or split where
+    d = p_dot - o_dot changes sign (``_split_heads_past``).  Then every row's point tests
+    hold and the minimum is +inf.
+    """
+    part = np.empty(9)
+    square = bands[0, 8]
+    for b in range(1, bands.shape[0]):
+        square = max(square, bands[b, 8])
+    fastest = math.sqrt(square)
+    moved = max(abs(first_time), abs(last_time))
+    for n in range(boxes.shape[0]):
+        ovx, ovy, ox, oy = velocities[n, 0], velocities[n, 1], offsets[n, 0], offsets[n, 1]
+        box = boxes[n, 0], boxes[n, 1], boxes[n, 2], boxes[n, 3]
+        obstacle_speed = math.sqrt(ovx * ovx + ovy * ovy)
+        reach = moved * obstacle_speed
+        if inv_horizon * box_gap(bands[0, 0] - ox - reach, bands[0, 1] - ox + reach,
+                                 bands[0, 2] - oy - reach, bands[0, 3] - oy + reach,
+                                 box) >= fastest + obstacle_speed:
+            continue  # min_h_along's own test on the whole path
+        for b in range(bands.shape[0]):
+            if not (_group_heads_past(bands[b], box, first_time, last_time, ovx, ovy, ox, oy,
+                                      inv_horizon)
+                    or _split_heads_past(bands[b], part, box, first_time, last_time, ovx,
+                                         ovy, ox, oy, inv_horizon)):
+                return False
+    return True
+
+
+
+@kernel
+def _split_heads_past(band, part, box, first_time, last_time, ovx, ovy, ox, oy, inv_horizon):
+    """Return True when ``_group_heads_past`` holds on each sign class of a band's d.
+
+    d_x = p_dot_x - o_dot_x > 0 exactly where p_dot_x > o_dot_x (a rounded difference has
+    the exact one's sign): [low, o_dot_x] and [next float above o_dot_x, high] split a
+    range that holds o_dot_x; the same in y.  ``part`` (9,) is scratch.
+    """
+    part[0], part[1], part[2], part[3] = band[0], band[1], band[2], band[3]
+    x_split = band[4] <= ovx < band[5]
+    y_split = band[6] <= ovy < band[7]
+    if not (x_split or y_split):
+        return False
+    for side_x in range(2 if x_split else 1):
+        part[4] = np.nextafter(ovx, math.inf) if x_split and side_x else band[4]
+        part[5] = ovx if x_split and not side_x else band[5]
+        for side_y in range(2 if y_split else 1):
+            part[6] = np.nextafter(ovy, math.inf) if y_split and side_y else band[6]
+            part[7] = ovy if y_split and not side_y else band[7]
+            if not _group_heads_past(part, box, first_time, last_time, ovx, ovy, ox, oy,
+                                     inv_horizon):
+                return False
+    return True
 
 
 

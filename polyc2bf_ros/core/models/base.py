@@ -161,6 +161,18 @@ class RobotModel(abc.ABC):
             return None
         return np.vstack((self.point_row(after), path))
 
+    def stop_bands(self, x, u, period):
+        """Return (bands, rows): bounds of ``braking_after(x, u, period)``'s rows, uncomputed.
+
+        ``bands`` (B, 10), rows as ``kernels.braking.path_groups`` gives them and the
+        largest |omega|: every row lies in row 0's position box, and its velocity in the
+        velocity box of at least one band (``kernels.unicycle._stop_bands``); ``rows``
+        bounds how many rows there are.
+        The braking check keeps an input without computing its path when these clear every
+        part (``SafetyFilter._stop_certified``).  None: no bound.
+        """
+        return None
+
     def held_path(self, x, u, step, rows):
         """Return (path, state): the point's path with ``u`` held from x, and its last state.
 

@@ -26,6 +26,7 @@ from polyc2bf_ros.core.kernels.unicycle import (
     _braking_path,
     _held_path,
     _offset_point,
+    _stop_bands,
 )
 from polyc2bf_ros.core.models.base import (
     damped_brake,
@@ -33,6 +34,11 @@ from polyc2bf_ros.core.models.base import (
     register_model,
     RobotModel,
 )
+
+STOP_BANDS = 6
+"""Speed bands of ``stop_bands``: |v| in [V / 2, V], ..., [0, V / 32].  The barrier's tests
+need a band slow enough to lie tau |v| from a part, and bands fast enough to keep the
+direction of motion: six cover a stop from 2 m/s down to 6 cm/s."""
 
 
 @register_model
@@ -65,6 +71,7 @@ class Unicycle(RobotModel):
         self.input_lower = -self.input_upper
         self._limits = (float(max_accel), float(max_angular_accel))  # plain floats: per step
         self.brake_time_constant = float(brake_time_constant)
+        self._bands = np.empty((STOP_BANDS, 10))
         self.plan_braking()
 
     @property
@@ -144,6 +151,21 @@ class Unicycle(RobotModel):
                 return out[:rows]
             out = np.empty((-rows, columns))
 
+    def stop_bands(self, x, u, period):
+        """Return the reference point's ``RobotModel.stop_bands``; None when T > tau."""
+        return self._stop_bands(x, u, period, self.offset_l)
+
+    def _stop_bands(self, x, u, period, offset):
+        """Return ``stop_bands`` of the point ``offset`` ahead of the axle."""
+        if period > self.brake_time_constant:
+            return None
+        # Unchecked: as_state, the input, braking_limits and the bands are C-contiguous.
+        rows = _stop_bands.unchecked(self.as_state(x), np.ascontiguousarray(u, dtype=np.float64),
+                                     offset, self.braking_limits,
+                                     self.brake_time_constant / self.braking_share,
+                                     self.braking_coast, float(period), self._bands)
+        return self._bands, rows
+
     def held_path(self, x, u, step, rows):
         """Return the reference point's path with ``u`` held (``RobotModel.held_path``)."""
         return self._held_rows(x, u, step, rows, self.offset_l, 4)
@@ -209,6 +231,10 @@ class AxlePaths:
     def braking_after(self, x, u, period):
         """Return the axle at x+, then its rows under the brake (``braking_after``)."""
         return self.model._brake_after_rows(x, u, period, 0.0, self.columns)
+
+    def stop_bands(self, x, u, period):
+        """Return the axle's ``RobotModel.stop_bands`` (offset 0)."""
+        return self.model._stop_bands(x, u, period, 0.0)
 
     def held_path(self, x, u, step, rows):
         """Return the axle's rows with ``u`` held, and the last state (``held_path``)."""
