@@ -685,7 +685,7 @@ class SafetyFilter:
         return stop_clear.unchecked(
             bands, first, last, footprints.boxes, prepared.velocities, prepared.offsets,
             prepared.steady, prepared.velocity_errors[0], self._braking_accel,
-            self._clearance + self._cover) and (
+            self._clearance, self._cover, False) and (
             not self._barrier_check or self.cone_model.stop_skipped(
                 prepared.views[0].prepared, prepared.velocities, prepared.offsets, first, last,
                 bands))
@@ -791,6 +791,8 @@ class SafetyFilter:
         a base that lags stops later than planned, and sooner from a slower evasion
         (``_speed_limit``).
         """
+        if self._look_ahead_clear(state, u, prepared, age):
+            return None
         static, moving = self._look_ahead(
             self._then_brake(np.zeros((0, self._paths.columns)),
                              self.model.one_period(state, u, self.config.control_period), 1),
@@ -816,6 +818,23 @@ class SafetyFilter:
                     f'{self.config.evasion_horizon:g} s, the filter input '
                     f'{held - self._contact:.2f} m')
         return None
+
+    def _look_ahead_clear(self, state, u, prepared, age):
+        """Return True when ``u``'s look ahead surely keeps the clearance of every moving part.
+
+        Its rows are rows of B(x+) (then the last at rest) at age + step ... age + H, so
+        inside ``RobotModel.stop_bands``' box; ``stop_clear`` over the moving parts, at
+        their stated accelerations and velocity errors, with the check's clearance, gives
+        ``_evade``'s own answer (no evasion) without computing the look ahead.
+        """
+        bound = self._paths.stop_bands(state, u, self.config.control_period)
+        if bound is None:
+            return False
+        footprints = prepared.footprints
+        return stop_clear.unchecked(
+            bound[0], age + self._evasion_step, age + self._evasion_rows * self._evasion_step,
+            footprints.boxes, prepared.velocities, prepared.offsets, prepared.accelerations,
+            prepared.velocity_errors[1], 0.0, self._clearance, self._cover, True)
 
     def _evasion_score(self, state, candidate, prepared, age, limit):
         """Return the better smallest clearance of ``candidate``'s look aheads (``_evade``).

@@ -362,10 +362,12 @@ def _scene(rng, path, spread):
             [np.cos(turn), np.sin(turn)])
         angles = np.sort(rng.uniform(0.0, 2 * np.pi, rng.integers(3, 9)))
         polygon = convex_hull(centre + size * np.column_stack([np.cos(angles), np.sin(angles)]))
-        velocity = np.zeros(3)
+        velocity, acceleration = np.zeros(3), None
         if rng.random() < 0.3:
             velocity[:2] = rng.uniform(-1.5, 1.5, 2)
-        obstacles.append(Obstacle(polygon=polygon, velocity=velocity))
+            acceleration = rng.uniform(-1.0, 1.0, 2) * (rng.random() < 0.5)
+        obstacles.append(Obstacle(polygon=polygon, velocity=velocity,
+                                  acceleration=acceleration))
     return ObstacleSet.from_obstacles(obstacles)
 
 
@@ -393,8 +395,9 @@ def test_the_stop_bands_promise_what_the_computed_path_gives(seed, footprint, pe
 
     Where ``stop_clear`` passes, ``path_clearance`` of B(x+) is the cutoff for static and
     moving parts; where the cone model's ``stop_skipped`` passes, H(x+) >= 0
-    (``min_h_along``): parts placed 0-0.6 m beyond their size from the stop, many within
-    the clearance and the horizon.
+    (``min_h_along``); where ``_look_ahead_clear`` passes, the evasion's look ahead of the
+    input keeps the clearance of the moving parts (some speeding up).  Parts placed 0-0.6 m
+    beyond their size from the stop, many within the clearance and the horizon.
     """
     rng = np.random.default_rng(seed)
     filt = _checked_filter(footprint, period)
@@ -408,11 +411,15 @@ def test_the_stop_bands_promise_what_the_computed_path_gives(seed, footprint, pe
         footprints = prepared.footprints
         if stop_clear(bands, first, last, footprints.boxes, prepared.velocities,
                       prepared.offsets, prepared.steady, prepared.velocity_errors[0],
-                      filt._braking_accel, filt._clearance + filt._cover):
+                      filt._braking_accel, filt._clearance, filt._cover, False):
             assert filt._path_clearance(rows[1:], prepared, first) == (filt._clearance,) * 2
         if filt.cone_model.stop_skipped(prepared.views[0].prepared, prepared.velocities,
                                         prepared.offsets, first, last, bands):
             assert filt._min_h_along(rows[0], rows[1:], prepared, first) >= 0.0
+        if filt._look_ahead_clear(state, u, prepared, age):
+            look_ahead = filt._then_brake(np.zeros((0, filt._paths.columns)),
+                                          filt.model.one_period(state, u, period), 1)
+            assert filt._look_ahead(look_ahead, prepared, age)[1] >= filt._clearance
 
 
 @settings(max_examples=examples(60), deadline=None)

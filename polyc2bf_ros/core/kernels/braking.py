@@ -308,21 +308,31 @@ def group_skipped(group, boxes, velocities, offsets, accelerations, velocity_err
 
 
 
-@kernel(signature('b1', F2, 'f8', 'f8', F2, F2, F2, F2, F1, 'f8', 'f8'))
+@kernel(signature('b1', F2, 'f8', 'f8', F2, F2, F2, F2, F1, 'f8', 'f8', 'f8', 'b1'))
 def stop_clear(bands, first_time, last_time, boxes, velocities, offsets, accelerations,
-               velocity_errors, accel, reach):
-    """Return True when every part stays farther than ``reach`` from a stop's position box.
+               velocity_errors, accel, cutoff, cover, moving_only):
+    """Return True when no row of a stop can come within ``cutoff`` of a part.
 
-    ``bands`` (``RobotModel.stop_bands``): its rows at times in [first_time, last_time]
-    lie in ``bands[0]``'s position box, which holds ``path_box`` of them; ``part_prospect``
-    grows each part by what it may move by the larger time (monotone in it).  Far from
-    every part, ``path_clearance`` of those rows with cutoff + cover <= ``reach``
-    measures none and returns (cutoff, cutoff).
+    ``bands`` (``RobotModel.stop_bands``): rows at times in [first_time, last_time] that
+    lie in ``bands[0]``'s position box, which holds ``path_box`` of them and the box of
+    each of their groups.  A part is passed when ``part_prospect`` finds it farther than
+    ``cutoff`` + ``cover`` (grown by what it may move by the larger time), or when
+    ``group_skipped`` passes the whole box as one group against ``cutoff`` (its motion
+    over the times as a shift): both are monotone in the box and the times, so they
+    pass each group ``path_clearance`` forms, and with a ``cutoff`` at most its own it
+    returns (cutoff, cutoff), or (for a look ahead with a larger one) values at least
+    this ``cutoff``.  ``moving_only``: the standing parts are not asked.
     """
     bounds = bands[0, 0], bands[0, 1], bands[0, 2], bands[0, 3]
     for n in range(boxes.shape[0]):
-        if not part_prospect(boxes, velocities, offsets, accelerations, velocity_errors, n,
-                             accel, first_time, last_time, reach, bounds)[1]:
+        moving, far = part_prospect(boxes, velocities, offsets, accelerations,
+                                    velocity_errors, n, accel, first_time, last_time,
+                                    cutoff + cover, bounds)
+        if far or (moving_only and not moving):
+            continue
+        if not group_skipped(bands[0], boxes, velocities, offsets, accelerations,
+                             velocity_errors, n, moving, accel, first_time, last_time, cover,
+                             cutoff):
             return False
     return True
 
