@@ -116,6 +116,18 @@ def sorted_pair(a, b):
 
 
 @kernel
+def product_range(low_a, high_a, low_b, high_b):
+    """Return (min, max) of the rounded a b over a in [low_a, high_a], b in [low_b, high_b].
+
+    a b is bilinear, so both lie at corners, and rounding is monotone: so are they rounded.
+    """
+    first, second = sorted_pair(low_a * low_b, low_a * high_b)
+    third, fourth = sorted_pair(high_a * low_b, high_a * high_b)
+    return min(first, third), max(second, fourth)
+
+
+
+@kernel
 def group_box(group, first_time, last_time, vx, vy, ox, oy):
     """Return (low x, high x, low y, high y) of a group's points relative to a moving part.
 

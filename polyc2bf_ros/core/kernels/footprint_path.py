@@ -8,14 +8,19 @@ import math
 
 import numpy as np
 
-from polyc2bf_ros.core.kernels.braking import box_gap, group_box, group_size, path_groups
+from polyc2bf_ros.core.kernels.braking import (
+    box_gap,
+    group_box,
+    group_size,
+    path_groups,
+    product_range,
+)
 from polyc2bf_ros.core.kernels.cones import PLANE_ROWS, silhouette
 from polyc2bf_ros.core.kernels.footprint import (
     _footprint_column,
     configuration_polygon,
     nearest_boundary,
 )
-from polyc2bf_ros.core.kernels.horizon import _product_range
 from polyc2bf_ros.core.kernels.jit import F1, F2, I1, kernel, signature
 
 
@@ -90,7 +95,7 @@ def _group_sweeps_past(box, cover, qx, qy, dx, dy, spread):
     The group's axles lie in qx x qy (``group_box``), its d in dx x dy and its spreads are
     at most ``spread``.  Per corner, r = corner - q ranges over the corner less that box,
     |r| is at most its farthest point's, and cross(d, r), <d, r> range over
-    ``_product_range``'s sums; each bound is the row test's own arithmetic on the group's
+    ``product_range``'s sums; each bound is the row test's own arithmetic on the group's
     ends, and rounding is monotone, so a test that holds here holds at each row as
     ``_sweeps_past`` computes it.
     """
@@ -102,12 +107,12 @@ def _group_sweeps_past(box, cover, qx, qy, dx, dy, spread):
         low_ry, high_ry = corner_y - qy[1], corner_y - qy[0]
         reach = spread * math.sqrt(max(low_rx * low_rx, high_rx * high_rx)
                                    + max(low_ry * low_ry, high_ry * high_ry))
-        low_a, high_a = _product_range(dx[0], dx[1], low_ry, high_ry)
-        low_b, high_b = _product_range(dy[0], dy[1], low_rx, high_rx)
+        low_a, high_a = product_range(dx[0], dx[1], low_ry, high_ry)
+        low_b, high_b = product_range(dy[0], dy[1], low_rx, high_rx)
         left = left and (low_a - high_b) - reach > 0.0
         right = right and (high_a - low_b) + reach < 0.0
-        ahead_x = _product_range(dx[0], dx[1], low_rx, high_rx)[1]
-        ahead_y = _product_range(dy[0], dy[1], low_ry, high_ry)[1]
+        ahead_x = product_range(dx[0], dx[1], low_rx, high_rx)[1]
+        ahead_y = product_range(dy[0], dy[1], low_ry, high_ry)[1]
         behind = behind and (ahead_x + ahead_y) + reach < 0.0
         if not (left or right or behind):
             return False

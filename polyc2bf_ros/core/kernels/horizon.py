@@ -12,7 +12,7 @@ from polyc2bf_ros.core.kernels.braking import (
     group_box,
     group_size,
     path_groups,
-    sorted_pair,
+    product_range,
 )
 from polyc2bf_ros.core.kernels.cones import (
     midpoint_cone,
@@ -212,18 +212,6 @@ def _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon, 
 
 
 @kernel
-def _product_range(low_a, high_a, low_b, high_b):
-    """Return (min, max) of the rounded a b over a in [low_a, high_a], b in [low_b, high_b].
-
-    a b is bilinear, so both lie at corners, and rounding is monotone: so are they rounded.
-    """
-    first, second = sorted_pair(low_a * low_b, low_a * high_b)
-    third, fourth = sorted_pair(high_a * low_b, high_a * high_b)
-    return min(first, third), max(second, fourth)
-
-
-
-@kernel
 def _group_heads_past(group, box, first_time, last_time, ovx, ovy, ox, oy, inv_horizon):
     """Return True when ``min_h_along``'s point tests skip every row of a group.
 
@@ -234,7 +222,7 @@ def _group_heads_past(group, box, first_time, last_time, ovx, ovy, ox, oy, inv_h
     Far: inv_tau gap(group box) >= |w| at the largest |w_x|, |w_y| of the group.  Heads
     past (``_misses_box`` along d = -w): where the signs of d_x, d_y are the same at every
     row, the three corners are, and one of the three tests holds for all rows: its two
-    products' ranges (``_product_range``) do not overlap (a rounded difference or sum of
+    products' ranges (``product_range``) do not overlap (a rounded difference or sum of
     two floats has the sign of the exact one).
     """
     low_qx, high_qx, low_qy, high_qy = group_box(group, first_time, last_time, ovx, ovy,
@@ -252,16 +240,16 @@ def _group_heads_past(group, box, first_time, last_time, ovx, ovy, ox, oy, inv_h
     right_x, right_y = (high_x if low_dy > 0.0 else low_x), (low_y if low_dx > 0.0 else high_y)
     left_x, left_y = (low_x if low_dy > 0.0 else high_x), (high_y if low_dx > 0.0 else low_y)
     front_x, front_y = (high_x if low_dx > 0.0 else low_x), (high_y if low_dy > 0.0 else low_y)
-    cross_y = _product_range(low_dx, high_dx, right_y - high_qy, right_y - low_qy)
-    cross_x = _product_range(low_dy, high_dy, right_x - high_qx, right_x - low_qx)
+    cross_y = product_range(low_dx, high_dx, right_y - high_qy, right_y - low_qy)
+    cross_x = product_range(low_dy, high_dy, right_x - high_qx, right_x - low_qx)
     if cross_y[0] > cross_x[1]:
         return True
-    cross_y = _product_range(low_dx, high_dx, left_y - high_qy, left_y - low_qy)
-    cross_x = _product_range(low_dy, high_dy, left_x - high_qx, left_x - low_qx)
+    cross_y = product_range(low_dx, high_dx, left_y - high_qy, left_y - low_qy)
+    cross_x = product_range(low_dy, high_dy, left_x - high_qx, left_x - low_qx)
     if cross_y[1] < cross_x[0]:
         return True
-    ahead_x = _product_range(low_dx, high_dx, front_x - high_qx, front_x - low_qx)
-    ahead_y = _product_range(low_dy, high_dy, front_y - high_qy, front_y - low_qy)
+    ahead_x = product_range(low_dx, high_dx, front_x - high_qx, front_x - low_qx)
+    ahead_y = product_range(low_dy, high_dy, front_y - high_qy, front_y - low_qy)
     return ahead_x[1] + ahead_y[1] <= 0.0
 
 

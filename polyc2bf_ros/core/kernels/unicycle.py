@@ -4,7 +4,7 @@ The math in compiled form; every kernel lives in ``core/kernels`` (``jit.kernel_
 """
 import math
 
-from polyc2bf_ros.core.kernels.horizon import _product_range
+from polyc2bf_ros.core.kernels.braking import product_range
 from polyc2bf_ros.core.kernels.jit import F1, F2, kernel, signature
 
 
@@ -129,14 +129,14 @@ def _stop_bands(x, u, offset, limits, time_constant, coast, period, out):
         top = speed * 0.5 ** b
         bottom = 0.0 if b == bands - 1 else 0.5 * top
         drive = (bottom, top) if v >= 0.0 else (-top, -bottom)
-        low_vx = _product_range(drive[0], drive[1], low_c, high_c)[0] \
-            - _product_range(spin[0], spin[1], low_s, high_s)[1] - blur
-        high_vx = _product_range(drive[0], drive[1], low_c, high_c)[1] \
-            - _product_range(spin[0], spin[1], low_s, high_s)[0] + blur
-        low_vy = _product_range(drive[0], drive[1], low_s, high_s)[0] \
-            + _product_range(spin[0], spin[1], low_c, high_c)[0] - blur
-        high_vy = _product_range(drive[0], drive[1], low_s, high_s)[1] \
-            + _product_range(spin[0], spin[1], low_c, high_c)[1] + blur
+        low_vx = product_range(drive[0], drive[1], low_c, high_c)[0] \
+            - product_range(spin[0], spin[1], low_s, high_s)[1] - blur
+        high_vx = product_range(drive[0], drive[1], low_c, high_c)[1] \
+            - product_range(spin[0], spin[1], low_s, high_s)[0] + blur
+        low_vy = product_range(drive[0], drive[1], low_s, high_s)[0] \
+            + product_range(spin[0], spin[1], low_c, high_c)[0] - blur
+        high_vy = product_range(drive[0], drive[1], low_s, high_s)[1] \
+            + product_range(spin[0], spin[1], low_c, high_c)[1] + blur
         out[b, 0], out[b, 1], out[b, 2], out[b, 3] = low_x, high_x, low_y, high_y
         out[b, 4], out[b, 5], out[b, 6], out[b, 7] = low_vx, high_vx, low_vy, high_vy
         out[b, 8] = max(low_vx * low_vx, high_vx * high_vx) \
