@@ -442,6 +442,21 @@ def test_an_input_the_stop_bands_certify_is_one_the_check_keeps(seed, footprint,
             assert not filt._must_brake(state, u, prepared, age, now)
 
 
+def test_a_cone_model_with_its_own_barrier_test_and_no_certificate_is_never_certified():
+    """``ConeModel.stop_skipped``: True where ``min_h_along`` is +inf, else the model's own.
+
+    A model that computes H along the path but has no stop test of its own gets False,
+    so the check computes its paths.
+    """
+    class AlongOnly(InflatedCone):
+        def min_h_along(self, *args, **kwargs):
+            return -1.0
+
+    bands = np.zeros((1, 10))
+    assert InflatedCone(0.2).stop_skipped(None, None, None, 0.0, 0.1, bands)
+    assert not AlongOnly(0.2).stop_skipped(None, None, None, 0.0, 0.1, bands)
+
+
 @pytest.mark.parametrize('barrier', ['polyc2bf_horizon', 'polyc2bf_footprint'])
 def test_between_rows_of_parts_the_check_decides_without_a_path(barrier, monkeypatch):
     """Driving between two rows of parts, the stop bands certify every step's input.

@@ -218,10 +218,11 @@ class ConeModel(abc.ABC):
 
         ``bands`` (``RobotModel.stop_bands``) hold every row, the start at ``first_time``
         and the last row by ``last_time``; the braking check then keeps an input without
-        computing its path (``SafetyFilter._stop_certified``).  True here, where
-        ``min_h_along`` is +inf.
+        computing its path (``SafetyFilter._stop_certified``).  True here while
+        ``min_h_along`` is this class's +inf; a model with its own ``min_h_along`` and no
+        test of its own is never certified.
         """
-        return True
+        return type(self).min_h_along is ConeModel.min_h_along
 
 
 class _PolygonCone(ConeModel):
