@@ -204,7 +204,8 @@ def check_and_evasion(filt, x, u, obstacles, age, status):
         prepared = filt._prepare(obstacles)
         checked = braking and status in CHECKED
         ran = checked and not filt._far_from_all(x, prepared, age)
-        computed = ran and not filt._stop_certified(x, u, prepared, age)
+        computed = ran and not filt._stop_certified(
+            filt._paths.stop_bands(x, u, filt.config.control_period), prepared, age)
         looked = checked and evasion and filt._moving_near(x, prepared, age)
     except AttributeError:
         return None, None, None

@@ -537,16 +537,19 @@ class SafetyFilter:
         if self._braking and status in (FilterStatus.OK, FilterStatus.RECOVERING,
                                         FilterStatus.SLACK, FilterStatus.ESCAPE):
             now = None
-            if not (self._stop_certified(state, u, prepared, obstacle_age)
+            # The bounds of u's stop, shared by the check and the evasion's look ahead.
+            stop = self._paths.stop_bands(state, u, self.config.control_period)
+            if not (self._stop_certified(stop, prepared, obstacle_age)
                     or self._far_from_all(state, prepared, obstacle_age)):
                 now = _BrakingNow(self, state, prepared, obstacle_age)
                 if self._must_brake(state, u, prepared, obstacle_age, now):
                     u, message = self._backup_input(state, u, prepared, obstacle_age, now,
                                                     count)
                     status = FilterStatus.BACKUP
+                    stop = self._paths.stop_bands(state, u, self.config.control_period)
             if self._evasion and self._moving_near(state, prepared, obstacle_age):
                 now = now or _BrakingNow(self, state, prepared, obstacle_age)
-                evasion = self._evade(state, u, prepared, obstacle_age, now)
+                evasion = self._evade(state, u, prepared, obstacle_age, now, stop)
                 if evasion is not None:
                     u, message = evasion
                     status = FilterStatus.EVADE
@@ -663,10 +666,11 @@ class SafetyFilter:
             self._braking_accel, max(abs(age), abs(age + duration)), float(state[0]),
             float(state[1]), reach + self._reach_margin, False)
 
-    def _stop_certified(self, state, u, prepared, age):
-        """Return True when the check surely keeps ``u``, its path bounded, not computed.
+    def _stop_certified(self, stop, prepared, age):
+        """Return True when the check surely keeps u, its path bounded, not computed.
 
-        ``RobotModel.stop_bands`` bounds x+ and B(x+) under ``u`` (their rows' positions,
+        ``stop``: ``RobotModel.stop_bands`` of the state and u, which bounds x+ and B(x+)
+        (their rows' positions,
         velocities by speed band, times); when no part, grown by its motion, comes within
         the check's clearance of that box (``stop_clear``: c(B(x+)) is the margin, also
         over the moving parts) and the cone model's pruning tests hold on every band
@@ -674,11 +678,10 @@ class SafetyFilter:
         decision, with none of its paths: among obstacles the stop's box mostly misses
         them (``bench/bench_core.py --in-reach``).
         """
-        period = self.config.control_period
-        bound = self._paths.stop_bands(state, u, period)
-        if bound is None:
+        if stop is None:
             return False
-        bands, rows = bound
+        bands, rows = stop
+        period = self.config.control_period
         first = age + period
         last = first + rows * period
         footprints = prepared.footprints
@@ -774,8 +777,10 @@ class SafetyFilter:
                  + self._reach_margin + EVASION_REACH)
         return (float(row[0]), float(row[1])), reach, horizon
 
-    def _evade(self, state, u, prepared, age, now):
+    def _evade(self, state, u, prepared, age, now, stop):
         """Return (input, message) of an evasion when ``u`` runs into a moving part, or None.
+
+        ``stop``: ``RobotModel.stop_bands`` of the state and ``u`` (``_look_ahead_clear``).
 
         design.md 3.10 (evasion).  The look ahead of ``u``: held for one period, then the
         brake, then at rest, over ``evasion_horizon`` H.  When a moving part, at its stated
@@ -791,7 +796,7 @@ class SafetyFilter:
         a base that lags stops later than planned, and sooner from a slower evasion
         (``_speed_limit``).
         """
-        if self._look_ahead_clear(state, u, prepared, age):
+        if self._look_ahead_clear(stop, prepared, age):
             return None
         static, moving = self._look_ahead(
             self._then_brake(np.zeros((0, self._paths.columns)),
@@ -819,20 +824,20 @@ class SafetyFilter:
                     f'{held - self._contact:.2f} m')
         return None
 
-    def _look_ahead_clear(self, state, u, prepared, age):
-        """Return True when ``u``'s look ahead surely keeps the clearance of every moving part.
+    def _look_ahead_clear(self, stop, prepared, age):
+        """Return True when u's look ahead surely keeps the clearance of every moving part.
 
         Its rows are rows of B(x+) (then the last at rest) at age + step ... age + H, so
-        inside ``RobotModel.stop_bands``' box; ``stop_clear`` over the moving parts, at
-        their stated accelerations and velocity errors, with the check's clearance, gives
-        ``_evade``'s own answer (no evasion) without computing the look ahead.
+        inside the box of ``stop`` (``RobotModel.stop_bands`` of the state and u);
+        ``stop_clear`` over the moving parts, at their stated accelerations and velocity
+        errors, with the check's clearance, gives ``_evade``'s own answer (no evasion)
+        without computing the look ahead.
         """
-        bound = self._paths.stop_bands(state, u, self.config.control_period)
-        if bound is None:
+        if stop is None:
             return False
         footprints = prepared.footprints
         return stop_clear.unchecked(
-            bound[0], age + self._evasion_step, age + self._evasion_rows * self._evasion_step,
+            stop[0], age + self._evasion_step, age + self._evasion_rows * self._evasion_step,
             footprints.boxes, prepared.velocities, prepared.offsets, prepared.accelerations,
             prepared.velocity_errors[1], 0.0, self._clearance, self._cover, True)
 

@@ -416,7 +416,7 @@ def test_the_stop_bands_promise_what_the_computed_path_gives(seed, footprint, pe
         if filt.cone_model.stop_skipped(prepared.views[0].prepared, prepared.velocities,
                                         prepared.offsets, first, last, bands):
             assert filt._min_h_along(rows[0], rows[1:], prepared, first) >= 0.0
-        if filt._look_ahead_clear(state, u, prepared, age):
+        if filt._look_ahead_clear(filt._paths.stop_bands(state, u, period), prepared, age):
             look_ahead = filt._then_brake(np.zeros((0, filt._paths.columns)),
                                           filt.model.one_period(state, u, period), 1)
             assert filt._look_ahead(look_ahead, prepared, age)[1] >= filt._clearance
@@ -437,7 +437,7 @@ def test_an_input_the_stop_bands_certify_is_one_the_check_keeps(seed, footprint,
     for _ in range(20):
         state, u, age = _random_motion(rng, filt)
         prepared = filt._prepare(_scene(rng, filt.model.braking_after(state, u, period), 1.2))
-        if filt._stop_certified(state, u, prepared, age):
+        if filt._stop_certified(filt._paths.stop_bands(state, u, period), prepared, age):
             now = _BrakingNow(filt, state, prepared, age)
             assert not filt._must_brake(state, u, prepared, age, now)
 
@@ -493,7 +493,8 @@ def test_between_rows_of_parts_the_check_decides_without_a_path(barrier, monkeyp
     wall = ObstacleSet.from_obstacles([Obstacle(polygon=np.array(
         [[0.5, -1.0], [0.7, -1.0], [0.7, 1.0], [0.5, 1.0]]))])
     moving = np.array([0.0, 0.0, 0.0, 1.0, 0.0])
-    assert not filt._stop_certified(moving, np.zeros(2), filt._prepare(wall), 0.0)
+    stop = filt._paths.stop_bands(moving, np.zeros(2), PERIOD)
+    assert not filt._stop_certified(stop, filt._prepare(wall), 0.0)
 
 
 @pytest.mark.parametrize('wall_x, checked', [(0.4, True), (1.0, False), (30.0, False)])

@@ -123,20 +123,18 @@ def _stop_bands(x, u, offset, limits, time_constant, coast, period, out):
     low_x, high_x = px + low_dx + low_ox - widen, px + high_dx + high_ox + widen
     low_y, high_y = py + low_dy + low_oy - widen, py + high_dy + high_oy + widen
     spin = (0.0, offset * omega) if offset * omega >= 0.0 else (offset * omega, 0.0)
+    spin_c = product_range(spin[0], spin[1], low_c, high_c)
+    spin_s = product_range(spin[0], spin[1], low_s, high_s)
     blur = 1e-9 * (1.0 + speed + abs(offset) * turn)
     bands = out.shape[0]
     for b in range(bands):
         top = speed * 0.5 ** b
         bottom = 0.0 if b == bands - 1 else 0.5 * top
         drive = (bottom, top) if v >= 0.0 else (-top, -bottom)
-        low_vx = product_range(drive[0], drive[1], low_c, high_c)[0] \
-            - product_range(spin[0], spin[1], low_s, high_s)[1] - blur
-        high_vx = product_range(drive[0], drive[1], low_c, high_c)[1] \
-            - product_range(spin[0], spin[1], low_s, high_s)[0] + blur
-        low_vy = product_range(drive[0], drive[1], low_s, high_s)[0] \
-            + product_range(spin[0], spin[1], low_c, high_c)[0] - blur
-        high_vy = product_range(drive[0], drive[1], low_s, high_s)[1] \
-            + product_range(spin[0], spin[1], low_c, high_c)[1] + blur
+        drive_c = product_range(drive[0], drive[1], low_c, high_c)
+        drive_s = product_range(drive[0], drive[1], low_s, high_s)
+        low_vx, high_vx = drive_c[0] - spin_s[1] - blur, drive_c[1] - spin_s[0] + blur
+        low_vy, high_vy = drive_s[0] + spin_c[0] - blur, drive_s[1] + spin_c[1] + blur
         out[b, 0], out[b, 1], out[b, 2], out[b, 3] = low_x, high_x, low_y, high_y
         out[b, 4], out[b, 5], out[b, 6], out[b, 7] = low_vx, high_vx, low_vy, high_vy
         out[b, 8] = max(low_vx * low_vx, high_vx * high_vx) \

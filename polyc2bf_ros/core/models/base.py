@@ -167,9 +167,9 @@ class RobotModel(abc.ABC):
         ``bands`` (B, 10), rows as ``kernels.braking.path_groups`` gives them and the
         largest |omega|: every row lies in row 0's position box, and its velocity in the
         velocity box of at least one band (``kernels.unicycle._stop_bands``); ``rows``
-        bounds how many rows there are.
-        The braking check keeps an input without computing its path when these clear every
-        part (``SafetyFilter._stop_certified``).  None: no bound.
+        bounds how many rows there are; a model may write ``bands`` into one buffer that its
+        next call overwrites.  The braking check keeps an input without computing its path
+        when these clear every part (``SafetyFilter._stop_certified``).  None: no bound.
         """
         return None
 
