@@ -4,12 +4,13 @@ import pytest
 from hypothesis import assume, given, settings, strategies as st
 
 from oracles import inflate_polygon
-from polyc2bf_ros.core.barrier.cones import CircleCone, InflatedCone, PaperCone
+from polyc2bf_ros.core.barrier.cones import CircleCone, InflatedCone, PaperCone, PlanarPolygons
 from polyc2bf_ros.core.geometry.polygons import (
     minimum_enclosing_circle,
     PolygonBatch,
     signed_distance,
 )
+from polyc2bf_ros.core.kernels.cones import nearest_edge, nearest_seen_edge, silhouette
 from strategies import convex_polygons, examples
 
 viewpoints = st.tuples(st.floats(-8, 8), st.floats(-8, 8)).map(np.array)
@@ -53,6 +54,32 @@ def test_inflated_obstacle_inside_inflated_cone(polygon, viewpoint, radius):
     disk = radius * np.column_stack([np.cos(angles), np.sin(angles)])
     offset_points = (polygon[:, None, :] + disk[None]).reshape(-1, 2)
     assert _inside_cone(offset_points - viewpoint, cones)
+
+
+@settings(max_examples=examples(500), deadline=None)
+@given(polygon=convex_polygons(), viewpoint=viewpoints, radius=st.sampled_from([0.0, 0.2, 0.3]),
+       near=st.booleans())
+def test_the_seen_edges_give_the_nearest_edge_bit_for_bit(polygon, viewpoint, radius, near):
+    """``nearest_seen_edge`` (the horizon barrier's distance) is ``nearest_edge``'s, exactly.
+
+    Raw and inflated polygons, from anywhere outside; ``near`` puts the viewpoint within
+    5 cm of the boundary, where the nearest point is most often a vertex (ties).
+    """
+    prepared = InflatedCone(radius, 16).prepare(PolygonBatch.from_polygons([polygon])) \
+        if radius else PlanarPolygons.from_batch(PolygonBatch.from_polygons([polygon]))
+    count = int(prepared.counts[0])
+    if near:
+        k = int(abs(viewpoint[0]) * 1000) % count
+        vertex = np.array([prepared.x[0, k], prepared.y[0, k]])
+        outward = vertex - np.array([prepared.x[0, :count].mean(), prepared.y[0, :count].mean()])
+        viewpoint = vertex + 0.05 * (abs(viewpoint[1]) / 8.0) * outward / np.linalg.norm(outward)
+    qx, qy = float(viewpoint[0]), float(viewpoint[1])
+    a, b, seen = silhouette(prepared.x, prepared.y, count, 0, qx, qy)
+    assume(seen)
+    square, _, dx, dy, _ = nearest_edge(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                                        prepared.inv_sq, count, 0, qx, qy)
+    assert nearest_seen_edge(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                             prepared.inv_sq, count, 0, qx, qy, a, b) == (square, dx, dy)
 
 
 @settings(max_examples=examples(200), deadline=None)

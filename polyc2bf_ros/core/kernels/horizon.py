@@ -17,6 +17,7 @@ from polyc2bf_ros.core.kernels.braking import (
 from polyc2bf_ros.core.kernels.cones import (
     midpoint_cone,
     nearest_edge,
+    nearest_seen_edge,
     PLANE_ROWS,
     silhouette,
 )
@@ -27,9 +28,16 @@ _TINY = 1e-12
 
 
 @kernel
-def _boundary_distance(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy):
-    """Return (d, grad_x d): the distance from q to polygon n and its gradient in x."""
-    square, _, ox, oy, _ = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)
+def _boundary_distance(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b, seen):
+    """Return (d, grad_x d): the distance from q to polygon n and its gradient in x.
+
+    A, B, seen: q's ``silhouette`` of the polygon (``nearest_seen_edge`` where seen).
+    """
+    if seen:
+        square, ox, oy = nearest_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a,
+                                           b)
+    else:
+        square, _, ox, oy, _ = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)
     distance = math.sqrt(square)
     if distance == 0.0:
         return 0.0, 0.0, 0.0
@@ -150,7 +158,7 @@ def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, 
         block[0, n], block[1, n] = qx, qy
         a, b, seen = silhouette(x, y, counts[n], n, qx, qy)
         distance, ddx, ddy = _boundary_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
-                                                qx, qy)
+                                                qx, qy, a, b, seen)
         if bisector:
             cone = _bisector_cone(x, y, counts[n], n, qx, qy, a, b)
             block[2, n], block[3, n], block[4, n], block[5, n] = cone[0], cone[1], cone[2], cone[3]
@@ -196,7 +204,8 @@ def _value(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, vx, vy, inv_horizon, 
     a, b, seen = silhouette(x, y, count, n, qx, qy)
     if not seen:
         return math.inf
-    distance = math.sqrt(nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)[0])
+    distance = math.sqrt(nearest_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a,
+                                           b)[0])
     ax, ay, bx, by = x[n, a] - qx, y[n, a] - qy, x[n, b] - qx, y[n, b] - qy
     speed = math.sqrt(vx * vx + vy * vy + eps_sq)
     if bisector:
