@@ -283,6 +283,11 @@ class Evaluation:
         """Return the cones (views into ``block``)."""
         return Cones.from_block(self.block[PLANE_CONES], self.valid)
 
+    def axis(self, index):
+        """Return (p_x, p_y): the cone axis of part ``index``, ``cones.p[:, index]`` as floats."""
+        first = PLANE_CONES.start
+        return float(self.block[first, index]), float(self.block[first + 1, index])
+
     @property
     def terms(self):
         """Return h, Lf h, Lg h (views into ``block``)."""
@@ -314,8 +319,12 @@ class _Prepared:
     ``velocity_errors`` (3, N): how far each part's velocity may be off, for the braking
     check, then for an evasion's look ahead, then the part's own bound alone
     (``_velocity_errors``); ``accelerations`` (N, 2) their stated planar accelerations
-    (``ObstacleSet.accelerations``; zeros when none), which only an evasion's look ahead
-    follows (``_look_ahead``).
+    (``ObstacleSet.accelerations``; ``steady`` when none), which only an evasion's look
+    ahead follows (``_look_ahead``), and ``fastest_speeding_up`` the largest one's norm
+    [m/s^2]; ``steady`` (N, 2) zeros, the braking check's accelerations (constant
+    velocity); ``moving``: some part moves in the plane (``velocities``' first two
+    columns).  A translation (each step while obstacles move) shares the buffers and the
+    zeros, and computes ``moving`` and the accelerations' bound only where they can differ.
     """
 
     count: int
@@ -328,29 +337,20 @@ class _Prepared:
     index: np.ndarray
     velocity_errors: np.ndarray
     accelerations: np.ndarray
+    fastest_speeding_up: float
+    steady: np.ndarray
+    moving: bool
     footprints: Optional[object] = None
 
-    @functools.cached_property
-    def moving(self):
-        """Return True when some part moves in the plane (``velocities``' first two columns)."""
-        return bool(self.velocities[:, :2].any())
-
-    @functools.cached_property
-    def steady(self):
-        """Return (N, 2) zeros: the braking check's accelerations (constant velocity)."""
-        return np.zeros((self.count, 2))
-
-    @functools.cached_property
-    def fastest_speeding_up(self):
-        """Return the largest stated acceleration's norm [m/s^2] (0 without parts)."""
-        return float(np.hypot(*self.accelerations.T).max(initial=0.0))
-
-    def translated(self, offsets, velocities, velocity_errors, accelerations):
+    def translated(self, offsets, velocities, velocity_errors, accelerations,
+                   fastest_speeding_up, moving):
         """Return the same views and buffers with obstacles moved by ``offsets`` (N, d)."""
         return _Prepared(count=self.count, views=self.views, velocities=velocities,
                          offsets=offsets, finite=self.finite, rows_a=self.rows_a,
                          rows_b=self.rows_b, index=self.index, footprints=self.footprints,
-                         velocity_errors=velocity_errors, accelerations=accelerations)
+                         velocity_errors=velocity_errors, accelerations=accelerations,
+                         fastest_speeding_up=fastest_speeding_up, steady=self.steady,
+                         moving=moving)
 
 
 def compile_kernels():
@@ -465,6 +465,9 @@ class SafetyFilter:
                          and self._paths.held_path(np.zeros(model.state_dim),
                                                    np.zeros(model.input_dim), period, 1)
                          is not None)
+        # How far the largest input bound carries the point over the look ahead, a H^2 / 2.
+        self._evasion_spread = (0.5 * float(np.max(self._upper))
+                                * (self._evasion_rows * self._evasion_step) ** 2)
         self._evasion_commit = bool(self.config.evasion_commit)
         self._evasion_speed = float(self.config.evasion_max_speed) or math.inf
         self._evasion_inputs = np.array(list(itertools.product(*zip(
@@ -772,8 +775,7 @@ class SafetyFilter:
         """
         horizon = self._evasion_rows * self._evasion_step
         row = self._paths.point_row(state)
-        reach = (math.hypot(row[2], row[3]) * horizon
-                 + 0.5 * float(np.max(self._upper)) * horizon ** 2
+        reach = (math.hypot(row[2], row[3]) * horizon + self._evasion_spread
                  + self._reach_margin + EVASION_REACH)
         return (float(row[0]), float(row[1])), reach, horizon
 
@@ -1072,10 +1074,13 @@ class SafetyFilter:
             offsets, velocities = obstacles.offsets[:, :dim], obstacles.velocities[:, :dim]
             if self.geometry.ground is not None:
                 offsets, velocities = ground_offsets(offsets, velocities)
+            moving_parts = velocities[:, :2].any(axis=1)
+            accelerations, fastest = self._accelerations(obstacles, self._base.steady)
             prepared = self._base.translated(
                 np.ascontiguousarray(offsets, dtype=np.float64),
                 np.ascontiguousarray(velocities, dtype=np.float64),
-                self._velocity_errors(velocities, obstacles), self._accelerations(obstacles))
+                self._velocity_errors(moving_parts, obstacles), accelerations, fastest,
+                bool(moving_parts.any()))
         else:
             chosen = obstacles if finite else ObstacleSet.empty()
             prepared = self._fresh(self.geometry.grounded(chosen), finite)
@@ -1085,6 +1090,9 @@ class SafetyFilter:
     def _fresh(self, obstacles, finite):
         """Prepare the views of ``obstacles`` and row buffers for as many parts."""
         dim, count = self.model.position_dim, len(obstacles)
+        steady = np.zeros((count, 2))
+        accelerations, fastest = self._accelerations(obstacles, steady)
+        moving_parts = obstacles.velocities[:, :2].any(axis=1)
         return _Prepared(
             count=count, views=self.geometry.views(obstacles),
             velocities=np.ascontiguousarray(obstacles.velocities[:, :dim], dtype=np.float64),
@@ -1092,31 +1100,34 @@ class SafetyFilter:
             rows_a=np.empty((count, self.model.input_dim)), rows_b=np.empty(count),
             index=np.empty(count, dtype=np.intp),
             footprints=PlanarPolygons.from_batch(obstacles.footprints) if self._braking
-            else None, velocity_errors=self._velocity_errors(obstacles.velocities, obstacles),
-            accelerations=self._accelerations(obstacles))
+            else None, velocity_errors=self._velocity_errors(moving_parts, obstacles),
+            accelerations=accelerations, fastest_speeding_up=fastest, steady=steady,
+            moving=bool(moving_parts.any()))
 
-    def _accelerations(self, obstacles):
-        """Return (N, 2) the parts' stated planar accelerations (``_Prepared``).
+    def _accelerations(self, obstacles, steady):
+        """Return ((N, 2) the parts' stated planar accelerations, the largest norm).
 
-        Zeros without them, and for a model with a ground part (whose rows the set's do
-        not match).
+        ``steady`` (zeros) without them, and for a model with a ground part (whose rows
+        the set's do not match).
         """
         stated = obstacles.accelerations
         if stated is None or self.geometry.ground is not None:
-            return np.zeros((len(obstacles), 2))
-        return np.ascontiguousarray(stated[:, :2], dtype=np.float64)
+            return steady, 0.0
+        stated = np.ascontiguousarray(stated[:, :2], dtype=np.float64)
+        return stated, float(np.hypot(*stated.T).max(initial=0.0))
 
-    def _velocity_errors(self, velocities, obstacles):
+    def _velocity_errors(self, moving_parts, obstacles):
         """Return (3, N): how far each part's velocity may be off.
 
         Row 1, an evasion's look ahead (``_look_ahead``, ``_moving_near``):
-        ``obstacle_velocity_error`` for a part that moves, else 0.  Row 2: the part's own
+        ``obstacle_velocity_error`` for a part that moves (``moving_parts``), else 0.
+        Row 2: the part's own
         ``ObstacleSet.velocity_errors`` (planar models, whose sets have no ground part),
         else 0.  Row 0, the braking check: the larger of rows 1 and 2, so that a part
         whose velocity is not known counts as moving there.
         """
-        errors = np.zeros((3, len(velocities)))
-        errors[1] = np.where(velocities[:, :2].any(axis=1), self._velocity_error, 0.0)
+        errors = np.zeros((3, len(moving_parts)))
+        errors[1] = np.where(moving_parts, self._velocity_error, 0.0)
         if obstacles.velocity_errors is not None and self.geometry.ground is None:
             errors[2] = obstacles.velocity_errors
         np.maximum(errors[1], errors[2], out=errors[0])

@@ -5,14 +5,23 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from polyc2bf_ros.core.barrier.cones import PLANE_CONES, PLANE_ROWS
 from polyc2bf_ros.core.liveness.circulation import Circulation
+from polyc2bf_ros.core.safety_filter import Evaluation
+
+
+def evaluation_with_axes(axes, valid):
+    """Return an ``Evaluation`` whose parts' cone axes p are the columns of ``axes`` (2, N)."""
+    axes = np.array(axes, dtype=float).reshape(2, -1)
+    block = np.zeros((PLANE_ROWS + 4, axes.shape[1]))
+    block[PLANE_CONES][0:2] = axes
+    valid = np.array(valid)
+    return Evaluation(block=block, valid=valid, usable=valid, vertical=None, viewpoints=())
 
 
 def info_with_axis(axis, h=0.1):
     """Return a FilterInfo stand-in: one valid part, cone axis ``axis``, barrier value ``h``."""
-    cones = SimpleNamespace(p=np.array(axis, dtype=float).reshape(2, 1))
-    return SimpleNamespace(h=np.array([h]), evaluation=SimpleNamespace(
-        valid=np.array([True]), cones=cones))
+    return SimpleNamespace(h=np.array([h]), evaluation=evaluation_with_axes(axis, [True]))
 
 
 @pytest.mark.parametrize('yaw, side', [(0.3, 1), (-0.3, -1), (0.0, 1)])
@@ -100,8 +109,8 @@ def test_the_probe_drives_on_where_the_nominal_turns():
 def test_without_a_valid_cone_nothing_is_engaged():
     """No cone seen (inside, or no obstacles): engaging does nothing."""
     circulation = Circulation()
-    circulation.observe(SimpleNamespace(h=np.array([np.nan]), evaluation=SimpleNamespace(
-        valid=np.array([False]), cones=SimpleNamespace(p=np.zeros((2, 1))))))
+    circulation.observe(SimpleNamespace(h=np.array([np.nan]),
+                                        evaluation=evaluation_with_axes((0.0, 0.0), [False])))
     circulation.engage(0.0, (0.0, 0.0), 0.0, (0.8, 0.0))
     assert not circulation.active
 

@@ -22,6 +22,7 @@ from polyc2bf_ros.core.liveness.escape_route import (
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle, ObstacleSet
 from polyc2bf_ros.core.obstacles.scan_memory import ScanView
 from strategies import convex_polygons
+from test_circulation import evaluation_with_axes
 
 FREE = 0.522
 
@@ -155,9 +156,8 @@ def test_no_route_out_of_a_closed_box_falls_back_to_circulation():
     obstacles = obstacle_set(*walls)
     assert plan_route(obstacles, (0.6, 0.0), (1.0, 0.0), FREE) is None
     escape = RouteEscape(FREE)
-    cones = SimpleNamespace(p=np.array([[0.6], [0.0]]))
-    escape.observe(SimpleNamespace(h=np.array([0.05]), evaluation=SimpleNamespace(
-        valid=np.array([True]), cones=cones)))
+    escape.observe(SimpleNamespace(h=np.array([0.05]),
+                                   evaluation=evaluation_with_axes((0.6, 0.0), [True])))
     escape.engage(0.0, (0.6, 0.0), 0.1, (0.8, 0.0), obstacles)
     assert escape.active and escape.side == 1 and escape.routes == 0
     assert escape.engagements == 1 and escape.mode == 'circulate'
@@ -281,9 +281,8 @@ def test_a_blocked_route_is_planned_again_wider_then_circulation_takes_over():
     wall = box(2.0, -1.5, 2.3, 1.5)
     obstacles = obstacle_set(wall)
     escape = RouteEscape(FREE)
-    cones = SimpleNamespace(p=np.array([[0.55], [0.0]]))
-    escape.observe(SimpleNamespace(h=np.array([0.05]), evaluation=SimpleNamespace(
-        valid=np.array([True]), cones=cones)))
+    escape.observe(SimpleNamespace(h=np.array([0.05]),
+                                   evaluation=evaluation_with_axes((0.55, 0.0), [True])))
     now, clearances = 0.0, []
     for blocked in range(MAX_WIDEN + 1):
         escape.engage(now, (1.45, 0.2), 0.0, (0.7, 0.0), obstacles, renew=blocked > 0)

@@ -91,9 +91,9 @@ class Circulation:
         h = np.where(evaluation.valid & np.isfinite(info.h), info.h, np.inf)
         index = int(np.argmin(h))
         if math.isfinite(h[index]):
-            axis = evaluation.cones.p[:, index]
-            if float(np.hypot(*axis)) > 0.0:
-                self._axis = np.array(axis, dtype=float)
+            axis = evaluation.axis(index)
+            if axis[0] != 0.0 or axis[1] != 0.0:
+                self._axis = np.array(axis)
 
     def engage(self, now, position, yaw, nominal, obstacles=None, renew=False, views=()):
         """Start (or, while circulating, flip) circulation at the robot's reference point.
