@@ -550,7 +550,7 @@ class SafetyFilter:
                                                     count)
                     status = FilterStatus.BACKUP
                     stop = self._paths.stop_bands(state, u, self.config.control_period)
-            if self._evasion and self._moving_near(state, prepared, obstacle_age):
+            if self._evasion and self._moving_near(state, prepared, obstacle_age, ref):
                 now = now or _BrakingNow(self, state, prepared, obstacle_age)
                 evasion = self._evade(state, u, prepared, obstacle_age, now, stop)
                 if evasion is not None:
@@ -732,7 +732,7 @@ class SafetyFilter:
                 return candidate, f'braking check: {how}'
         return brake, BRAKING_MESSAGE
 
-    def _moving_near(self, state, prepared, age):
+    def _moving_near(self, state, prepared, age, reference=None):
         """Return True when a moving part may come within an evasion's look ahead.
 
         ``clear_around`` over the moving parts, with ``_evasion_reach``, each straying by
@@ -740,7 +740,7 @@ class SafetyFilter:
         """
         if not prepared.moving:
             return False
-        position, reach, horizon = self._evasion_reach(state)
+        position, reach, horizon = self._evasion_reach(state, reference)
         return not clear_around.unchecked(
             prepared.footprints.boxes, prepared.velocities, prepared.offsets,
             prepared.velocity_errors[1], prepared.fastest_speeding_up, abs(age) + horizon,
@@ -765,19 +765,25 @@ class SafetyFilter:
             prepared.offsets[unknown], own[unknown], 0.0, abs(age) + horizon, position[0],
             position[1], reach, False)
 
-    def _evasion_reach(self, state):
+    def _evasion_reach(self, state, reference=None):
         """Return (position, reach, horizon H) of an evasion's look ahead.
 
         The reach is how far any held input moves the point the look ahead follows (the
         reference point, or a turning footprint's axle) over H, |r_dot| H + a H^2 / 2 (a the
         largest input bound, the model's input matrix at most 1 per unit), plus the look
-        ahead's cutoff and the footprint's covering radius.
+        ahead's cutoff and the footprint's covering radius.  ``reference``: the step's
+        reference kinematics at ``state``, the same row as ``point_row`` where the look
+        ahead follows the reference point.
         """
         horizon = self._evasion_rows * self._evasion_step
-        row = self._paths.point_row(state)
-        reach = (math.hypot(row[2], row[3]) * horizon + self._evasion_spread
+        if reference is None or self._turning:
+            row = self._paths.point_row(state)
+            position, velocity = row[:2], row[2:4]
+        else:
+            position, velocity = reference.position, reference.velocity
+        reach = (math.hypot(velocity[0], velocity[1]) * horizon + self._evasion_spread
                  + self._reach_margin + EVASION_REACH)
-        return (float(row[0]), float(row[1])), reach, horizon
+        return (float(position[0]), float(position[1])), reach, horizon
 
     def _evade(self, state, u, prepared, age, now, stop):
         """Return (input, message) of an evasion when ``u`` runs into a moving part, or None.
@@ -1126,9 +1132,11 @@ class SafetyFilter:
         else 0.  Row 0, the braking check: the larger of rows 1 and 2, so that a part
         whose velocity is not known counts as moving there.
         """
-        errors = np.zeros((3, len(moving_parts)))
-        errors[1] = np.where(moving_parts, self._velocity_error, 0.0)
+        errors = np.empty((3, len(moving_parts)))
+        np.multiply(moving_parts, self._velocity_error, out=errors[1])  # error >= 0 or 0
         if obstacles.velocity_errors is not None and self.geometry.ground is None:
             errors[2] = obstacles.velocity_errors
-        np.maximum(errors[1], errors[2], out=errors[0])
+            np.maximum(errors[1], errors[2], out=errors[0])
+        else:
+            errors[2], errors[0] = 0.0, errors[1]
         return errors
