@@ -319,12 +319,13 @@ class _Prepared:
     ``velocity_errors`` (3, N): how far each part's velocity may be off, for the braking
     check, then for an evasion's look ahead, then the part's own bound alone
     (``_velocity_errors``); ``accelerations`` (N, 2) their stated planar accelerations
-    (``ObstacleSet.accelerations``; ``steady`` when none), which only an evasion's look
-    ahead follows (``_look_ahead``), and ``fastest_speeding_up`` the largest one's norm
-    [m/s^2]; ``steady`` (N, 2) zeros, the braking check's accelerations (constant
-    velocity); ``moving``: some part moves in the plane (``velocities``' first two
-    columns).  A translation (each step while obstacles move) shares the buffers and the
-    zeros, and computes ``moving`` and the accelerations' bound only where they can differ.
+    (``ObstacleSet.accelerations``; ``steady`` when none), which an evasion's look ahead
+    follows (``_look_ahead``) and the braking check too (``_path_clearance``), and
+    ``fastest_speeding_up`` the largest one's norm [m/s^2]; ``steady`` (N, 2) zeros;
+    ``moving``: some part moves in the plane
+    (``velocities``' first two columns).  A translation (each step while obstacles move)
+    shares the buffers and the zeros, and computes ``moving`` and the accelerations' bound
+    only where they can differ.
     """
 
     count: int
@@ -658,10 +659,12 @@ class SafetyFilter:
 
         ``kernels.braking.clear_around`` with the model's bound rho on those paths
         (``RobotModel.braking_reach``) and reach rho + the margin: c(B(x+)) is then the
-        margin, whatever the input.  Unchecked kernel: the filter's own arrays.
+        margin, whatever the input.  Never where a part states an acceleration, which the
+        check moves it with (``_path_clearance``) and this test does not.
+        Unchecked kernel: the filter's own arrays.
         """
         reach, duration = self.model.braking_reach(state, self.config.control_period)
-        if reach == math.inf:
+        if reach == math.inf or prepared.fastest_speeding_up > 0.0:
             return False
         footprints = prepared.footprints
         return clear_around.unchecked(
@@ -690,7 +693,7 @@ class SafetyFilter:
         footprints = prepared.footprints
         return stop_clear.unchecked(
             bands, first, last, footprints.boxes, prepared.velocities, prepared.offsets,
-            prepared.steady, prepared.velocity_errors[0], self._braking_accel,
+            prepared.accelerations, prepared.velocity_errors[0], self._braking_accel,
             self._clearance, self._cover, False) and (
             not self._barrier_check or self.cone_model.stop_skipped(
                 prepared.views[0].prepared, prepared.velocities, prepared.offsets, first, last,
@@ -943,6 +946,13 @@ class SafetyFilter:
 
         ``path_clearance``: of the guarded point, or of a turning footprint (``_body``);
         ``per_part`` (N,), if given, gets each moving part's own (``path_clearance``).
+        Each part moves at its velocity and stated acceleration (markers'; zero for the
+        others) and may stray from that motion by ``obstacle_velocity_error`` t +
+        ``braking_obstacle_accel`` t^2 / 2: the bounds are on how far its velocity and
+        its acceleration may be off their estimates.  A cylinder on a 1.8 m/s loop of 3 m
+        radius speeds sideways at 1.1 m/s^2 and is 0.55 m off its line after 1 s; at
+        constant velocity with 1 m/s^2 the check let robots back across such curves
+        (two at-fault contacts on unseen dynamic worlds, bench/README.md).
 
         Unchecked kernel: the footprints, velocities and offsets are the filter's own and
         the path a fresh C-contiguous float64 array (``RobotModel.braking_path``).
@@ -951,9 +961,9 @@ class SafetyFilter:
         return path_clearance.unchecked(
             footprints.x, footprints.y, footprints.edge_x, footprints.edge_y,
             footprints.inv_sq, footprints.counts, footprints.boxes, prepared.velocities,
-            prepared.offsets, prepared.steady, float(age), path, self.config.control_period,
-            self._clearance, self._braking_accel, prepared.velocity_errors[0], True, self._body,
-            self._cover, per_part)
+            prepared.offsets, prepared.accelerations, float(age), path,
+            self.config.control_period, self._clearance, self._braking_accel,
+            prepared.velocity_errors[0], True, self._body, self._cover, per_part)
 
     def _brake(self, state, status, start, message, h=None, min_h=math.inf, evaluation=None):
         """Return the braking input with a flagged status."""

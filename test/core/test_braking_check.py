@@ -347,6 +347,48 @@ def test_stop_bands_hold_every_row_the_check_would_compute(seed, period, offset,
     assert model.stop_bands(state, u, 2 * model.brake_time_constant) is None
 
 
+def _curving_part(acceleration):
+    """Return a 0.4 m box 1.2 m right of a unicycle's way, passing at 1.5 m/s.
+
+    ``acceleration`` (2,) or None: what the set states it speeds up at.
+    """
+    box = np.array([[0.0, -1.4], [0.4, -1.4], [0.4, -1.0], [0.0, -1.0]])
+    return ObstacleSet.from_obstacles([Obstacle(
+        polygon=box, velocity=np.array([1.5, 0.0, 0.0]), acceleration=acceleration)])
+
+
+def test_the_check_moves_a_part_with_the_acceleration_it_states():
+    """A part curving into the stop: refused with its stated acceleration, kept without.
+
+    Its constant-velocity line passes 1.2 m right of the robot's way, farther than the
+    check's bound (1 m/s^2) lets it stray before the robot stops; curving at 3 m/s^2 (a
+    1.5 m/s loop of 0.75 m radius) it comes across.  The clearance is the kernel's with
+    the stated acceleration, part by part too; the certificate and the box test do not
+    pass the refused input.
+    """
+    filt = _checked_filter(False, PERIOD)
+    state, u = np.array([0.0, 0.0, 0.0, 1.5, 0.0]), np.array([2.0, 0.0])
+    rows = filt._paths.braking_after(state, u, PERIOD)
+    straight = filt._prepare(_curving_part(None))
+    curving = filt._prepare(_curving_part(np.array([0.0, 3.0])))
+    assert filt._path_clearance(rows[1:], straight, PERIOD) == (filt._clearance,) * 2
+    static, moving = filt._path_clearance(rows[1:], curving, PERIOD)
+    assert static == filt._clearance and moving < filt._clearance
+    footprints = curving.footprints
+    assert moving == path_clearance(
+        footprints.x, footprints.y, footprints.edge_x, footprints.edge_y, footprints.inv_sq,
+        footprints.counts, footprints.boxes, curving.velocities, curving.offsets,
+        np.array([[0.0, 3.0]]), PERIOD, rows[1:], PERIOD, filt._clearance,
+        filt._braking_accel, curving.velocity_errors[0], True, *POINT_BODY)[1]
+    assert filt._moving_parts(rows[1:], curving, PERIOD)[0] == moving
+    for prepared, refused in ((straight, False), (curving, True)):
+        now = _BrakingNow(filt, state, prepared, 0.0)
+        assert filt._must_brake(state, u, prepared, 0.0, now) == refused
+        assert not (refused and filt._far_from_all(state, prepared, 0.0))
+        stop = filt._paths.stop_bands(state, u, PERIOD)
+        assert not (refused and filt._stop_certified(stop, prepared, 0.0))
+
+
 def _scene(rng, path, spread):
     """Return 1-6 convex parts near ``path``, a third of them moving.
 
@@ -410,7 +452,7 @@ def test_the_stop_bands_promise_what_the_computed_path_gives(seed, footprint, pe
         last = first + count * period
         footprints = prepared.footprints
         if stop_clear(bands, first, last, footprints.boxes, prepared.velocities,
-                      prepared.offsets, prepared.steady, prepared.velocity_errors[0],
+                      prepared.offsets, prepared.accelerations, prepared.velocity_errors[0],
                       filt._braking_accel, filt._clearance, filt._cover, False):
             assert filt._path_clearance(rows[1:], prepared, first) == (filt._clearance,) * 2
         if filt.cone_model.stop_skipped(prepared.views[0].prepared, prepared.velocities,

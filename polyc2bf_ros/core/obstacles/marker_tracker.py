@@ -11,8 +11,9 @@ velocity unknown with ``speed_std`` [m/s].  A marker that stands still keeps vel
 exactly (every innovation is 0).  The vertical velocity is the raw difference
 ``(z_k - z_{k-1}) / (t_k - t_{k-1})`` (3-D models only).
 
-Acceleration (planar, for an evasion's look ahead only: ``SafetyFilter._look_ahead``) is
-an exponential average of the filter's velocity differences, once the velocity is known
+Acceleration (planar: an evasion's look ahead, ``SafetyFilter._look_ahead``, and the
+braking check's motion of the part, ``SafetyFilter._path_clearance``) is an exponential
+average of the filter's velocity differences, once the velocity is known
 (its worst-axis standard deviation below ``SETTLED_SPEED_STD``)::
 
     a_k = a_{k-1} + (1 - exp(-dt / accel_time_constant)) ((v_k - v_{k-1}) / dt - a_{k-1})
