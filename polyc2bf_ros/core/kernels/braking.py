@@ -159,14 +159,13 @@ def path_clearance(x, y, edge_x, edge_y, inv_sq, counts, boxes, velocities, offs
     Two values: over the static polygons, and over the moving ones.  Negative inside.
     Polygon n (CCW, rows of ``x``, ``y``, ``boxes`` as ``cones.PlanarPolygons``) has moved
     by ``offsets[n]`` and moves at ``velocities[n]``, speeding up at ``accelerations[n]``
-    (x, y): by t it has moved by v t + a t^2 / 2 more (zeros: the constant velocity of
-    the braking check); path row k ([x, y, vx, vy]) is at age + (k + 1) period.  A moving
-    polygon, or one with ``velocity_errors[n]`` > 0, counts less ``velocity_errors[n]`` t +
-    ``accel`` t^2 / 2, t = age + (k + 1) period: as far as it may stray from its stated
-    velocity by then; with ``closing_only`` (the
-    braking check) only at the rows where the path's velocity closes on it (points towards
-    its nearest point) or that lie inside it (module docstring), else at every row (an
-    evasion's look ahead, ``SafetyFilter``).
+    (x, y): by t it has moved by v t + a t^2 / 2 more (zeros: at constant velocity); path
+    row k ([x, y, vx, vy]) is at age + (k + 1) period.  A moving polygon, or one with
+    ``velocity_errors[n]`` > 0, counts less ``velocity_errors[n]`` t + ``accel`` t^2 / 2,
+    t = age + (k + 1) period: as far as it may stray from its stated motion by then; with
+    ``closing_only`` (the braking check) only at the rows where the path's velocity closes
+    on it (points towards its nearest point) or that lie inside it (module docstring),
+    else at every row (an evasion's look ahead, ``SafetyFilter``).
 
     ``per_part`` (N,), or empty: when it has a row per polygon, each moving polygon's own
     value (the smallest over its rows, as counted above; cutoff where none counts, and for
