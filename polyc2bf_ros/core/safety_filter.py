@@ -321,11 +321,10 @@ class _Prepared:
     (``_velocity_errors``); ``accelerations`` (N, 2) their stated planar accelerations
     (``ObstacleSet.accelerations``; ``steady`` when none), which an evasion's look ahead
     follows (``_look_ahead``) and the braking check too (``_path_clearance``), and
-    ``fastest_speeding_up`` the largest one's norm [m/s^2]; ``steady`` (N, 2) zeros;
-    ``moving``: some part moves in the plane
+    ``fastest_speeding_up`` the largest one's norm [m/s^2]; ``steady`` (N, 2) zeros, the
+    accelerations of a set that states none; ``moving``: some part moves in the plane
     (``velocities``' first two columns).  A translation (each step while obstacles move)
-    shares the buffers and the zeros, and computes ``moving`` and the accelerations' bound
-    only where they can differ.
+    shares the buffers and the zeros.
     """
 
     count: int
