@@ -86,6 +86,7 @@ bench: $(PKG_STAMP) $(DEV_STAMP)
 	$(PY) bench/bench_sim.py
 	$(PY) bench/bench_sim_closed_loop.py --floor  # merges its records into sim.json
 	$(PY) bench/bench_prediction.py
+	$(PY) bench/bench_scan_tracks.py
 
 # The closed-loop demo: sim_bridge + nominal_controller + safety_filter as separate processes
 # over localhost DDS, in lockstep; writes runs/<timestamp>/ (bag, metrics, trajectory plot).
