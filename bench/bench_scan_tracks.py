@@ -115,9 +115,9 @@ def measure_world(world_id, seed, seconds, position, reach, parameters):
     samples = []
     try:
         view = ScanView(world, {robot.name: _pipeline_robot(parameters)}, LidarSettings())
+        world.set_command(robot.name, np.zeros(2))  # held: the robot stands throughout
         steps = int(round(seconds / world.dt))
         for _ in range(steps):
-            world.set_command(robot.name, np.zeros(2))
             world.step()
             view.sense()
             if world.steps % view.lidars.steps:  # no scan taken at this step
