@@ -31,10 +31,10 @@ worker runs at niceness ``WORKER_NICENESS``, so the control thread wins the CPU.
 
 LaserScans (``submit_scan``, the node's ``scan_topics``) take the same path: the newest
 scan per topic is queued serialized with the node's recent odometry (its last
-``ODOMETRY_HISTORY`` samples), and the worker reads and checks it, places it at the pose of
-the sample stamped nearest the scan's ``header.stamp``
-(``core.obstacles.scan_conversion.pose_at``: no interpolation; a scan older than the
-samples takes the oldest) and converts it
+``ODOMETRY_HISTORY`` samples), and the worker reads and checks it, places it at the pose
+the samples give at the scan's ``header.stamp``
+(``core.obstacles.scan_conversion.pose_at``: interpolated between the two around it; a scan
+older than the samples takes the oldest, a newer one the newest) and converts it
 (``core.obstacles.scan_conversion.scan_to_obstacles``, in ``read_scan``).  With
 ``scan_tracking`` (the default) every scan's clusters go to one
 ``core.obstacles.scan_tracker.ScanTracker`` shared by all scan topics, and each obstacle

@@ -129,8 +129,8 @@ class ScanView:
     ``RobotLidars`` scans the world's ray scene every physics_rate / rate physics steps
     (``sense``, after each step and once at the start).  A scan is serialized as the
     bridge publishes it and, at the start of the next control period, goes with the
-    pose (x, y, yaw) of that period's odometry as the only odometry sample (the node takes
-    the odometry stamped nearest the scan: in lockstep, that one) to the node's own
+    odometry (x, y, yaw) of the last period and of that one (the node places it at the
+    pose interpolated between them at its stamp, ``pose_at``) to the node's own
     obstacle pipeline (``obstacle_pipeline.ObstaclePipeline``:
     ``scan_obstacles``, then the ``ObstacleSet``, prepared for the filter), which has had
     the empty marker set the bridge sends in scan mode.  The snapshot holds until the next
@@ -146,6 +146,7 @@ class ScanView:
         self._snapshots = {name: self._run(name, [(MarkerArray(), 0.0)], ())
                            for name in self._robots}
         self._pending = {}  # robot: (serialized LaserScan, sim time taken)
+        self._odometry = {}  # robot: its last period's odometry sample (stamp, x, y, yaw)
         self.sense()
 
     def _run(self, name, messages, scans):
@@ -162,11 +163,17 @@ class ScanView:
             self._pending[name] = (serialize_message(message), self.world.time)
 
     def snapshot(self, robot, state, yaw, now):
-        """Return ``robot``'s snapshot, after converting its pending scan with pose ``state``."""
+        """Return ``robot``'s snapshot, after converting its pending scan with pose ``state``.
+
+        The scan goes with the odometry of the last period and of this one (time ``now``), as
+        the node keeps its recent odometry: it was taken between the two.
+        """
+        sample = (float(now), float(state[0]), float(state[1]), float(yaw))
+        last, self._odometry[robot] = self._odometry.get(robot), sample
         pending = self._pending.pop(robot, None)
         if pending is not None:
             data, taken = pending
-            odometry = ((taken, float(state[0]), float(state[1]), float(yaw)),)
+            odometry = (sample,) if last is None else (last, sample)
             self._snapshots[robot] = self._run(robot, [], (
                 (SCAN_TOPIC, data, taken, odometry, f'{robot}/base_link'),))
         return self._snapshots[robot]

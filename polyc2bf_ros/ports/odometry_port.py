@@ -6,7 +6,7 @@ message feeds the ``odom`` watchdog; a usable one gives the decision the model's
 and stamp, an unreadable or non-finite one leaves it without (the step brakes) and is
 reported.  The obstacle worker builds the obstacles in the odometry's ``header.frame_id``.
 With scan topics the port keeps the stamp and pose of the last ``ODOMETRY_HISTORY`` usable
-messages: each scan is placed at the one stamped nearest it (``scan_port``).
+messages: each scan is placed at their pose at its stamp (``scan_port``).
 """
 import collections
 import time

@@ -532,24 +532,48 @@ def test_a_polygon_corner_is_followed_not_cut_off(sides, radius, turn):
         f'a corner {outside.max():.4f} m in front of the faces: {vertices[outside.argmax()]}'
 
 
-def test_pose_at_takes_the_odometry_stamped_nearest_the_scan():
-    """Nearest stamp; ties: the later stamp, then the later sample; no interpolation.
+def test_pose_at_interpolates_the_odometry_around_the_scan():
+    """Between the samples around the stamp, linearly; the yaw along the shorter arc.
 
-    Outside the samples' span the nearest end; all stamps 0 or an unstamped scan (0): the
-    latest; no sample: None.
+    At a sample's stamp: that sample (the later of two with one stamp); outside the
+    samples' span the nearest end; all stamps 0 or an unstamped scan (0): the latest; no
+    sample: None.  The order of the samples does not matter.
     """
     odometry = ((1.0, 0.0, 0.0, 0.0), (2.0, 1.0, 0.0, 0.5), (3.0, 2.0, 1.0, 1.0))
-    assert pose_at(odometry, 2.2) == (1.0, 0.0, 0.5)
-    assert pose_at(odometry, 2.5) == (2.0, 1.0, 1.0)  # tie: the later stamp
-    assert pose_at(odometry[::-1], 2.5) == (2.0, 1.0, 1.0)  # whatever the order
+    assert pose_at(odometry, 2.25) == pytest.approx((1.25, 0.25, 0.625))
+    assert pose_at(odometry[::-1], 2.25) == pytest.approx((1.25, 0.25, 0.625))
+    assert pose_at(odometry, 2.0) == (1.0, 0.0, 0.5)
     assert pose_at(odometry, 0.5) == (0.0, 0.0, 0.0)
     assert pose_at(odometry, 9.0) == (2.0, 1.0, 1.0)
     assert pose_at(odometry, 0.0) == (2.0, 1.0, 1.0)  # an unstamped scan
+    across = ((0.0, 0.0, 0.0, math.pi - 0.1), (1.0, 0.0, 0.0, -math.pi + 0.1))
+    assert math.remainder(pose_at(across, 0.5)[2] - math.pi, math.tau) == pytest.approx(0.0)
     twice = ((2.0, 0.0, 0.0, 0.0), (2.0, 5.0, 0.0, 0.0))
     assert pose_at(twice, 2.0) == (5.0, 0.0, 0.0)  # same stamp: the later sample
     unstamped = tuple((0.0, float(x), 0.0, 0.0) for x in range(3))
     assert pose_at(unstamped, 7.0) == (2.0, 0.0, 0.0)
     assert pose_at((), 2.0) is None and pose_at((), 0.0) is None
+
+
+@SETTINGS
+@given(st.floats(-10, 10), st.floats(-10, 10), st.floats(-math.pi, math.pi),
+       st.floats(-2.5, 2.5), st.floats(-2.5, 2.5), st.floats(-3.0, 3.0),
+       st.floats(0.001, 0.1), st.floats(0.0, 1.0), st.floats(1.0, 1e5))
+def test_pose_at_follows_a_base_between_two_odometry_messages(x, y, yaw, vx, vy, omega, period,
+                                                              share, start):
+    """A base moving at a constant velocity and turn rate is placed where it was at the stamp.
+
+    Odometry at ``start`` and ``start + period``; the yaw wrapped to (-pi, pi] as a message
+    carries it, and turning less than half a turn per period (3 rad/s, 0.1 s at most).
+    """
+    def at(t):
+        return (x + vx * t, y + vy * t, math.remainder(yaw + omega * t, math.tau))
+
+    odometry = ((start, *at(0.0)), (start + period, *at(period)))
+    pose = pose_at(odometry, start + share * period)
+    truth = at(share * period)
+    assert pose[:2] == pytest.approx(truth[:2], abs=1e-9)
+    assert math.remainder(pose[2] - truth[2], math.tau) == pytest.approx(0.0, abs=1e-9)
 
 
 def test_a_chord_beside_the_robot_is_still_brought_to_its_points():
