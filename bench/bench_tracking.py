@@ -54,6 +54,7 @@ from bench_scan import (
 )
 
 from polyc2bf_ros.core.obstacles.scan_conversion import scan_to_obstacles
+from polyc2bf_ros.core.obstacles.scan_memory import ScanView
 from polyc2bf_ros.core.obstacles.scan_tracker import ScanTracker
 
 RATE = 20.0
@@ -127,6 +128,16 @@ def _published_errors(clusters, estimates, objects, centres, velocities):
     return errors
 
 
+def _view(ranges):
+    """Return the ``ScanView`` of one scan (the sensor at ``SENSOR_POSE`` on the robot)."""
+    x, y, yaw = ROBOT_POSE
+    last = ANGLE_MIN + (BEAMS - 1) * ANGLE_INCREMENT
+    return ScanView(x + math.cos(yaw) * SENSOR_POSE[0] - math.sin(yaw) * SENSOR_POSE[1],
+                    y + math.sin(yaw) * SENSOR_POSE[0] + math.cos(yaw) * SENSOR_POSE[1],
+                    yaw + SENSOR_POSE[2], ANGLE_MIN, last, ANGLE_INCREMENT, RANGE_MIN,
+                    RANGE_MAX, (x, y), ranges)
+
+
 def time_scene(count, scan_count, passes, rng, clock=time.perf_counter):
     """Return one record: per-scan latencies of the three calls with ``count`` moving objects."""
     objects = _objects(rng, count)
@@ -135,19 +146,21 @@ def time_scene(count, scan_count, passes, rng, clock=time.perf_counter):
                  SETTINGS)
     warm = ScanTracker(link=SETTINGS.cluster_tolerance)
     for stamp, ranges, _, _ in sequence[:20]:  # warm: compile, fill caches
-        warm.update(stamp, scan_to_obstacles(ranges, *arguments, with_clusters=True)[2])
+        warm.update(stamp, scan_to_obstacles(ranges, *arguments, with_clusters=True)[2],
+                    _view(ranges))
     plain, tracked, alone, clusters_seen, errors = [], [], [], [], []
     for _ in range(passes):
         tracker = ScanTracker(link=SETTINGS.cluster_tolerance)
         other = ScanTracker(link=SETTINGS.cluster_tolerance)
         for index, (stamp, ranges, centres, velocities) in enumerate(sequence):
+            view = _view(ranges)  # read_scan makes it with or without tracking
             start = clock()
             scan_to_obstacles(ranges, *arguments)
             middle = clock()
             _, _, clusters = scan_to_obstacles(ranges, *arguments, with_clusters=True)
-            estimates = tracker.update(stamp, clusters)
+            estimates = tracker.update(stamp, clusters, view)
             end = clock()
-            other.update(stamp, clusters)
+            other.update(stamp, clusters, view)
             last = clock()
             plain.append(middle - start)
             tracked.append(end - middle)

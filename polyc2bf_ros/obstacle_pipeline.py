@@ -167,7 +167,7 @@ class ObstaclePipeline:
                 self._scan_tracker = ScanTracker(TrackerSettings(
                     pose_std=tracking[1], heading_std=tracking[2]), link=link)
                 self._tracking = tracking
-            estimates = self._scan_tracker.update(clock, scan.clusters, scan.view[:2])
+            estimates = self._scan_tracker.update(clock, scan.clusters, scan.view)
             hidden = float(settings.scan_hidden_speed)
             obstacles = with_velocities(scan.obstacles, scan.owner, estimates,
                                         float(settings.scan_unknown_speed), hidden)
@@ -217,11 +217,12 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
     ``scan_footprint_radius`` when that is >= 0, are the robot's own.
 
     ``odometry``: samples ``(stamp [s], x, y, yaw)`` of the base in the odometry frame,
-    oldest first (empty: no odometry yet); the scan is taken at the one stamped nearest its
-    ``header.stamp`` (``pose_at``).  A scan in another frame than ``base_frame`` (the
-    odometry child frame) was taken where the ``StaticTransforms`` ``transforms`` put that
-    frame, else at ``settings.sensor_pose``; a non-finite transform on the way refuses the
-    scan.  Every range NaN is refused (no measurement at all).
+    oldest first (empty: no odometry yet); the scan is taken at their pose at its
+    ``header.stamp`` (``pose_at``: interpolated between the samples around it).  A scan in
+    another frame than ``base_frame`` (the odometry child frame) was taken where the
+    ``StaticTransforms`` ``transforms`` put that frame, else at ``settings.sensor_pose``; a
+    non-finite transform on the way refuses the scan.  Every range NaN is refused (no
+    measurement at all).
     """
     # Imported on the first scan: a worker without scan input does not pay for them.
     from rclpy.serialization import deserialize_message

@@ -194,3 +194,24 @@ def test_a_post_kept_from_its_far_side_is_still_covered_on_the_side_facing_the_r
     assert obstacles
     nearest = 0.075 * robot / np.linalg.norm(robot)
     assert any(_inside(o.polygon, nearest, tolerance=0.005) for o in obstacles)
+
+
+def test_seen_through_is_the_empty_space_in_front_of_the_returns():
+    """A point is seen through where the beams either side reach past it by the tolerance.
+
+    A post 2 m ahead: a point 1 m ahead or 0.1 m in front of its face is in empty space, one
+    on the face or behind it (hidden) is not, nor one in the blind sector or beyond the range; a beam without a
+    return passed (a point 5 m off the post's bearing is seen through).
+    """
+    post = ((2.0, 0.0), 0.2)
+    angle_min, increment = _scanner(1.5 * math.pi)
+    ranges = simulate_ranges((0.0, 0.0, 0.0), 540, angle_min, increment, 10.0, circles=[post])
+    view = ScanView(0.0, 0.0, 0.0, angle_min, angle_min + 539 * increment, increment, 0.05,
+                    10.0, (0.0, 0.0), ranges)
+    points = np.array([[1.0, 0.0], [1.8, 0.0], [1.7, 0.0], [3.0, 0.0], [-2.0, 0.0],
+                       [0.0, 5.0], [0.0, 11.0]])
+    through = view.seen_through(*view.bearings(points), 0.05)
+    assert through.tolist() == [True, False, True, False, False, True, False]
+    assert not view.seen_through(*view.bearings(points[2:3]), 0.15)[0]  # 0.1 m in front
+    unseen = view.unseen(*view.bearings(points), 0.05)
+    assert not (through & unseen).any()

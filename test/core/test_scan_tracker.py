@@ -18,6 +18,7 @@ from polyc2bf_ros.core.obstacles.scan_conversion import (
     scan_wraps,
     ScanSettings,
 )
+from polyc2bf_ros.core.obstacles.scan_memory import ScanView
 from polyc2bf_ros.core.obstacles.scan_tracker import (
     ScanTracker,
     TrackerSettings,
@@ -35,18 +36,25 @@ SCAN = ScanSettings(footprint_radius=0.3)
 SETTLED = 3
 """From this scan on (the fourth) a moving object's published velocity is within 0.1 m/s."""
 SIMULATIONS = settings(max_examples=examples(16), deadline=None)
+AROUND = ScanView(0.0, 0.0, 0.0, -math.pi, math.pi - INCREMENT, INCREMENT, RANGE_MIN, RANGE_MAX,
+                  (0.0, 0.0))
+"""A full turn whose beams all passed: the view of hand-made clusters."""
 
 
 def _clusters(pose, polygons=(), circles=(), noise=0.0, rng=None, settings=SCAN, placed=None):
-    """Return (obstacles, owner, clusters) of the scan a robot at ``pose`` takes.
+    """Return (obstacles, owner, clusters, view) of the scan a robot at ``pose`` takes.
 
-    ``placed``: the pose the scan is placed at (default ``pose``; noisy odometry).
+    ``placed``: the pose the scan is placed at (default ``pose``; noisy odometry); the
+    sensor sits at the base.
     """
     ranges = simulate_ranges(sensor_pose_in_world(pose), BEAMS, ANGLE_MIN, INCREMENT, RANGE_MAX,
                              polygons, circles, noise, rng)
-    return scan_to_obstacles(ranges, ANGLE_MIN, INCREMENT, RANGE_MIN, RANGE_MAX,
-                             (0.0, 0.0, 0.0), pose if placed is None else placed, settings,
-                             with_clusters=True)
+    placed = pose if placed is None else placed
+    view = ScanView(placed[0], placed[1], placed[2], ANGLE_MIN,
+                    ANGLE_MIN + (BEAMS - 1) * INCREMENT, INCREMENT, RANGE_MIN, RANGE_MAX,
+                    tuple(placed[:2]), ranges)
+    return (*scan_to_obstacles(ranges, ANGLE_MIN, INCREMENT, RANGE_MIN, RANGE_MAX,
+                               (0.0, 0.0, 0.0), placed, settings, with_clusters=True), view)
 
 
 def _cluster_of(clusters, centre, reach):
@@ -108,8 +116,8 @@ def test_moving_object_gets_its_velocity(case):
         centre = case['start'] + velocity * t
         shapes = (([box(centre, *case['size'], case['yaw'])], ()) if case['kind'] == 'box'
                   else ((), [(centre, case['size'])]))
-        _, _, clusters = _clusters(pose, *shapes, noise=0.005, rng=rng)
-        estimates = tracker.update(t, clusters)
+        _, _, clusters, view = _clusters(pose, *shapes, noise=0.005, rng=rng)
+        estimates = tracker.update(t, clusters, view)
         index = _cluster_of(clusters, centre, reach)
         assert index is not None, f'scan {k}: the object is not seen'
         estimate = estimates[index]
@@ -158,9 +166,9 @@ def test_standing_objects_publish_no_velocity(drive):
             x, y = -2.0 + drive['speed'] * t, 0.0
         if _clearance((x, y)) < 0.5:
             break
-        _, _, clusters = _clusters((x, y, heading), STATIC_POLYGONS, STATIC_CIRCLES,
-                                   noise=0.01, rng=rng)
-        for estimate in tracker.update(t, clusters):
+        _, _, clusters, view = _clusters((x, y, heading), STATIC_POLYGONS, STATIC_CIRCLES,
+                                         noise=0.01, rng=rng)
+        for estimate in tracker.update(t, clusters, view):
             assert np.linalg.norm(estimate.velocity) < 0.1, (k, estimate)
             assert not estimate.moving, (k, estimate)
 
@@ -177,9 +185,9 @@ def _phantom_tracks(settings, seed):
         pose = (-2.0 + 0.1 * k, 0.0, 0.0)
         placed = (pose[0] + rng.normal(0.0, 0.01), pose[1] + rng.normal(0.0, 0.01),
                   pose[2] + rng.normal(0.0, 0.01))
-        _, _, clusters = _clusters(pose, STATIC_POLYGONS, STATIC_CIRCLES, noise=0.01, rng=rng,
-                                   placed=placed)
-        estimates = tracker.update(k / 10, clusters, placed[:2])
+        _, _, clusters, view = _clusters(pose, STATIC_POLYGONS, STATIC_CIRCLES, noise=0.01,
+                                         rng=rng, placed=placed)
+        estimates = tracker.update(k / 10, clusters, view)
         phantoms += any(np.linalg.norm(e.velocity) > 0.0 for e in estimates)
     return phantoms
 
@@ -196,6 +204,28 @@ def test_told_the_pose_noise_standing_objects_stay_still():
     assert sum(_phantom_tracks(told, seed) for seed in range(5)) == 0
 
 
+def test_a_track_starts_moving_only_where_its_cluster_fills_or_empties_space_seen():
+    """A cylinder at 1 m/s registers as moving either way; it starts moving only with evidence.
+
+    Given its scans' views it is moving from the fourth scan on.  Given views whose every
+    beam stopped 0.5 m out, no point of it lies where a scan saw empty space, and it never
+    starts moving (the test a standing post seen from a passing robot fails, module step 4).
+    """
+    for blind in (False, True):
+        rng = np.random.default_rng(11)
+        tracker = ScanTracker(link=SCAN.cluster_tolerance)
+        moving = []
+        for k in range(16):
+            centre = np.array([3.0, -1.0 + 0.1 * k])
+            _, _, clusters, view = _clusters((0.0, 0.0, 0.0), (), [(centre, 0.3)], noise=0.005,
+                                             rng=rng)
+            if blind:
+                view = view._replace(ranges=np.full(BEAMS, 0.5))
+            estimate = tracker.update(k / 10, clusters, view)[_cluster_of(clusters, centre, 0.4)]
+            moving.append(estimate.moving)
+        assert moving == ([False] * 16 if blind else [False] * SETTLED + [True] * (16 - SETTLED))
+
+
 def test_with_velocities_gives_moving_obstacles_their_track_velocity():
     """Obstacles of a moving cylinder's cluster get (vx, vy, 0); the wall's stay as they were."""
     rng = np.random.default_rng(5)
@@ -204,9 +234,9 @@ def test_with_velocities_gives_moving_obstacles_their_track_velocity():
     wall = [np.array([[3.5, -2.0], [3.7, -2.0], [3.7, 2.0], [3.5, 2.0]])]
     for k in range(12):
         centre = np.array([2.0, -0.6]) + velocity * k / 20
-        obstacles, owner, clusters = _clusters((0.0, 0.0, 0.0), wall, [(centre, 0.3)],
-                                               noise=0.005, rng=rng)
-        estimates = tracker.update(k / 20, clusters)
+        obstacles, owner, clusters, view = _clusters((0.0, 0.0, 0.0), wall, [(centre, 0.3)],
+                                                     noise=0.005, rng=rng)
+        estimates = tracker.update(k / 20, clusters, view)
     moved = with_velocities(obstacles, owner, estimates)
     cylinder = _cluster_of(clusters, centre, 0.4)
     assert len(moved) == len(obstacles) and (owner == cylinder).any()
@@ -236,10 +266,10 @@ def test_a_track_is_trusted_only_while_its_registrations_explain_its_cluster():
     post = np.array([2.0, 2.0])
     for k in range(11):
         up, down = np.array([2.5, -1.0 + k / 10]), np.array([2.6, 1.0 - k / 10])
-        obstacles, owner, clusters = _clusters((0.0, 0.0, 0.0), (),
-                                               [(up, 0.3), (down, 0.3), (post, 0.3)],
-                                               noise=0.005, rng=rng)
-        estimates = tracker.update(k / 10, clusters)
+        obstacles, owner, clusters, view = _clusters((0.0, 0.0, 0.0), (),
+                                                     [(up, 0.3), (down, 0.3), (post, 0.3)],
+                                                     noise=0.005, rng=rng)
+        estimates = tracker.update(k / 10, clusters, view)
         first, second = _cluster_of(clusters, up, 0.35), _cluster_of(clusters, down, 0.35)
         assert estimates[_cluster_of(clusters, post, 0.35)].trusted
         apart = first != second
@@ -283,8 +313,8 @@ def test_a_track_born_beside_a_mover_is_not_trusted_until_it_registers(beside_mo
     for k in range(13):
         mover = np.array([3.0, 0.8 - k / 10])
         circles = [(mover, 0.3)] + ([(behind, 0.3), (post, 0.3)] if k >= 8 else [])
-        _, _, clusters = _clusters((0.0, 0.0, 0.0), (), circles, noise=0.005, rng=rng)
-        estimates = tracker.update(k / 10, clusters)
+        _, _, clusters, view = _clusters((0.0, 0.0, 0.0), (), circles, noise=0.005, rng=rng)
+        estimates = tracker.update(k / 10, clusters, view)
         moving = estimates[_cluster_of(clusters, mover, 0.35)]
         if k == 7:
             assert moving.moving and moving.trusted
@@ -314,9 +344,10 @@ def test_a_track_that_stopped_moving_keeps_the_hidden_speed_for_distrust_time():
     for k in range(45):
         t = k / 10
         mover = np.array([3.0, 0.8 - min(t, 1.0)])        # 1 m/s for 1 s, then stands
-        obstacles, owner, clusters = _clusters((0.0, 0.0, 0.0), (), [(mover, 0.3), (post, 0.3)],
-                                               noise=0.005, rng=rng)
-        estimates = tracker.update(t, clusters)
+        obstacles, owner, clusters, view = _clusters((0.0, 0.0, 0.0), (),
+                                                     [(mover, 0.3), (post, 0.3)],
+                                                     noise=0.005, rng=rng)
+        estimates = tracker.update(t, clusters, view)
         index = _cluster_of(clusters, mover, 0.35)
         estimate = estimates[index]
         assert not estimates[_cluster_of(clusters, post, 0.35)].moved_lately
@@ -346,15 +377,15 @@ def test_a_moving_track_the_scan_misses_is_kept_where_it_goes():
     start = np.array([2.5, -1.0])
     for k in range(12):
         centre = start + velocity * k / rate
-        _, _, clusters = _clusters((0.0, 0.0, 0.0), (), [(centre, radius)], noise=0.005,
-                                   rng=rng)
-        tracker.update(k / rate, clusters)
+        _, _, clusters, view = _clusters((0.0, 0.0, 0.0), (), [(centre, radius)], noise=0.005,
+                                         rng=rng)
+        tracker.update(k / rate, clusters, view)
         assert unseen_obstacles(tracker) == []
     coast = tracker.settings.max_coast
     hidden = 0
     for k in range(12, 12 + round(2 * coast * rate)):
         centre = start + velocity * k / rate
-        tracker.update(k / rate, [])
+        tracker.update(k / rate, [], AROUND)
         unseen = unseen_obstacles(tracker, 'front:')
         if k / rate - 11 / rate > coast + 1e-9:
             assert unseen == []
@@ -376,7 +407,7 @@ def test_memory_stays_bounded():
     tracker = ScanTracker()
     clusters = [np.linspace([1.0, y], [1.0, y + 0.5], 40) for y in np.arange(-3.0, 3.0, 1.0)]
     for k in range(200):
-        tracker.update(k * 0.05, clusters)
+        tracker.update(k * 0.05, clusters, AROUND)
     assert len(tracker) == len(clusters)
     assert len(tracker._storage) <= sum(map(len, clusters))
 
@@ -402,8 +433,8 @@ def test_a_centroid_would_move():
     previous = {}
     for k in range(2 * rate):
         t = k / rate
-        _, _, clusters = _clusters((-2.0 + 2.0 * t, 0.0, 0.0), STATIC_POLYGONS[:1],
-                                   STATIC_CIRCLES)
+        _, _, clusters, view = _clusters((-2.0 + 2.0 * t, 0.0, 0.0), STATIC_POLYGONS[:1],
+                                         STATIC_CIRCLES)
         for name, centre, reach in (('cylinder', np.array(STATIC_CIRCLES[0][0]), 0.4),
                                     ('wall', np.array([0.25, 1.6]), 1.3)):
             index = _cluster_of(clusters, centre, reach)
@@ -445,17 +476,18 @@ def test_stamps_and_resets():
     tracker = ScanTracker()
     cluster = box((2.0, 0.0), 0.3, 0.3)[:2]  # one face: two points would not register
     face = np.linspace(cluster[0], cluster[1], 30)
-    first = tracker.update(10.0, [face])
-    again = tracker.update(10.0, [face])
+    first = tracker.update(10.0, [face], AROUND)
+    again = tracker.update(10.0, [face], AROUND)
     assert first[0].track_id == again[0].track_id
-    tracker.update(10.05, [face])
-    assert tracker.update(9.9, [face])[0].track_id == first[0].track_id  # 0.15 s back: kept
-    fresh = tracker.update(9.0, [face])
+    tracker.update(10.05, [face], AROUND)
+    back = tracker.update(9.9, [face], AROUND)  # 0.15 s back: kept
+    assert back[0].track_id == first[0].track_id
+    fresh = tracker.update(9.0, [face], AROUND)
     assert fresh[0].track_id != first[0].track_id and not fresh[0].confirmed
     assert len(tracker) == 1
-    assert tracker.update(9.1, []) == []
+    assert tracker.update(9.1, [], AROUND) == []
     assert len(tracker) == 1  # coasting
-    assert tracker.update(20.0, []) == [] and len(tracker) == 0
+    assert tracker.update(20.0, [], AROUND) == [] and len(tracker) == 0
 
 
 @pytest.mark.parametrize('clusters', [[np.zeros((0, 2))], [np.array([[0.0, math.nan]])],
@@ -463,19 +495,19 @@ def test_stamps_and_resets():
 def test_bad_clusters_are_refused(clusters):
     """Empty, non-finite or wrongly shaped clusters raise ValueError, in one line."""
     with pytest.raises(ValueError) as error:
-        ScanTracker().update(0.0, clusters)
+        ScanTracker().update(0.0, clusters, AROUND)
     assert '\n' not in str(error.value)
 
 
 def test_bad_stamp_is_refused():
     """A non-finite stamp raises ValueError."""
     with pytest.raises(ValueError):
-        ScanTracker().update(math.nan, [])
+        ScanTracker().update(math.nan, [], AROUND)
 
 
 def test_estimates_are_read_only_and_typed():
     """Estimates are ``TrackEstimate``s of plain Python numbers with read-only velocities."""
-    estimate = ScanTracker().update(0.0, [np.linspace([1.0, 0.0], [1.0, 1.0], 20)])[0]
+    estimate = ScanTracker().update(0.0, [np.linspace([1.0, 0.0], [1.0, 1.0], 20)], AROUND)[0]
     assert isinstance(estimate, TrackEstimate)
     assert type(estimate.track_id) is int and type(estimate.velocity_std) is float
     assert type(estimate.confirmed) is bool and type(estimate.moving) is bool
@@ -489,7 +521,7 @@ BAD_SETTINGS = [('gate', 0.0), ('gate', math.inf), ('accel_std', -1.0), ('speed_
                 ('moving_scans', 0), ('max_velocity_std', 0.0), ('static_extent', 0.0),
                 ('max_backstep', -0.1), ('pose_std', -0.01), ('heading_std', math.nan),
                 ('trust_share', -0.1), ('trust_scans', 0), ('distrust_time', -1.0),
-                ('beside_mover', -0.5)]
+                ('beside_mover', -0.5), ('evidence_age', math.inf)]
 
 
 @pytest.mark.parametrize('name, value', BAD_SETTINGS)

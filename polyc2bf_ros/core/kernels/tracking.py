@@ -414,15 +414,17 @@ def _known_velocity(state, P, limit):
 
 
 @kernel
-def _classify(state, P, track, params, registered):
+def _classify(state, P, track, params, registered, evidence):
     """Step 4 for a matched track: count passes and flip ``track[MOVING]``.
 
-    A failed registration (``registered`` false) does not pass.
+    A failed registration (``registered`` false) does not pass, nor, while the track
+    stands, one without ``evidence`` that its cluster moved (``ScanTracker.update``).
     """
     vx, vy = _known_velocity(state, P, params[KNOWN])
     speed_sq = vx * vx + vy * vy
     along_sq = vx * vx * P[2, 2] + 2.0 * vx * vy * P[2, 3] + vy * vy * P[3, 3]
-    passes = (registered and speed_sq > params[MOVING_SPEED] ** 2
+    passes = (registered and (evidence or track[MOVING] == 1)
+              and speed_sq > params[MOVING_SPEED] ** 2
               and speed_sq * speed_sq > params[SIGMAS] ** 2 * along_sq)
     if passes != (track[MOVING] == 1):
         track[STREAK] += 1
@@ -499,13 +501,15 @@ def _beside_a_mover(box, states, floats, ints, count, gap):
 
 
 
-@kernel(signature('UniTuple(i8, 2)', F2, I1, F2, B1, I1, I1, F2, F3, F2, I2, 'i8', 'f8', F1,
-                  F2, F2, I1, F2, B2, I1))
-def _advance(points, starts, stats, structure, match, claimed, states, covariances, floats,
-             ints, count, stamp, params, storage, new_storage, next_id, out, flags, ids):
+@kernel(signature('UniTuple(i8, 2)', F2, I1, F2, B1, B1, I1, I1, F2, F3, F2, I2, 'i8', 'f8',
+                  F1, F2, F2, I1, F2, B2, I1))
+def _advance(points, starts, stats, structure, evidence, match, claimed, states, covariances,
+             floats, ints, count, stamp, params, storage, new_storage, next_id, out, flags,
+             ids):
     """Run steps 3 and 4, births, deletion and outlines; return (tracks, outline rows).
 
-    Arrays as ``_gate``'s, plus the per-track ``floats`` and ``ints`` (capacity at least
+    Arrays as ``_gate``'s, plus per cluster ``evidence`` that it moved (``_classify``), the
+    per-track ``floats`` and ``ints`` (capacity at least
     ``count`` + clusters), the smoothed outlines' ``storage`` and ``new_storage`` (7
     columns, rows at least ``len(points) + len(storage)``; structure tracks keep none),
     ``next_id`` (1,); per cluster ``out`` (C, 3): the published velocity and the worst-axis
@@ -549,7 +553,7 @@ def _advance(points, starts, stats, structure, match, claimed, states, covarianc
                 whole += smoothed[i, 6] > 0.0
             explained = registered and result[5] >= params[SHARE] * whole
             ints[t, TRUST] = ints[t, TRUST] + 1 if explained else 0
-            _classify(states[t], covariances[t], ints[t], params, registered)
+            _classify(states[t], covariances[t], ints[t], params, registered, evidence[c])
         else:
             reclone_one(states[t], covariances[t])
             ints[t, MOVING] = ints[t, STREAK] = 0

@@ -97,21 +97,40 @@ class ScanView(NamedTuple):
         ``ranges``, ``after``: the points' ``bearings``; ``tolerance`` [m]: how far short
         of a point a beam may stop and still count as having seen it.
         """
+        outside, below, above = self._beams_either_side(ranges, after)
+        reach = ranges - tolerance
+        return outside | ((below < reach) & (above < reach))
+
+    def seen_through(self, ranges, after, tolerance):
+        """Return (n,) True where both beams either side of a point passed it by ``tolerance``.
+
+        The point lies in space this scan saw empty (a beam without a return passed);
+        ``ranges``, ``after`` as ``unseen``'s; ``tolerance`` [m] scalar or (n,).
+        """
+        outside, below, above = self._beams_either_side(ranges, after)
+        reach = ranges + tolerance
+        return ~outside & (below > reach) & (above > reach)
+
+    def _beams_either_side(self, ranges, after):
+        """Return (outside the beams' span or range, range of the beam below, of the beam above).
+
+        Per point; a beam without a return (NaN, out of range, 0) reached inf; with no
+        ``ranges`` every beam did.
+        """
         blind = FULL_TURN - (self.last - self.first + self.step)
-        unseen = (after < blind) | (ranges < self.range_min) | (ranges > self.range_max)
+        outside = (after < blind) | (ranges < self.range_min) | (ranges > self.range_max)
         if self.ranges is None:
-            return unseen
+            everywhere = np.full(len(ranges), np.inf)
+            return outside, everywhere, everywhere
         beams = np.asarray(self.ranges, dtype=np.float64)
         # Fractional beam index of each bearing: after - blind runs from 0 at half an
         # increment before the first beam to N increments after it.
         index = np.clip((after - blind) / self.step - 0.5, 0.0, len(beams) - 1)
         below = np.floor(index).astype(np.int64)
         above = np.minimum(below + 1, len(beams) - 1)
-        # A beam without a return (NaN, out of range, 0) passed: it hides nothing.
         stopped = np.where((beams > 0.0) & (beams >= self.range_min) & (beams <= self.range_max),
                            beams, np.inf)
-        reach = ranges - tolerance
-        return unseen | ((stopped[below] < reach) & (stopped[above] < reach))
+        return outside, stopped[below], stopped[above]
 
 
 class ScanMemory:

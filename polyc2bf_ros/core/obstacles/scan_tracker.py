@@ -81,6 +81,19 @@ last matched).  Per scan, with ``dt`` the time since the newest stamp:
    gives it to the obstacles of the cluster.
    (Along v, not along the worst axis: a box seen face-on is measured only across its face,
    and its approach speed is known though its sideways speed is not.)
+   A standing track must also show that it moved, not only register so: at least
+   ``EVIDENCE_POINTS`` of its cluster's points lie where the oldest scan kept (at most
+   ``evidence_age`` s back, ``ScanView.seen_through``) saw empty space, or as many of its
+   track's points in that scan lie where this scan sees through, by the points' noise
+   (3 sigma of two scans' ``point_std``, ``pose_std`` and ``heading_std`` at their range).
+   An object that moves fills space that was seen empty or empties space that was seen
+   filled; a standing one seen from elsewhere does neither, however its lit side and its
+   registration change.  (Measured, BARN from the laser, a Jackal at 2 m/s: posts a few cm
+   beside the box, their lit arcs turning as it passed, registered at 0.2-0.3 m/s with a
+   velocity std of 0.08 m/s, became untrusted moving tracks, and the braking check, allowing
+   them ``scan_unknown_speed``, refused every input, standing still included: the box stood
+   until the run timed out.)  A moving track keeps moving without it: the test is for
+   starting to move.
 5. Trust.  A track that has been moving (step 4) within the last ``distrust_time`` s is
    trusted only while its last ``trust_scans`` registrations each paired at least
    ``trust_share`` of the cluster's whole windows; a registration that fails or explains
@@ -159,6 +172,7 @@ pairs are ambiguous: ``bench/bench_tracking.py``.  ``scipy.optimize`` (about hal
 to import on the benchmark VM) is imported by the first ``ScanTracker`` made, not with this
 module.
 """
+import collections
 import dataclasses
 import math
 import numbers
@@ -210,6 +224,12 @@ from polyc2bf_ros.core.kernels.tracking import (
 from polyc2bf_ros.core.obstacles.marker_tracker import outline_polygon
 from polyc2bf_ros.core.obstacles.obstacle_set import Obstacle
 
+EVIDENCE_POINTS = 3
+"""Points that must lie in space the other scan saw empty for evidence of motion (step 4).
+
+More than one: a point at a silhouette's edge may fall between beams of the other scan."""
+EVIDENCE_SIGMAS = 3.0
+"""Standard deviations of two scans' point noise a point must lie past a beam's return."""
 UNSEEN_VERTICES = 8
 """Vertices of an unseen moving track's polygon at most (``unseen_obstacles``)."""
 UNSEEN_THICKNESS = 0.05
@@ -275,12 +295,15 @@ class TrackerSettings:
     - ``beside_mover`` [m] 1.0, >= 0: a track born this near a moving track's predicted
       bounding box counts as moving at birth (step 5): it may be an object that was hidden
       behind or inside the mover.
+    - ``evidence_age`` [s] 0.3, >= 0: how far back the scan lies that a standing track's
+      cluster is compared with for evidence that it moved (step 4); the newest scan before
+      this one when none is as recent.  Longer: slow movers show more, odometry drifts more.
     - ``max_backstep`` [s] 0.25, >= 0: a stamp this much before the newest resets the
       tracker.
     - ``pose_std`` [m] 0, >= 0, and ``heading_std`` [rad] 0, >= 0: the noise of the
       odometry pose each scan is placed at.  Two scans' poses err independently, so a
       displacement measured between them gains ``2 (pose_std^2 + r^2 heading_std^2)`` of
-      variance per axis, r the cluster's range from the sensor (``update``'s ``origin``):
+      variance per axis, r the cluster's range from the sensor (``update``'s ``view``):
       with it, a standing object shaken by the pose noise is not taken for a moving one.
     """
 
@@ -303,6 +326,7 @@ class TrackerSettings:
     trust_scans: int = 3
     distrust_time: float = 2.0
     beside_mover: float = 1.0
+    evidence_age: float = 0.3
     max_backstep: float = 0.25
     pose_std: float = 0.0
     heading_std: float = 0.0
@@ -318,7 +342,7 @@ class TrackerSettings:
                                ('max_coast', False), ('moving_speed', False),
                                ('n_sigma', False), ('max_velocity_std', True),
                                ('static_extent', True), ('distrust_time', False),
-                               ('beside_mover', False),
+                               ('beside_mover', False), ('evidence_age', False),
                                ('max_backstep', False), ('pose_std', False),
                                ('heading_std', False)):
             value = getattr(self, name)
@@ -379,6 +403,8 @@ class ScanTracker:
         """Drop every track (ids keep counting)."""
         self._stamp = None
         self._count = 0
+        # (stamp, ScanView, points, cluster per point, {track id: cluster}) per recent scan
+        self._history = collections.deque()
         self._allocate(16)
         self._storage = np.zeros((0, 7))
 
@@ -397,21 +423,25 @@ class ScanTracker:
         """Return the number of tracks held."""
         return self._count
 
-    def update(self, stamp, clusters, origin=(0.0, 0.0)):
+    def update(self, stamp, clusters, view):
         """Take one scan's clusters at ``stamp`` [s]; return one ``TrackEstimate`` per cluster.
 
         ``clusters``: (n_i, 2) arrays of points in chain order, n_i >= 1 (``scan_obstacles``
-        with ``with_clusters=True``); ``origin``: the sensor's position (ranges for
-        ``heading_std``).  Malformed input raises ValueError.
+        with ``with_clusters=True``); ``view``: the scan's ``scan_memory.ScanView`` (its
+        sensor's position gives ranges for ``heading_std``, its beams the evidence of
+        step 4).  Malformed input raises ValueError.
         """
         stamp = float(stamp)
         if not math.isfinite(stamp):
             raise ValueError(f'stamp must be a finite number, got {stamp!r}')
-        self._params[ORIGIN_X], self._params[ORIGIN_Y] = origin
+        self._params[ORIGIN_X], self._params[ORIGIN_Y] = view.x, view.y
         if self._stamp is not None and stamp < self._stamp - self.settings.max_backstep:
             self.reset()
         dt = 0.0 if self._stamp is None else max(stamp - self._stamp, 0.0)
         self._stamp = stamp if self._stamp is None else max(stamp, self._stamp)
+        history = self._history
+        while len(history) > 1 and history[0][0] < stamp - self.settings.evidence_age:
+            history.popleft()
         cluster_count = len(clusters)
         starts = np.zeros(cluster_count + 1, dtype=np.int64)
         if cluster_count:
@@ -444,15 +474,20 @@ class ScanTracker:
             chosen_rows, chosen_columns = self._solve(padded[:size * size].reshape(size, size))
             _assign.unchecked(chosen_rows, chosen_columns, rows, columns, ambiguous, width,
                               padded, match, claimed)
+        evidence = self._evidence(points, starts, structure, claimed, view)
         storage = np.empty((len(points) + len(self._storage), 7))
         out = np.empty((cluster_count, 3))
         flags = np.empty((cluster_count, 5), dtype=bool)
         ids = np.empty(cluster_count, dtype=np.int64)
         self._count, used = _advance.unchecked(
-            points, starts, stats, structure, match, claimed, self._states, self._covariances,
+            points, starts, stats, structure, evidence, match, claimed, self._states,
+            self._covariances,
             self._floats, self._ints, count, stamp, self._params, self._storage, storage,
             self._next_id, out, flags, ids)
         self._storage = storage[:used]
+        owners = np.repeat(np.arange(cluster_count), np.diff(starts))
+        history.append((stamp, view, points, owners,
+                        dict(zip(ids.tolist(), range(cluster_count)))))
         velocities = out[:, :2]
         velocities.flags.writeable = False
         published = flags[:, 2].nonzero()[0].tolist()
@@ -463,6 +498,49 @@ class ScanTracker:
         return list(map(tuple.__new__, repeat(TrackEstimate),
                         zip(ids.tolist(), shown, out[:, 2].tolist(), flags[:, 0].tolist(),
                             flags[:, 1].tolist(), flags[:, 3].tolist(), flags[:, 4].tolist())))
+
+    def _evidence(self, points, starts, structure, claimed, view):
+        """Return (clusters,) True where a cluster shows that it moved (module step 4).
+
+        Against the oldest scan in the history, for the clusters that need it: those a
+        standing track took (``claimed``: each cluster's track row, -1 for none), structure
+        left out.
+        """
+        count = len(claimed)
+        evidence = np.zeros(count, dtype=bool)
+        tested = (claimed >= 0) & ~structure
+        if not self._history or not tested.any():
+            return evidence
+        tested[tested] = self._ints[claimed[tested], MOVING] == 0
+        if not tested.any():
+            return evidence
+        _, before, old_points, old_owners, old_clusters = self._history[0]
+        owners = np.repeat(np.arange(count), np.diff(starts))
+        chosen = tested[owners]
+        ranges, after = before.bearings(points[chosen])
+        filled = before.seen_through(ranges, after, self._noise(ranges))
+        rows = tested.nonzero()[0]
+        evidence[rows] = (np.bincount(owners[chosen], weights=filled, minlength=count)[rows]
+                          >= EVIDENCE_POINTS)
+        earlier = np.array([old_clusters.get(i, -1) for i in
+                            self._ints[claimed[rows], ID].tolist()], dtype=np.int64)
+        seen = earlier >= 0
+        if seen.any():
+            kept = np.zeros(len(old_clusters), dtype=bool)
+            kept[earlier[seen]] = True
+            chosen = kept[old_owners]
+            ranges, after = view.bearings(old_points[chosen])
+            emptied = view.seen_through(ranges, after, self._noise(ranges))
+            old_counts = np.bincount(old_owners[chosen], weights=emptied,
+                                     minlength=len(old_clusters))
+            evidence[rows[seen]] |= old_counts[earlier[seen]] >= EVIDENCE_POINTS
+        return evidence
+
+    def _noise(self, ranges):
+        """Return how far past a beam's return points at ``ranges`` [m] may lie by noise."""
+        settings = self.settings
+        return EVIDENCE_SIGMAS * np.sqrt(2.0 * (settings.point_std ** 2 + settings.pose_std ** 2
+                                                + (ranges * settings.heading_std) ** 2))
 
     def unseen_moving(self):
         """Return (outline (k, 2), velocity (2,)) of each moving track the last scan missed.
