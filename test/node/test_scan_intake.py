@@ -146,10 +146,11 @@ def test_scan_split_tolerance_sets_how_closely_a_post_is_outlined(centre):
     assert counts[0.01] > counts[0.05]
 
 
-def test_a_scan_is_placed_at_the_odometry_stamped_nearest_it():
-    """Odometry at x = 0, 1, 2 (stamps 10, 11, 12 s): a scan at 11.4 s is taken at x = 1.
+def test_a_scan_is_placed_at_the_odometry_interpolated_to_its_stamp():
+    """Odometry at x = 0, 1, 2 (stamps 10, 11, 12 s): a scan at 11.4 s is taken at x = 1.4.
 
-    An unstamped scan (stamp 0) is taken at the latest odometry.
+    One stamped before the oldest sample is taken there; an unstamped scan (stamp 0) at the
+    latest odometry.
     """
     odometry = ((10.0, 0.0, 0.0, 0.0), (11.0, 1.0, 0.0, 0.0), (12.0, 2.0, 0.0, 0.0))
     settings = IntakeSettings()
@@ -159,7 +160,7 @@ def test_a_scan_is_placed_at_the_odometry_stamped_nearest_it():
                                    settings, 0.3)
         return min(o.polygon[:, 0].min() for o in obstacles)
 
-    assert wall_x(stamp=Time(sec=11, nanosec=400_000_000)) == pytest.approx(2.0, abs=0.06)
+    assert wall_x(stamp=Time(sec=11, nanosec=400_000_000)) == pytest.approx(2.4, abs=0.06)
     assert wall_x(stamp=Time(sec=9)) == pytest.approx(1.0, abs=0.06)
     assert wall_x() == pytest.approx(3.0, abs=0.06)
 
