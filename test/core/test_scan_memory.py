@@ -200,8 +200,9 @@ def test_seen_through_is_the_empty_space_in_front_of_the_returns():
     """A point is seen through where the beams either side reach past it by the tolerance.
 
     A post 2 m ahead: a point 1 m ahead or 0.1 m in front of its face is in empty space, one
-    on the face or behind it (hidden) is not, nor one in the blind sector or beyond the range; a beam without a
-    return passed (a point 5 m off the post's bearing is seen through).
+    on the face or behind it (hidden) is not, nor one in the blind sector or beyond the
+    range; a beam without a return passed (a point 5 m off the post's bearing is seen
+    through).
     """
     post = ((2.0, 0.0), 0.2)
     angle_min, increment = _scanner(1.5 * math.pi)
