@@ -130,12 +130,8 @@ def _published_errors(clusters, estimates, objects, centres, velocities):
 
 def _view(ranges):
     """Return the ``ScanView`` of one scan (the sensor at ``SENSOR_POSE`` on the robot)."""
-    x, y, yaw = ROBOT_POSE
-    last = ANGLE_MIN + (BEAMS - 1) * ANGLE_INCREMENT
-    return ScanView(x + math.cos(yaw) * SENSOR_POSE[0] - math.sin(yaw) * SENSOR_POSE[1],
-                    y + math.sin(yaw) * SENSOR_POSE[0] + math.cos(yaw) * SENSOR_POSE[1],
-                    yaw + SENSOR_POSE[2], ANGLE_MIN, last, ANGLE_INCREMENT, RANGE_MIN,
-                    RANGE_MAX, (x, y), ranges)
+    return ScanView.of_scan(ROBOT_POSE, SENSOR_POSE, ANGLE_MIN, ANGLE_INCREMENT, ranges,
+                            RANGE_MIN, RANGE_MAX)
 
 
 def time_scene(count, scan_count, passes, rng, clock=time.perf_counter):

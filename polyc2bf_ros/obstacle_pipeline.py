@@ -255,14 +255,8 @@ def read_scan(data, odometry, base_frame, settings, robot_radius, transforms=Non
         ranges, scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max,
         sensor_pose, robot_pose, scan_settings, with_clusters=True)
     # An unstamped scan is taken at the latest odometry sample (``pose_at``): its stamp too.
-    x, y, yaw = robot_pose
-    last = scan.angle_min + (len(ranges) - 1) * scan.angle_increment
-    view = ScanView(x + math.cos(yaw) * sensor_pose[0] - math.sin(yaw) * sensor_pose[1],
-                    y + math.sin(yaw) * sensor_pose[0] + math.cos(yaw) * sensor_pose[1],
-                    yaw + sensor_pose[2], min(scan.angle_min, last),
-                    max(scan.angle_min, last), abs(scan.angle_increment), scan.range_min,
-                    scan.range_max, (x, y),
-                    ranges if scan.angle_increment > 0 else ranges[::-1])
+    view = ScanView.of_scan(robot_pose, sensor_pose, scan.angle_min, scan.angle_increment,
+                            ranges, scan.range_min, scan.range_max)
     return ScanObstacles(stamp if stamp > 0.0 else float(odometry[-1][0]), obstacles, owner,
                          clusters, view, scan_settings)
 

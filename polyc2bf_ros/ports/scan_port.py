@@ -3,12 +3,11 @@
 Best effort, depth 5.  Each scan is queued serialized with the recent odometry
 (``odometry_port``); the worker (``obstacle_intake``) places it at the odometry's pose at
 its ``header.stamp`` (interpolated between the messages around it), through the static
-transforms from
-the odometry child frame to its frame (``transform_port``) or else at ``sensor_pose``, and
-its obstacles join the markers'.  Each topic has its own ``scan_timeout`` watchdog, fed with
-the receipt time of its newest accepted scan (of any scan without ``block_if_invalid``); a
-rejected scan is logged, and its topic's last obstacles are kept until the watchdog stops
-the robot.
+transforms from the odometry child frame to its frame (``transform_port``) or else at
+``sensor_pose``, and its obstacles join the markers'.  Each topic has its own
+``scan_timeout`` watchdog, fed with the receipt time of its newest accepted scan (of any
+scan without ``block_if_invalid``); a rejected scan is logged, and its topic's last
+obstacles are kept until the watchdog stops the robot.
 """
 import functools
 import time

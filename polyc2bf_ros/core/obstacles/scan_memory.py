@@ -81,6 +81,22 @@ class ScanView(NamedTuple):
     base: tuple
     ranges: object = None
 
+    @classmethod
+    def of_scan(cls, robot_pose, sensor_pose, angle_min, increment, ranges, range_min,
+                range_max):
+        """Return the view of a scan: ``ranges`` in beam order from ``angle_min`` by ``increment``.
+
+        Taken by a sensor at ``sensor_pose`` (x, y, yaw in the base frame) on a base at
+        ``robot_pose`` (odometry frame); a negative increment is turned round.
+        """
+        x, y, yaw = robot_pose
+        sx, sy, syaw = sensor_pose
+        last = angle_min + (len(ranges) - 1) * increment
+        return cls(x + math.cos(yaw) * sx - math.sin(yaw) * sy,
+                   y + math.sin(yaw) * sx + math.cos(yaw) * sy, yaw + syaw,
+                   min(angle_min, last), max(angle_min, last), abs(increment), range_min,
+                   range_max, (x, y), ranges if increment > 0 else ranges[::-1])
+
     def blind(self):
         """Return True when the beams leave a sector unseen (less than a full turn)."""
         return self.last - self.first + 2.0 * self.step < FULL_TURN

@@ -476,18 +476,17 @@ class ScanTracker:
             chosen_rows, chosen_columns = self._solve(padded[:size * size].reshape(size, size))
             _assign.unchecked(chosen_rows, chosen_columns, rows, columns, ambiguous, width,
                               padded, match, claimed)
-        evidence = self._evidence(points, starts, structure, claimed, view)
+        owners = np.repeat(np.arange(cluster_count), np.diff(starts))  # cluster per point
+        evidence = self._evidence(points, owners, structure, claimed, view)
         storage = np.empty((len(points) + len(self._storage), 7))
         out = np.empty((cluster_count, 3))
         flags = np.empty((cluster_count, 5), dtype=bool)
         ids = np.empty(cluster_count, dtype=np.int64)
         self._count, used = _advance.unchecked(
             points, starts, stats, structure, evidence, match, claimed, self._states,
-            self._covariances,
-            self._floats, self._ints, count, stamp, self._params, self._storage, storage,
-            self._next_id, out, flags, ids)
+            self._covariances, self._floats, self._ints, count, stamp, self._params,
+            self._storage, storage, self._next_id, out, flags, ids)
         self._storage = storage[:used]
-        owners = np.repeat(np.arange(cluster_count), np.diff(starts))
         history.append((stamp, view, points, owners,
                         dict(zip(ids.tolist(), range(cluster_count)))))
         velocities = out[:, :2]
@@ -501,12 +500,12 @@ class ScanTracker:
                         zip(ids.tolist(), shown, out[:, 2].tolist(), flags[:, 0].tolist(),
                             flags[:, 1].tolist(), flags[:, 3].tolist(), flags[:, 4].tolist())))
 
-    def _evidence(self, points, starts, structure, claimed, view):
+    def _evidence(self, points, owners, structure, claimed, view):
         """Return (clusters,) True where a cluster shows that it moved (module step 4).
 
         Against the oldest scan in the history, for the clusters that need it: those a
         standing track took (``claimed``: each cluster's track row, -1 for none), structure
-        left out.
+        left out.  ``owners``: each point's cluster.
         """
         count = len(claimed)
         evidence = np.zeros(count, dtype=bool)
@@ -517,7 +516,6 @@ class ScanTracker:
         if not tested.any():
             return evidence
         _, before, old_points, old_owners, old_clusters = self._history[0]
-        owners = np.repeat(np.arange(count), np.diff(starts))
         chosen = tested[owners]
         ranges, after = before.bearings(points[chosen])
         filled = before.seen_through(ranges, after, self._noise(ranges))
