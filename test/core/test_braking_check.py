@@ -6,7 +6,13 @@ from hypothesis import given, settings, strategies as st
 from oracles import path_clearance_by_rows
 from polyc2bf_ros.core.barrier.cones import InflatedCone, PlanarPolygons
 from polyc2bf_ros.core.geometry.polygons import convex_hull, PolygonBatch, signed_distance
-from polyc2bf_ros.core.kernels.braking import clear_around, path_clearance, stop_clear
+from polyc2bf_ros.core.kernels.braking import (
+    bands_within,
+    clear_around,
+    grow_bands,
+    path_clearance,
+    stop_clear,
+)
 from polyc2bf_ros.core.kernels.unicycle import _braking_after
 from polyc2bf_ros.core.models import make_model
 from polyc2bf_ros.core.models.base import RobotModel
@@ -484,6 +490,71 @@ def test_an_input_the_stop_bands_certify_is_one_the_check_keeps(seed, footprint,
             assert not filt._must_brake(state, u, prepared, age, now)
 
 
+@settings(max_examples=examples(100), deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), reach=st.floats(0.0, 0.5),
+       speed=st.floats(0.0, 0.5), turn=st.floats(0.0, 0.5), later=st.floats(0.0, 0.5))
+def test_widened_bands_hold_the_bands_and_nothing_wider(seed, reach, speed, turn, later):
+    """``grow_bands`` holds its bands (``bands_within``); a bound past it is not held.
+
+    Bands of a random stop, widened; then each bound, the band count and either time
+    pushed just past the widened one in turn.
+    """
+    rng = np.random.default_rng(seed)
+    model = make_model('unicycle', offset_l=0.1)
+    state = np.array([*rng.uniform(-2, 2, 2), rng.uniform(-4, 4), rng.uniform(-2.5, 2.5),
+                      rng.uniform(-3, 3)])
+    bands, count = model.stop_bands(state, rng.uniform(model.input_lower, model.input_upper),
+                                    PERIOD)
+    bands = bands.copy()
+    first, last = 0.1, 0.1 + count * PERIOD
+    held = np.empty_like(bands)
+    grow_bands(bands, reach, speed, turn, held)
+    assert bands_within(bands, first, last, held, first, last + later)
+    assert np.all(held[:, 8] >= bands[:, 8])
+    assert not bands_within(bands, first - 1e-3, last, held, first, last + later)
+    assert not bands_within(bands, first, last + later + 1e-3, held, first, last + later)
+    assert not bands_within(bands[:-1].copy(), first, last, held, first, last + later)
+    for column in range(10):
+        past, band = bands.copy(), int(rng.integers(len(bands)))
+        lower = column < 8 and column % 2 == 0
+        past[band, column] = held[band, column] + (-1e-3 if lower else 1e-3)
+        assert not bands_within(past, first, last, held, first, last + later), column
+
+
+@settings(max_examples=examples(40), deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), footprint=st.booleans(),
+       period=st.sampled_from([0.001, 0.01]))
+def test_a_held_certificate_decides_as_the_bands_of_each_step(seed, footprint, period):
+    """On one obstacle set, the held certificate changes no decision, and is used.
+
+    A robot drives 60 periods at up to 2.5 m/s, gently, through parts around its way
+    (standing and moving, some speeding up); on every step ``_stop_certified`` (which
+    keeps a widened certificate, ``STOP_HOLD``) says what ``_bands_clear`` of the step's
+    own bands says, and where it certifies ``_must_brake`` keeps u.
+    """
+    rng = np.random.default_rng(seed)
+    filt = _checked_filter(footprint, period)
+    state, u, age = _random_motion(rng, filt)
+    state[4], u = 0.2 * state[4], 0.05 * u  # steady enough to keep a certificate
+    way = filt.model.braking_after(state, np.zeros(2), 0.5)
+    prepared = filt._prepare(_scene(rng, way, 1.0))
+    for _ in range(60):
+        stop = filt._paths.stop_bands(state, u, period)
+        if stop is None:
+            break
+        bands, count = stop
+        first = age + period
+        exact = filt._bands_clear(bands.copy(), first, first + count * period, prepared)
+        certified = filt._stop_certified(filt._paths.stop_bands(state, u, period), prepared,
+                                         age)
+        assert certified == exact
+        if certified:
+            assert not filt._must_brake(state, u, prepared, age,
+                                        _BrakingNow(filt, state, prepared, age))
+        state, age = filt.model.one_period(state, u, period), age + period
+    assert filt._held_prepared is prepared
+
+
 def test_a_cone_model_with_its_own_barrier_test_and_no_certificate_is_never_certified():
     """``ConeModel.stop_skipped``: True where ``min_h_along`` is +inf, else the model's own.
 
@@ -503,6 +574,8 @@ def test_a_cone_model_with_its_own_barrier_test_and_no_certificate_is_never_cert
 def test_between_rows_of_parts_the_check_decides_without_a_path(barrier, monkeypatch):
     """Driving between two rows of parts, the stop bands certify every step's input.
 
+    Once it cruises, mostly by the certificate held from an earlier step (``STOP_HOLD``:
+    while it speeds up by more than the certificate's widening a period, each step's own).
     And the filter's inputs are those of the check computing every path, bit for bit
     (``_stop_certified`` replaced by False).  A wall inside the stop is not certified.
     """
@@ -510,27 +583,36 @@ def test_between_rows_of_parts_the_check_decides_without_a_path(barrier, monkeyp
         extra = {'footprint': JACKAL} if barrier == 'polyc2bf_footprint' else {}
         filt = SafetyFilter(make_model('unicycle', offset_l=0.01), FilterConfig(
             barrier=barrier, robot_radius=0.2, control_period=PERIOD, **extra))
-        certified = []
-        original = filt._stop_certified
+        certified, passes, counts = [], [], []
+        original, clear = filt._stop_certified, filt._bands_clear
 
         def spy(*args):
             certified.append(original(*args))
+            counts.append(len(passes))
             return certified[-1] and certify
+
+        def count(*args):
+            passes.append(args[0].shape)
+            return clear(*args)
         monkeypatch.setattr(filt, '_stop_certified', spy)
+        monkeypatch.setattr(filt, '_bands_clear', count)
         state, inputs = np.array([0.0, 0.0, 0.02, 0.0, 0.0]), []
         for _ in range(300):
-            u, _ = filt.step(state, rows, np.array([1.0, -0.5 * state[2] - state[4]]))
+            u, _ = filt.step(state, rows, np.array([4.0 * (1.0 - state[3]),
+                                                    -0.5 * state[2] - state[4]]))
             inputs.append(u)
             state = filt.model.one_period(state, u, PERIOD)
-        return np.array(inputs), certified, filt
+        return np.array(inputs), certified, filt, np.diff(counts)  # passes a step
 
     rows = ObstacleSet.from_obstacles([
         Obstacle(polygon=np.array([[x, low], [x + 0.3, low], [x + 0.3, low + 0.4],
                                    [x, low + 0.4]]))
         for x in np.arange(-0.3, 6.0, 0.6) for low in (1.0, -1.4)])
-    fast, certified, filt = rollout(True)
-    slow, checked, _ = rollout(False)
+    fast, certified, filt, passes = rollout(True)
+    slow, checked, _, _ = rollout(False)
     assert len(certified) >= 100 and all(certified)
+    # In its last second, cruising near 1 m/s, mostly by the held certificate.
+    assert np.count_nonzero(passes[-100:]) < 20
     assert np.array_equal(fast, slow) and checked == certified
     wall = ObstacleSet.from_obstacles([Obstacle(polygon=np.array(
         [[0.5, -1.0], [0.7, -1.0], [0.7, 1.0], [0.5, 1.0]]))])

@@ -319,6 +319,46 @@ def group_skipped(group, boxes, velocities, offsets, accelerations, velocity_err
 
 
 
+@kernel(signature('void', F2, 'f8', 'f8', 'f8', F2))
+def grow_bands(bands, reach, speed, turn, out):
+    """Write into ``out`` a stop's ``bands`` (``RobotModel.stop_bands``) widened.
+
+    Each position box by ``reach`` [m] on every side, each velocity box by ``speed`` [m/s],
+    the bound on |omega| (column 9) by ``turn`` [rad/s]; column 8 bounds |v|^2 over the
+    widened velocity box (and stays at least the given bound).  Every row the given bands
+    hold, the widened ones hold too.
+    """
+    for b in range(bands.shape[0]):
+        out[b, 0], out[b, 1] = bands[b, 0] - reach, bands[b, 1] + reach
+        out[b, 2], out[b, 3] = bands[b, 2] - reach, bands[b, 3] + reach
+        out[b, 4], out[b, 5] = bands[b, 4] - speed, bands[b, 5] + speed
+        out[b, 6], out[b, 7] = bands[b, 6] - speed, bands[b, 7] + speed
+        out[b, 8] = max(bands[b, 8], max(out[b, 4] * out[b, 4], out[b, 5] * out[b, 5])
+                        + max(out[b, 6] * out[b, 6], out[b, 7] * out[b, 7]))
+        out[b, 9] = bands[b, 9] + turn
+
+
+
+@kernel(signature('b1', F2, 'f8', 'f8', F2, 'f8', 'f8'))
+def bands_within(bands, first_time, last_time, held, held_first, held_last):
+    """Return True when every row ``bands`` hold over [first, last], ``held`` holds too.
+
+    Band by band (the same count): each position and velocity box inside the held one's,
+    the bounds of |v|^2 and |omega| at most the held ones', and the times inside
+    [held_first, held_last].
+    """
+    if bands.shape[0] != held.shape[0] or first_time < held_first or last_time > held_last:
+        return False
+    for b in range(bands.shape[0]):
+        for low in range(0, 8, 2):
+            if bands[b, low] < held[b, low] or bands[b, low + 1] > held[b, low + 1]:
+                return False
+        if bands[b, 8] > held[b, 8] or bands[b, 9] > held[b, 9]:
+            return False
+    return True
+
+
+
 @kernel(signature('b1', F2, 'f8', 'f8', F2, F2, F2, F2, F1, 'f8', 'f8', 'f8', 'b1'))
 def stop_clear(bands, first_time, last_time, boxes, velocities, offsets, accelerations,
                velocity_errors, accel, cutoff, cover, moving_only):
