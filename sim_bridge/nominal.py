@@ -70,13 +70,14 @@ class UnicycleGoalController(_UnicycleLaw):
 
     def velocity_command(self, state, goal):
         """Return the desired [v, omega]."""
-        error = np.asarray(goal, dtype=float)[:2] - state[:2]
-        distance = _norm(error)
+        x, y, theta = state[:3].tolist()   # floats: numpy scalars cost 3x here
+        error_x, error_y = float(goal[0]) - x, float(goal[1]) - y
+        distance = math.sqrt(error_x * error_x + error_y * error_y)
         if distance < self.goal_tolerance:
             return np.zeros(2)
-        heading = np.arctan2(error[1], error[0]) - state[2]
-        heading = (heading + np.pi) % (2 * np.pi) - np.pi
-        speed = min(self.distance_gain * distance, self.max_speed) * max(np.cos(heading), 0.0)
+        heading = math.atan2(error_y, error_x) - theta
+        heading = (heading + math.pi) % (2 * math.pi) - math.pi
+        speed = min(self.distance_gain * distance, self.max_speed) * max(math.cos(heading), 0.0)
         return np.array([speed, self.turn_rate(heading)])
 
 
