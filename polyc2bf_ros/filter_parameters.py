@@ -114,6 +114,9 @@ NODE_PARAMETERS = {
                     'ends this far [m] the way the nominal points', False),
     'route_window': (ROUTE_DEFAULTS[1], (2.0, 30.0), '... planned on a square grid of this '
                      'side [m] about the robot (0.1 m cells); must exceed 2 route_ahead', False),
+    'route_clear_run': (ROUTE_DEFAULTS[2], (0.0, 5.0), '... and, where the window has such a '
+                        'place, ends where a straight run this long [m] on that way is free '
+                        '(0 = off)', False),
     'scan_timeout': (1.0, (0.0, 3600.0), 'LaserScan sources (scan_topics) older than this [s] '
                      '-> stop; 0 = never stale once received', True),
     'sensor_pose': ([0.0, 0.0, 0.0], None, '[x, y, yaw] of the laser in the odometry child '
@@ -424,12 +427,13 @@ def build_settings(values, model=None, reuse=None):
             'deadlock_time', 'deadlock_radius', 'stuck_time', 'stuck_radius',
             'deadlock_repeat_count', 'deadlock_repeat_window')),
         resolution=values['deadlock_resolution'],
-        route=(float(values['route_ahead']), float(values['route_window'])),
+        route=(float(values['route_ahead']), float(values['route_window']),
+               float(values['route_clear_run'])),
         parameters=dict(values), scan_topics=scan_topics, scan_timeout=scan_timeout)
     if settings.resolution not in RESOLUTIONS:
         raise ParameterError(f"parameter 'deadlock_resolution' must be one of {RESOLUTIONS}, "
                              f'got {settings.resolution!r}')
-    ahead, window = settings.route
+    ahead, window, _ = settings.route
     if not window > 2.0 * ahead:
         raise ParameterError(f'route_window ({window:g} m) must exceed 2 route_ahead '
                              f'({2.0 * ahead:g} m): the route ends inside the window')

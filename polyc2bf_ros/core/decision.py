@@ -51,8 +51,9 @@ RESOLUTIONS = ('none', 'circulate', 'route')
 #: resolution -> the models it steers (the others keep their nominal)
 RESOLVED_MODELS = {'none': (), 'circulate': ('unicycle',), 'route': ('unicycle', 'point_mass_2d')}
 ROUTE_MARGIN = 0.02  # m: a route's cells keep the braking check's clearance plus this
-# route_ahead [m], route_window [m] (``escape_route.plan_route``'s ahead and window)
-ROUTE_DEFAULTS = (3.0, 10.0)
+# route_ahead [m], route_window [m], route_clear_run [m] (``escape_route.plan_route``'s
+# ahead, window and run)
+ROUTE_DEFAULTS = (3.0, 10.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -116,7 +117,8 @@ class ControlDecision:
         ``'obstacles'`` may be left out (no marker input); other names are more watchdogs.
 
         ``deadlock``: the ``DeadlockDetector``'s arguments (``DEADLOCK_DEFAULTS``);
-        ``resolution`` one of ``RESOLUTIONS``; ``route``: (ahead, window) of its routes [m].
+        ``resolution`` one of ``RESOLUTIONS``; ``route``: (ahead, window, clear run) of its
+        routes [m].
         """
         self.watchdog = Watchdog(timeouts)
         self.deadlock = DeadlockDetector(*deadlock)
@@ -153,7 +155,8 @@ class ControlDecision:
             # A turning footprint backs out to where its corners clear (escape_route).
             backing = (geometry.robot_radius - geometry.passage_radius + ROUTE_MARGIN
                        if geometry.turning else 0.0)
-            options = {'ahead': float(route[0]), 'window': float(route[1])}
+            options = {'ahead': float(route[0]), 'window': float(route[1]),
+                       'run': float(route[2])}
             if not (isinstance(self.circulation, RouteEscape)
                     and self.circulation.free_clearance == free
                     and self.circulation.holonomic == holonomic

@@ -25,6 +25,7 @@ from strategies import convex_polygons
 from test_circulation import evaluation_with_axes
 
 FREE = 0.522
+RUN = 1.5   # m: config/jackal.yaml's route_clear_run
 
 
 def box(x0, y0, x1, y1):
@@ -72,6 +73,35 @@ def test_the_route_goes_round_the_wall_ahead_keeping_the_clearance():
     beside = route[(route[:, 0] > 2.0) & (route[:, 0] < 2.3)]
     assert len(beside) and np.abs(beside[:, 1]).min() >= 1.5 + FREE - 1e-9
     assert np.all(np.hypot(*np.diff(route, axis=0).T) <= 0.1 * math.sqrt(2) + 0.06)
+
+
+def run_clearance(end, direction, polygons, length=RUN):
+    """Return the least clearance along the straight run ``length`` from ``end``."""
+    steps = np.linspace(0.0, length, int(length / 0.02) + 1)[:, None]
+    return clearance_along(np.asarray(end) + steps * np.asarray(direction), polygons).min()
+
+
+def test_the_route_ends_where_the_way_on_along_the_intent_is_clear():
+    """Two staggered walls: the route ends where the second leaves the way on clear.
+
+    Ended 3 m ahead as the rule without the run (``route_clear_run`` 0) has it, the
+    nominal drives on straight into the second wall and is held again.  With no clear run
+    anywhere in the window (a wall across all of it), the route ends where that rule ends it.
+    """
+    start, near = (1.45, 0.0), box(2.0, -4.8, 2.3, 1.0)
+    far = box(5.6, -1.0, 5.9, 4.8)
+    walls = obstacle_set(near, far)
+    route = plan_route(walls, start, (1.0, 0.0), FREE, run=RUN)
+    short = plan_route(walls, start, (1.0, 0.0), FREE)
+    assert route is not None and short is not None
+    assert run_clearance(short[-1], (1.0, 0.0), [near, far]) < FREE     # the second wall
+    reach = min(RUN, start[0] + 5.0 - route[-1, 0])   # the window's edge: unknown
+    assert run_clearance(route[-1], (1.0, 0.0), [near, far], reach) >= FREE - 0.1 * math.sqrt(2)
+    assert route[-1, 0] - start[0] >= 3.0 - 1e-9
+    across = obstacle_set(near, box(6.0, -6.0, 6.3, 6.0))
+    fallback = plan_route(across, start, (1.0, 0.0), FREE, run=RUN)
+    assert fallback is not None
+    np.testing.assert_allclose(fallback, plan_route(across, start, (1.0, 0.0), FREE))
 
 
 def quarter_view(start, wall_x, wall_top):

@@ -42,14 +42,14 @@ def test_unknown_parameters_are_listed_not_applied():
 
 
 def test_route_parameters_reach_the_resolution_and_must_fit_the_window():
-    """route_ahead / route_window become the route's reach; a window under 2 x reach fails."""
+    """route_ahead, route_window, route_clear_run reach the route; window under 2 x reach fails."""
     setup = build_filter({'deadlock_resolution': 'route', 'route_ahead': 4.0,
-                          'route_window': 12.0})
-    assert setup.route == (4.0, 12.0)
+                          'route_window': 12.0, 'route_clear_run': 1.5})
+    assert setup.route == (4.0, 12.0, 1.5)
     decision = ControlDecision(setup.command_filter, setup.timeouts, setup.block_if_invalid,
                                setup.max_extrapolation, setup.deadlock, setup.resolution,
                                setup.route)
-    assert decision.circulation.route_options == {'ahead': 4.0, 'window': 12.0}
+    assert decision.circulation.route_options == {'ahead': 4.0, 'window': 12.0, 'run': 1.5}
     with pytest.raises(ParameterError, match='route_window .* must exceed 2 route_ahead'):
         build_filter({'route_ahead': 6.0})
 

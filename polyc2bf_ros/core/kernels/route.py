@@ -76,10 +76,10 @@ def _pop(heap_cost, heap_index, size):
 
 
 
-@kernel(signature('i8', F2, F2, 'i8', 'i8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8',
-                  I1, F1, I1))
-def route_search(clearance, unseen, start_i, start_j, dir_x, dir_y, ahead, free, start_free,
-                 preferred, weight, unseen_weight, parent, cost, heap_index):
+@kernel(signature('i8', F2, F2, F2, 'i8', 'i8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8', 'f8',
+                  'f8', I1, F1, I1))
+def route_search(clearance, unseen, run_clear, start_i, start_j, dir_x, dir_y, ahead, free,
+                 start_free, preferred, weight, unseen_weight, parent, cost, heap_index):
     """Return the flat index of the route's end cell, or -1; ``parent`` holds the route.
 
     Dijkstra from (start_i, start_j) over 8-connected cells with clearance >= ``free``
@@ -87,9 +87,10 @@ def route_search(clearance, unseen, start_i, start_j, dir_x, dir_y, ahead, free,
     times 1 + weight max(0, preferred - c) / (preferred - free), and times 1 +
     ``unseen_weight`` into a cell whose ``unseen`` is 1 (0: seen).  The end is the first
     cell popped whose offset from the start, in cells, along (dir_x, dir_y) is >= ``ahead``
-    with clearance >= (free + preferred) / 2.  Scratch: ``cost`` (9 rows x columns: the cells'
-    costs, then the heap's keys) and ``heap_index`` (8 rows x columns: each cell enters the
-    heap at most once per neighbour).
+    with clearance >= (free + preferred) / 2 and ``run_clear`` 1 (a clear run on past it);
+    when no such cell is reached, the first popped that meets all but ``run_clear``.
+    Scratch: ``cost`` (9 rows x columns: the cells' costs, then the heap's keys) and
+    ``heap_index`` (8 rows x columns: each cell enters the heap at most once per neighbour).
     """
     rows, columns = clearance.shape
     cells = rows * columns
@@ -102,6 +103,7 @@ def route_search(clearance, unseen, start_i, start_j, dir_x, dir_y, ahead, free,
     size = _push(heap_cost, heap_index, 0, 0.0, start)
     span = preferred - free
     goal_clearance = 0.5 * (free + preferred)
+    fallback = -1
     while size > 0:
         here, index, size = _pop(heap_cost, heap_index, size)
         if here > cost[index]:
@@ -109,7 +111,10 @@ def route_search(clearance, unseen, start_i, start_j, dir_x, dir_y, ahead, free,
         i, j = index // columns, index % columns
         if ((i - start_i) * dir_y + (j - start_j) * dir_x >= ahead
                 and clearance[i, j] >= goal_clearance):
-            return index
+            if run_clear[i, j] > 0.0:
+                return index
+            if fallback < 0:
+                fallback = index
         for di in range(-1, 2):
             for dj in range(-1, 2):
                 ni, nj = i + di, j + dj
@@ -127,4 +132,4 @@ def route_search(clearance, unseen, start_i, start_j, dir_x, dir_y, ahead, free,
                     cost[neighbour] = here + step
                     parent[neighbour] = index
                     size = _push(heap_cost, heap_index, size, here + step, neighbour)
-    return -1
+    return fallback
