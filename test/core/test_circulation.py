@@ -106,6 +106,25 @@ def test_the_probe_drives_on_where_the_nominal_turns():
     assert circulation.probe((-0.1, 0.0)) == pytest.approx([-0.4, 0.0])
 
 
+def test_the_axis_comes_from_the_last_step_with_parts_idle_and_every_step_circulating():
+    """Idle, engage takes the axis of the last info with parts; circulating, each step's.
+
+    Side +1 about an axis p drives along (p_x, -p_y) turned: p = +x leads along +y (heading
+    pi/2: straight on), p = +y along -x (heading pi/2: turn at the limit).
+    """
+    circulation = Circulation()
+    circulation.observe(info_with_axis((0.0, 1.0)))
+    circulation.observe(info_with_axis((1.0, 0.0)))
+    circulation.observe(SimpleNamespace(h=np.empty(0), evaluation=evaluation_with_axes(
+        np.empty((2, 0)), np.empty(0, dtype=bool))))          # no parts: changes nothing
+    circulation.engage(0.0, (0.0, 0.0), 0.3, (0.8, 0.0))
+    assert circulation.side == 1
+    assert circulation.command(0.5 * math.pi, (0.8, 0.0)) == pytest.approx([0.8, 0.0])
+    circulation.observe(info_with_axis((0.0, 1.0)))           # circulating: taken at once
+    assert circulation.command(0.5 * math.pi, (0.8, 0.0)) == pytest.approx([0.0, 1.5],
+                                                                           abs=1e-9)
+
+
 def test_without_a_valid_cone_nothing_is_engaged():
     """No cone seen (inside, or no obstacles): engaging does nothing."""
     circulation = Circulation()
