@@ -12,6 +12,7 @@ from polyc2bf_ros.core.geometry.polygons import (
 )
 from polyc2bf_ros.core.kernels.cones import (
     hinted_seen_edge,
+    hinted_silhouette,
     nearest_edge,
     nearest_seen_edge,
     silhouette,
@@ -99,25 +100,28 @@ def test_the_seen_edges_give_the_nearest_edge_bit_for_bit(polygon, viewpoint, ra
 @settings(max_examples=examples(500), deadline=None)
 @given(polygon=convex_polygons(), viewpoint=viewpoints, radius=st.sampled_from([0.0, 0.2, 0.3]),
        near=st.booleans(), hint=st.integers(-3, 40), step=st.floats(-0.05, 0.05))
-def test_a_hinted_nearest_edge_is_the_scans_bit_for_bit(polygon, viewpoint, radius, near, hint,
-                                                        step):
-    """``hinted_seen_edge`` (the horizon step's distance) is ``nearest_edge``'s, from any hint.
+def test_hinted_silhouettes_and_nearest_edges_are_the_scans_bit_for_bit(
+        polygon, viewpoint, radius, near, hint, step):
+    """``hinted_silhouette`` and ``hinted_seen_edge`` (the horizon step's) from any hints.
 
-    Twice: from ``hint`` (out of range too), then from the hint it left, with the viewpoint
-    moved by ``step`` on both axes, as between two control steps.
+    ``silhouette``'s ends and ``nearest_edge``'s distance, exactly, twice: from ``hint``
+    (out of range too), then from the hints the first call left, with the viewpoint moved
+    by ``step`` on both axes, as between two control steps.
     """
     prepared, count, viewpoint = _polygon_and_viewpoint(polygon, radius, viewpoint, near)
-    hints = np.array([hint], dtype=np.int64)
+    hints = np.array([[hint, hint + 1, hint - 2]], dtype=np.int64)
     for qx, qy in ((float(viewpoint[0]), float(viewpoint[1])),
                    (float(viewpoint[0]) + step, float(viewpoint[1]) + step)):
         a, b, seen = silhouette(prepared.x, prepared.y, count, 0, qx, qy)
+        assert hinted_silhouette(prepared.x, prepared.y, count, 0, qx, qy, hints) \
+            == (a, b, seen)
         assume(seen)
         square, _, dx, dy, _ = nearest_edge(prepared.x, prepared.y, prepared.edge_x,
                                             prepared.edge_y, prepared.inv_sq, count, 0, qx, qy)
         assert hinted_seen_edge(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                                 prepared.inv_sq, count, 0, qx, qy, a, b, hints) \
             == (square, dx, dy)
-        assert 0 <= hints[0] < count
+        assert ((0 <= hints[0]) & (hints[0] < count)).all()
 
 
 @settings(max_examples=examples(200), deadline=None)

@@ -91,9 +91,9 @@ def _nearest_seen_index(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b):
 
 @kernel
 def hinted_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b, hints):
-    """Return ``nearest_seen_edge``'s (|d|^2, d_x, d_y), trying edge ``hints[n]`` first.
+    """Return ``nearest_seen_edge``'s (|d|^2, d_x, d_y), trying edge ``hints[n, 0]`` first.
 
-    ``hints[n]``: the edge this returned for polygon n last (any index is valid); it is
+    ``hints[n, 0]``: the edge this returned for polygon n last (any index is valid); it is
     updated.  Seen from q outside, the facing chain is a curve r(phi) in polar angle about
     q.  A point of it no farther than the chain's points around it is no farther than any
     point of the polygon around it either (the ray from q to such a point crosses the
@@ -105,7 +105,7 @@ def hinted_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b, hints
     moves to the next between steps (the horizon barrier's step, bench/README.md core
     step); else the scan.
     """
-    k = hints[n]
+    k = hints[n, 0]
     if (a - b) % count + 2 < count and 0 <= k < count and (k - b) % count < (a - b) % count:
         before = k - 1 if k > 0 else count - 1
         after = k + 1 if k + 1 < count else 0
@@ -120,7 +120,7 @@ def hinted_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b, hints
                 k, dx, dy = after, ax, ay
             return here, dx, dy
     square, k = _nearest_seen_index(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b)
-    hints[n] = k
+    hints[n, 0] = k
     dx, dy, _, _ = _edge_offset(x, y, edge_x, edge_y, inv_sq, n, k, qx, qy)
     return square, dx, dy
 
@@ -170,6 +170,36 @@ def silhouette(x, y, count, n, qx, qy):
         if a >= 0 and b >= 0:
             break  # both ends of the (single) facing chain found
     return max(a, 0), max(b, 0), seen
+
+
+
+@kernel
+def hinted_silhouette(x, y, count, n, qx, qy, hints):
+    """Return ``silhouette``'s (a, b, seen), trying polygon n's last ends ``hints[n, 1:]`` first.
+
+    The facing edges of a convex polygon form one chain: where edge a - 1 faces q and
+    edge a does not, and edge b - 1 does not and edge b does, A = v_a and B = v_b are its
+    ends, the scan's (bit for bit, ``test_cones.py``).  Four edge tests where the ends
+    stay between steps; else the scan, whose ends are kept.
+    """
+    a, b = hints[n, 1], hints[n, 2]
+    if (0 <= a < count and 0 <= b < count and _faces(x, y, count, n, qx, qy, a - 1)
+            and not _faces(x, y, count, n, qx, qy, a)
+            and not _faces(x, y, count, n, qx, qy, b - 1)
+            and _faces(x, y, count, n, qx, qy, b)):
+        return a, b, True
+    a, b, seen = silhouette(x, y, count, n, qx, qy)
+    hints[n, 1], hints[n, 2] = a, b
+    return a, b, seen
+
+
+
+@kernel
+def _faces(x, y, count, n, qx, qy, k):
+    """Return True when edge k (-1: the last) of polygon n faces q, as ``silhouette`` tests it."""
+    k = k if k >= 0 else count - 1
+    nxt = k + 1 if k < count - 1 else 0
+    return (x[n, nxt] - x[n, k]) * (y[n, k] - qy) > (y[n, nxt] - y[n, k]) * (x[n, k] - qx)
 
 
 

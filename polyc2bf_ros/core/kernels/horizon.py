@@ -16,13 +16,14 @@ from polyc2bf_ros.core.kernels.braking import (
 )
 from polyc2bf_ros.core.kernels.cones import (
     hinted_seen_edge,
+    hinted_silhouette,
     midpoint_cone,
     nearest_edge,
     nearest_seen_edge,
     PLANE_ROWS,
     silhouette,
 )
-from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, kernel, signature
+from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, I2, kernel, signature
 from polyc2bf_ros.core.kernels.views import viewpoint
 
 _TINY = 1e-12
@@ -147,20 +148,21 @@ def _horizon_cones(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, bisector, o
 
 
 
-@kernel(signature('void', F2, F2, F2, F2, F2, I1, I1, 'f8', 'b1', F3, F1, F2, F2, 'f8', F1, F1,
+@kernel(signature('void', F2, F2, F2, F2, F2, I1, I2, 'f8', 'b1', F3, F1, F2, F2, 'f8', F1, F1,
                   F2, 'f8', F2, B1))
 def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, hints, inv_horizon, bisector,
                    projections, position, velocities, offsets, age, position_rate, drift,
                    input_matrix, velocity_epsilon, block, valid):
     """Per polygon: viewpoint, cone, distance and h_tau terms (``ConeModel.fill_plane``).
 
-    ``hints``: each polygon's nearest edge last time (``hinted_seen_edge``), updated.
+    ``hints``: each polygon's nearest edge and silhouette last time (``hinted_seen_edge``,
+    ``hinted_silhouette``), updated.
     """
     eps_sq = velocity_epsilon * velocity_epsilon
     for n in range(counts.shape[0]):
         qx, qy = viewpoint(projections, position, velocities, offsets, age, n)
         block[0, n], block[1, n] = qx, qy
-        a, b, seen = silhouette(x, y, counts[n], n, qx, qy)
+        a, b, seen = hinted_silhouette(x, y, counts[n], n, qx, qy, hints)
         distance, ddx, ddy = _boundary_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
                                                 qx, qy, a, b, seen, hints)
         if bisector:
