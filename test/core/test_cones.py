@@ -10,7 +10,13 @@ from polyc2bf_ros.core.geometry.polygons import (
     PolygonBatch,
     signed_distance,
 )
-from polyc2bf_ros.core.kernels.cones import nearest_edge, nearest_seen_edge, silhouette
+from polyc2bf_ros.core.kernels.cones import (
+    hinted_seen_edge,
+    hinted_silhouette,
+    nearest_edge,
+    nearest_seen_edge,
+    silhouette,
+)
 from strategies import convex_polygons, examples
 
 viewpoints = st.tuples(st.floats(-8, 8), st.floats(-8, 8)).map(np.array)
@@ -56,14 +62,10 @@ def test_inflated_obstacle_inside_inflated_cone(polygon, viewpoint, radius):
     assert _inside_cone(offset_points - viewpoint, cones)
 
 
-@settings(max_examples=examples(500), deadline=None)
-@given(polygon=convex_polygons(), viewpoint=viewpoints, radius=st.sampled_from([0.0, 0.2, 0.3]),
-       near=st.booleans())
-def test_the_seen_edges_give_the_nearest_edge_bit_for_bit(polygon, viewpoint, radius, near):
-    """``nearest_seen_edge`` (the horizon barrier's distance) is ``nearest_edge``'s, exactly.
+def _polygon_and_viewpoint(polygon, radius, viewpoint, near):
+    """Return (prepared, vertex count, viewpoint): raw or inflated by ``radius``.
 
-    Raw and inflated polygons, from anywhere outside; ``near`` puts the viewpoint within
-    5 cm of the boundary, where the nearest point is most often a vertex (ties).
+    ``near`` puts the viewpoint within 5 cm of a vertex (where ties between edges happen).
     """
     prepared = InflatedCone(radius, 16).prepare(PolygonBatch.from_polygons([polygon])) \
         if radius else PlanarPolygons.from_batch(PolygonBatch.from_polygons([polygon]))
@@ -73,6 +75,19 @@ def test_the_seen_edges_give_the_nearest_edge_bit_for_bit(polygon, viewpoint, ra
         vertex = np.array([prepared.x[0, k], prepared.y[0, k]])
         outward = vertex - np.array([prepared.x[0, :count].mean(), prepared.y[0, :count].mean()])
         viewpoint = vertex + 0.05 * (abs(viewpoint[1]) / 8.0) * outward / np.linalg.norm(outward)
+    return prepared, count, viewpoint
+
+
+@settings(max_examples=examples(500), deadline=None)
+@given(polygon=convex_polygons(), viewpoint=viewpoints, radius=st.sampled_from([0.0, 0.2, 0.3]),
+       near=st.booleans())
+def test_the_seen_edges_give_the_nearest_edge_bit_for_bit(polygon, viewpoint, radius, near):
+    """``nearest_seen_edge`` (the horizon barrier's distance) is ``nearest_edge``'s, exactly.
+
+    Raw and inflated polygons, from anywhere outside; ``near`` puts the viewpoint within
+    5 cm of the boundary, where the nearest point is most often a vertex (ties).
+    """
+    prepared, count, viewpoint = _polygon_and_viewpoint(polygon, radius, viewpoint, near)
     qx, qy = float(viewpoint[0]), float(viewpoint[1])
     a, b, seen = silhouette(prepared.x, prepared.y, count, 0, qx, qy)
     assume(seen)
@@ -80,6 +95,33 @@ def test_the_seen_edges_give_the_nearest_edge_bit_for_bit(polygon, viewpoint, ra
                                         prepared.inv_sq, count, 0, qx, qy)
     assert nearest_seen_edge(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
                              prepared.inv_sq, count, 0, qx, qy, a, b) == (square, dx, dy)
+
+
+@settings(max_examples=examples(500), deadline=None)
+@given(polygon=convex_polygons(), viewpoint=viewpoints, radius=st.sampled_from([0.0, 0.2, 0.3]),
+       near=st.booleans(), hint=st.integers(-3, 40), step=st.floats(-0.05, 0.05))
+def test_hinted_silhouettes_and_nearest_edges_are_the_scans_bit_for_bit(
+        polygon, viewpoint, radius, near, hint, step):
+    """``hinted_silhouette`` and ``hinted_seen_edge`` (the horizon step's) from any hints.
+
+    ``silhouette``'s ends and ``nearest_edge``'s distance, exactly, twice: from ``hint``
+    (out of range too), then from the hints the first call left, with the viewpoint moved
+    by ``step`` on both axes, as between two control steps.
+    """
+    prepared, count, viewpoint = _polygon_and_viewpoint(polygon, radius, viewpoint, near)
+    hints = np.array([[hint, hint + 1, hint - 2]], dtype=np.int64)
+    for qx, qy in ((float(viewpoint[0]), float(viewpoint[1])),
+                   (float(viewpoint[0]) + step, float(viewpoint[1]) + step)):
+        a, b, seen = silhouette(prepared.x, prepared.y, count, 0, qx, qy)
+        assert hinted_silhouette(prepared.x, prepared.y, count, 0, qx, qy, hints) \
+            == (a, b, seen)
+        assume(seen)
+        square, _, dx, dy, _ = nearest_edge(prepared.x, prepared.y, prepared.edge_x,
+                                            prepared.edge_y, prepared.inv_sq, count, 0, qx, qy)
+        assert hinted_seen_edge(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y,
+                                prepared.inv_sq, count, 0, qx, qy, a, b, hints) \
+            == (square, dx, dy)
+        assert ((0 <= hints[0]) & (hints[0] < count)).all()
 
 
 @settings(max_examples=examples(200), deadline=None)

@@ -101,7 +101,10 @@ class PlanarPolygons:
     the next) and their ``inv_sq`` = 1 / |e|^2, each polygon's first ``counts[n]`` slots
     (``batch_geometry.edge_rows`` pads the rest); ``boxes`` (N, 4) each polygon's bounding
     box [low x, high x, low y, high y] (``kernels.cones.polygon_box``), for the braking
-    check's kernels to skip far polygons without reading their vertices.
+    check's kernels to skip far polygons without reading their vertices; ``hints`` (N, 3)
+    where the horizon barrier found each polygon's nearest edge and silhouette (a, b)
+    last (``kernels.cones.hinted_seen_edge``, ``hinted_silhouette``: a start, not a
+    result).
     """
 
     x: np.ndarray
@@ -111,6 +114,7 @@ class PlanarPolygons:
     inv_sq: np.ndarray
     counts: np.ndarray
     boxes: np.ndarray
+    hints: np.ndarray
 
     @classmethod
     def from_rows(cls, x, y, counts):
@@ -118,7 +122,8 @@ class PlanarPolygons:
         edge_x, edge_y, inv_sq = np.empty_like(x), np.empty_like(x), np.empty_like(x)
         boxes = np.empty((len(counts), 4))
         batch_geometry.edge_rows(x, y, counts, edge_x, edge_y, inv_sq, boxes)
-        return cls(x, y, edge_x, edge_y, inv_sq, counts, boxes)
+        return cls(x, y, edge_x, edge_y, inv_sq, counts, boxes,
+                   np.zeros((len(counts), 3), dtype=np.int64))
 
     @classmethod
     def from_batch(cls, batch):

@@ -112,6 +112,6 @@ class HorizonCone(InflatedCone):
         """Run the fused horizon kernel."""
         kernel = _horizon_plane if checked else _horizon_plane.unchecked
         kernel(prepared.x, prepared.y, prepared.edge_x, prepared.edge_y, prepared.inv_sq,
-               prepared.counts, 1.0 / self.horizon, self.axis == 'bisector', projections,
-               reference.position, velocities, offsets, age, reference.velocity,
+               prepared.counts, prepared.hints, 1.0 / self.horizon, self.axis == 'bisector',
+               projections, reference.position, velocities, offsets, age, reference.velocity,
                reference.drift, reference.input_matrix, velocity_epsilon, block, valid)

@@ -65,12 +65,19 @@ def nearest_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b):
     P; the others are strictly farther.  They are taken in increasing index, as
     ``nearest_edge`` takes them, so that a tie at a vertex keeps the same edge (bit for
     bit, ``test_cones.py``); a chain that leaves fewer than two edges out takes them all.
-    Among 50 inflated 8-gons (24 vertices) the horizon kernel took 9.0 us with it, 10.5
-    with ``nearest_edge`` (bench/README.md, core step).
     """
+    square, nearest = _nearest_seen_index(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b)
+    dx, dy, _, _ = _edge_offset(x, y, edge_x, edge_y, inv_sq, n, nearest, qx, qy)
+    return square, dx, dy
+
+
+
+@kernel
+def _nearest_seen_index(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b):
+    """Return (|d|^2, k): ``nearest_seen_edge``'s distance and edge."""
     if (a - b) % count + 2 >= count:
-        square, _, dx, dy, _ = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)
-        return square, dx, dy
+        square, nearest, _, _, _ = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)
+        return square, nearest
     first = b - 1 if b > 0 else count - 1
     wraps = first > a  # the window runs past the last edge: 0 .. a, then first .. count - 1
     best, nearest = _nearest_in(x, y, edge_x, edge_y, inv_sq, n, qx, qy,
@@ -78,8 +85,44 @@ def nearest_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b):
     if wraps:
         best, nearest = _nearest_in(x, y, edge_x, edge_y, inv_sq, n, qx, qy, first, count,
                                     best, nearest)
-    dx, dy, _, _ = _edge_offset(x, y, edge_x, edge_y, inv_sq, n, nearest, qx, qy)
-    return best, dx, dy
+    return best, nearest
+
+
+
+@kernel
+def hinted_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b, hints):
+    """Return ``nearest_seen_edge``'s (|d|^2, d_x, d_y), trying edge ``hints[n, 0]`` first.
+
+    ``hints[n, 0]``: the edge this returned for polygon n last (any index is valid); it is
+    updated.  Seen from q outside, the facing chain is a curve r(phi) in polar angle about
+    q.  A point of it no farther than the chain's points around it is no farther than any
+    point of the polygon around it either (the ray from q to such a point crosses the
+    chain first, nearby), so it is a local, hence the global, minimum of the distance to
+    q over the convex polygon: P.  So a chain edge k (b .. a - 1) no farther than edges
+    k - 1 and k + 1 holds P, and only a neighbour sharing P's vertex can tie with it:
+    the smallest index of those ties is the scan's edge, bit for bit
+    (``test_cones.py``).  Three edges instead of the chain where P stays on one edge or
+    moves to the next between steps (the horizon barrier's step, bench/README.md core
+    step); else the scan.
+    """
+    k = hints[n, 0]
+    if (a - b) % count + 2 < count and 0 <= k < count and (k - b) % count < (a - b) % count:
+        before = k - 1 if k > 0 else count - 1
+        after = k + 1 if k + 1 < count else 0
+        dx, dy, _, _ = _edge_offset(x, y, edge_x, edge_y, inv_sq, n, k, qx, qy)
+        here = dx * dx + dy * dy
+        bx, by, _, _ = _edge_offset(x, y, edge_x, edge_y, inv_sq, n, before, qx, qy)
+        ax, ay, _, _ = _edge_offset(x, y, edge_x, edge_y, inv_sq, n, after, qx, qy)
+        if here <= bx * bx + by * by and here <= ax * ax + ay * ay:
+            if here == bx * bx + by * by and before < k:
+                k, dx, dy = before, bx, by
+            if here == ax * ax + ay * ay and after < k:
+                k, dx, dy = after, ax, ay
+            return here, dx, dy
+    square, k = _nearest_seen_index(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b)
+    hints[n, 0] = k
+    dx, dy, _, _ = _edge_offset(x, y, edge_x, edge_y, inv_sq, n, k, qx, qy)
+    return square, dx, dy
 
 
 
@@ -127,6 +170,36 @@ def silhouette(x, y, count, n, qx, qy):
         if a >= 0 and b >= 0:
             break  # both ends of the (single) facing chain found
     return max(a, 0), max(b, 0), seen
+
+
+
+@kernel
+def hinted_silhouette(x, y, count, n, qx, qy, hints):
+    """Return ``silhouette``'s (a, b, seen), trying polygon n's last ends ``hints[n, 1:]`` first.
+
+    The facing edges of a convex polygon form one chain: where edge a - 1 faces q and
+    edge a does not, and edge b - 1 does not and edge b does, A = v_a and B = v_b are its
+    ends, the scan's (bit for bit, ``test_cones.py``).  Four edge tests where the ends
+    stay between steps; else the scan, whose ends are kept.
+    """
+    a, b = hints[n, 1], hints[n, 2]
+    if (0 <= a < count and 0 <= b < count and _faces(x, y, count, n, qx, qy, a - 1)
+            and not _faces(x, y, count, n, qx, qy, a)
+            and not _faces(x, y, count, n, qx, qy, b - 1)
+            and _faces(x, y, count, n, qx, qy, b)):
+        return a, b, True
+    a, b, seen = silhouette(x, y, count, n, qx, qy)
+    hints[n, 1], hints[n, 2] = a, b
+    return a, b, seen
+
+
+
+@kernel
+def _faces(x, y, count, n, qx, qy, k):
+    """Return True when edge k (-1: the last) of polygon n faces q, as ``silhouette`` tests it."""
+    k = k if k >= 0 else count - 1
+    nxt = k + 1 if k < count - 1 else 0
+    return (x[n, nxt] - x[n, k]) * (y[n, k] - qy) > (y[n, nxt] - y[n, k]) * (x[n, k] - qx)
 
 
 

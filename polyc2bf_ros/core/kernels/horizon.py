@@ -15,27 +15,29 @@ from polyc2bf_ros.core.kernels.braking import (
     product_range,
 )
 from polyc2bf_ros.core.kernels.cones import (
+    hinted_seen_edge,
+    hinted_silhouette,
     midpoint_cone,
     nearest_edge,
     nearest_seen_edge,
     PLANE_ROWS,
     silhouette,
 )
-from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, kernel, signature
+from polyc2bf_ros.core.kernels.jit import B1, F1, F2, F3, I1, I2, kernel, signature
 from polyc2bf_ros.core.kernels.views import viewpoint
 
 _TINY = 1e-12
 
 
 @kernel
-def _boundary_distance(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b, seen):
+def _boundary_distance(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a, b, seen, hints):
     """Return (d, grad_x d): the distance from q to polygon n and its gradient in x.
 
-    A, B, seen: q's ``silhouette`` of the polygon (``nearest_seen_edge`` where seen).
+    A, B, seen: q's ``silhouette`` of the polygon (``hinted_seen_edge`` where seen).
     """
     if seen:
-        square, ox, oy = nearest_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a,
-                                           b)
+        square, ox, oy = hinted_seen_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy, a,
+                                          b, hints)
     else:
         square, _, ox, oy, _ = nearest_edge(x, y, edge_x, edge_y, inv_sq, count, n, qx, qy)
     distance = math.sqrt(square)
@@ -146,19 +148,23 @@ def _horizon_cones(x, y, edge_x, edge_y, inv_sq, counts, viewpoints, bisector, o
 
 
 
-@kernel(signature('void', F2, F2, F2, F2, F2, I1, 'f8', 'b1', F3, F1, F2, F2, 'f8', F1, F1, F2,
-                  'f8', F2, B1))
-def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, inv_horizon, bisector, projections,
-                   position, velocities, offsets, age, position_rate, drift, input_matrix,
-                   velocity_epsilon, block, valid):
-    """Per polygon: viewpoint, cone, distance and h_tau terms (``ConeModel.fill_plane``)."""
+@kernel(signature('void', F2, F2, F2, F2, F2, I1, I2, 'f8', 'b1', F3, F1, F2, F2, 'f8', F1, F1,
+                  F2, 'f8', F2, B1))
+def _horizon_plane(x, y, edge_x, edge_y, inv_sq, counts, hints, inv_horizon, bisector,
+                   projections, position, velocities, offsets, age, position_rate, drift,
+                   input_matrix, velocity_epsilon, block, valid):
+    """Per polygon: viewpoint, cone, distance and h_tau terms (``ConeModel.fill_plane``).
+
+    ``hints``: each polygon's nearest edge and silhouette last time (``hinted_seen_edge``,
+    ``hinted_silhouette``), updated.
+    """
     eps_sq = velocity_epsilon * velocity_epsilon
     for n in range(counts.shape[0]):
         qx, qy = viewpoint(projections, position, velocities, offsets, age, n)
         block[0, n], block[1, n] = qx, qy
-        a, b, seen = silhouette(x, y, counts[n], n, qx, qy)
+        a, b, seen = hinted_silhouette(x, y, counts[n], n, qx, qy, hints)
         distance, ddx, ddy = _boundary_distance(x, y, edge_x, edge_y, inv_sq, counts[n], n,
-                                                qx, qy, a, b, seen)
+                                                qx, qy, a, b, seen, hints)
         if bisector:
             cone = _bisector_cone(x, y, counts[n], n, qx, qy, a, b)
             block[2, n], block[3, n], block[4, n], block[5, n] = cone[0], cone[1], cone[2], cone[3]

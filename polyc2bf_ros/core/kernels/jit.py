@@ -71,9 +71,9 @@ MODES = ('auto', 'aot', 'jit')
 JIT_OPTIONS = {'cache': True, 'nogil': True, 'error_model': 'numpy'}
 
 #: Argument types of exported kernels: C-contiguous float64 arrays of rank 1-3, int64 and
-#: bool vectors (numba's notation; scalars are 'f8', 'i8', 'b1').
+#: vectors and matrices, bool vectors (numba's notation; scalars are 'f8', 'i8', 'b1').
 F1, F2, F3 = 'f8[::1]', 'f8[:, ::1]', 'f8[:, :, ::1]'
-I1, B1 = 'i8[::1]', 'b1[::1]'
+I1, I2, B1 = 'i8[::1]', 'i8[:, ::1]', 'b1[::1]'
 
 #: Kernels called from Python, filled in just-in-time mode for the ahead-of-time build:
 #: export name -> (numba dispatcher, signature string).
