@@ -421,7 +421,8 @@ def front_by_arrays(polygons, px, py, first, last, base, footprint_radius):
     apex = deepest[deepest.searchsorted(starts)]
     apex_along = along[apex]
     height = (ax - base[0]) * nx + (ay - base[1]) * ny  # of the chord's line above the base
-    room = height - footprint_radius
+    behind = height < 0.0  # the base on the depth side: moving the near side moves it away
+    room = np.where(behind, np.inf, height - footprint_radius)
     pointed = ((depth > scan_kernels.MIN_APEX_DEPTH) & (apex_along > 0.0) & (apex_along < length)
                & (room >= depth))
     rise = np.where(pointed, depth / np.where(pointed, apex_along, 1.0), 0.0)
@@ -436,7 +437,8 @@ def front_by_arrays(polygons, px, py, first, last, base, footprint_radius):
     lateral = np.maximum(np.maximum(-(base[0] - ax) * ex - (base[1] - ay) * ey,
                                     (base[0] - ax) * ex + (base[1] - ay) * ey - length), 0.0)
     clear = footprint_radius ** 2 - lateral * lateral
-    edge_room = np.where(clear > 0.0, height - np.sqrt(np.maximum(clear, 0.0)), np.inf)
+    edge_room = np.where((clear > 0.0) & ~behind, height - np.sqrt(np.maximum(clear, 0.0)),
+                         np.inf)
     shift = np.minimum(residual, np.maximum(np.where(pointed, room - depth, edge_room), 0.0))
     corners = np.empty((count, 5, 2))
     corners[:, 0], corners[:, 2:] = polygons[:, 0], polygons[:, 1:]

@@ -597,6 +597,33 @@ def test_a_chord_beside_the_robot_is_still_brought_to_its_points():
     assert min(_distances(np.zeros((1, 2)), o.polygon)[0] for o in obstacles) >= 0.2 - 1e-9
 
 
+def test_a_surface_lit_at_grazing_incidence_reaches_away_from_the_laser():
+    """The laser 5.5 cm ahead of the base; a wall whose line runs between the two.
+
+    The beams crossed the laser's side of the wall, so every polygon lies on the other side,
+    ``depth`` deep, though the base is on that side (away from the base, the polygons
+    reached 10 cm into the space the beams had crossed).
+    """
+    point, direction = np.array([-0.0275, 0.0]), np.array([0.5, math.sqrt(0.75)])
+    wall = (tuple(point + 0.3 * direction), tuple(point + 0.7 * direction))
+    increment = math.pi / 720
+    ranges = _cast([wall], 1081, -0.75 * math.pi, increment)
+    settings = ScanSettings(footprint_radius=0.2)
+    obstacles = scan_to_obstacles(ranges, -0.75 * math.pi, increment, 0.05, 10.0,
+                                  (0.055, 0.0, 0.0), (-0.055, 0.0, 0.0), settings)
+    assert obstacles
+
+    def side(points):
+        """Signed distance from the wall's line, positive on the base's side."""
+        rel = np.asarray(points) - point
+        return direction[0] * rel[..., 1] - direction[1] * rel[..., 0]
+
+    assert side(np.zeros(2)) < 0 < side(np.array([-0.055, 0.0]))  # laser / base
+    vertices = np.concatenate([o.polygon for o in obstacles])
+    assert side(vertices).min() >= -1e-6
+    assert side(vertices).max() == pytest.approx(settings.depth, abs=1e-6)
+
+
 @st.composite
 def _chains(draw):
     """Random point chains (noisy arcs and corners, repeated points) and their cluster ends."""
@@ -631,19 +658,22 @@ def test_the_compiled_split_gives_the_ends_of_splitting_a_level_at_a_time(chain)
 
 
 @SETTINGS
-@given(_chains(), st.floats(-1.5, 1.5), st.floats(0.3, 2.0), st.floats(0.0, 0.3))
-def test_the_compiled_front_gives_the_polygons_of_the_numpy_steps(chain, across, away, radius):
+@given(_chains(), st.floats(-1.5, 1.5), st.floats(0.3, 2.0), st.floats(0.0, 0.3),
+       st.sampled_from([(0.0, 0.0), (0.3, 0.0), (0.0, 0.6), (-0.2, 2.0)]))
+def test_the_compiled_front_gives_the_polygons_of_the_numpy_steps(chain, across, away, radius,
+                                                                  laser):
     """``kernels.scan.front`` against its numpy form, bit for bit, on pieces of random chains.
 
-    The chain's pieces (split at 1 cm) become ``_rectangles`` seen from a base beside the
-    chain; both bring their near sides to the points (step 6) and agree on every corner.
+    The chain's pieces (split at 1 cm) become ``_rectangles`` seen from a laser at the base
+    beside the chain or off it (then some have the base on their far side); both bring
+    their near sides to the points (step 6) and agree on every corner.
     """
     points, ends, _ = chain
     px, py = np.ascontiguousarray(points[:, 0]), np.ascontiguousarray(points[:, 1])
     ends = _split_to_tolerance(px, py, ends, 0.01)
     first, last = ends[:-1].copy(), ends[1:].copy()
     base = np.array([points[:, 0].mean() + across, points[:, 1].min() - away])
-    polygons = _rectangles(px[first], py[first], px[last], py[last], base, 0.02, 0.1)
+    polygons = _rectangles(px[first], py[first], px[last], py[last], base + laser, 0.02, 0.1)
     got = _front(polygons, px, py, first, last, base, radius)
     expected = front_by_arrays(polygons, px, py, first, last, base, radius)
     assert len(got) == len(expected) == len(first)

@@ -89,7 +89,7 @@ def front(polygons, px, py, first, last, base_x, base_y, radius, corners, pointe
             if ahead > depth:
                 depth, apex, apex_along = ahead, i, rel_x * ex + rel_y * ey
         height = (ax - base_x) * nx + (ay - base_y) * ny
-        room = height - radius
+        room = height - radius if height >= 0.0 else math.inf  # a base behind: moves away
         sharp = (depth > MIN_APEX_DEPTH and apex_along > 0.0 and apex_along < length
                  and room >= depth)
         rise = depth / apex_along if sharp else 0.0
@@ -105,7 +105,8 @@ def front(polygons, px, py, first, last, base_x, base_y, radius, corners, pointe
         lateral = max(max(-(base_x - ax) * ex - (base_y - ay) * ey,
                           (base_x - ax) * ex + (base_y - ay) * ey - length), 0.0)
         clear = radius * radius - lateral * lateral
-        edge_room = height - math.sqrt(max(clear, 0.0)) if clear > 0.0 else math.inf
+        edge_room = (height - math.sqrt(max(clear, 0.0)) if clear > 0.0 and height >= 0.0
+                     else math.inf)
         shift = min(residual, max(room - depth if sharp else edge_room, 0.0))
         corners[k, 0, 0], corners[k, 0, 1] = ax, ay
         corners[k, 1, 0], corners[k, 1, 1] = px[apex], py[apex]

@@ -34,18 +34,22 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
    are not merged again afterwards.
 5. Depth.  A piece with chord ``[a, b]`` of length ``L >= t = segment_thickness`` becomes
    the rectangle ``a, b, b + D n, a + D n`` (D = ``depth``), n the unit normal of the chord
-   on the side away from q (a and b swapped where needed for counter-clockwise order).  A
-   shorter piece, or a single point, becomes the t wide, D deep rectangle whose near edge is
-   centred on the chord midpoint m and which extends along ``(m - q) / |m - q|``.  Only the
-   lit side is measured; D stands for the body behind it.  (At D = 2 cm, a robot passing a
+   on the side away from the sensor o: the beams crossed o's side (a and b swapped where
+   needed for counter-clockwise order).  A shorter piece, or a single point, becomes the t
+   wide, D deep rectangle whose near edge is centred on the chord midpoint m and which
+   extends along ``(m - o) / |m - o|``, the beam's way.  A laser off the base can light a
+   surface at grazing incidence whose line runs between o and q; should its rectangle then
+   come within ``footprint_radius`` of q, it is built as from q instead (o replaced by q),
+   so that none comes near the base.  Only the lit side is measured; D stands for the body
+   behind it.  (At D = 2 cm, a robot passing a
    BARN cylinder of 7.5 cm radius saw a sliver of it: the side it came alongside had never
    been lit, the filter believed it a few millimetres farther than it was, and the robot
    grazed it.)
-6. Front.  A piece's points may lie in front of its chord (on the robot's side, up to
+6. Front.  A piece's points may lie in front of its chord (on the sensor's side, up to
    ``split_tolerance``; ``t / 2`` for a lone point's).  The deepest of them, m, becomes a fifth
    corner between the chord's ends when it lies within the chord's span, so the near side
    runs a m b: exact across a box's corner, and a quarter of the chord's sagitta from an
-   arc.  Then the near corners move towards q, along the polygon's normal, by the largest
+   arc.  Then the near corners move forward, along the polygon's normal, by the largest
    distance a point still lies in front of that near side, so no measured point lies in
    front of its polygon: the polygon is at least as close as the surface the beams hit.
    (Left on the chord, a cylinder's front bulged up to 4 cm in front of its pieces and the
@@ -54,10 +58,11 @@ frame while the base is at ``q = (x, y)`` with heading ``yaw`` in the odometry f
    next to a corner, and a gap between two pillars narrowed by twice that.)  The move is
    capped so that the polygon stays ``footprint_radius`` from q: a pentagon's line through
    its fifth corner, parallel to the chord (a piece whose corner would pass that line keeps
-   four), a rectangle's near edge as a segment.  (Capped by the edge's line instead, a
-   chord beside the robot, whose line passed within ``footprint_radius`` though the chord
-   did not, was never moved, and left the cylinder the robot was passing up to 4 mm in
-   front of its polygon: a BARN graze.)
+   four), a rectangle's near edge as a segment; uncapped when q lies behind the chord's
+   line (step 5: the move then takes the near side away from q).  (Capped by the edge's
+   line instead, a chord beside the robot, whose line passed within ``footprint_radius``
+   though the chord did not, was never moved, and left the cylinder the robot was passing
+   up to 4 mm in front of its polygon: a BARN graze.)
 
 Guarantees. Every point of a piece lies within ``split_tolerance`` of its chord, an edge of
 its rectangle, or within ``split_tolerance + t / 2`` of its short rectangle;
@@ -66,8 +71,9 @@ front of its polygon's near side (step 6) unless that would bring the polygon wi
 ``footprint_radius`` of q. So, unless ``min_cluster_points > 1`` drops a cluster or
 ``max_obstacles`` drops a polygon, every kept endpoint lies within ``cluster_tolerance`` of
 a returned polygon, and so does every segment between two linked endpoints (distance to a
-chord is convex along it): the outline is open only where links break. A polygon extends
-away from q from a near side that stays more than ``footprint_radius`` from q (step 6): no
+chord is convex along it): the outline is open only where links break. Every polygon
+stays more than ``footprint_radius`` from q (steps 4-6: its chord does, a rectangle that
+would not is built away from q, and the front's move is capped or moves away from q): no
 polygon contains the base. Polygons are rectangles, or pentagons with one corner in front of
 the chord: convex, counter-clockwise, area at least ``t D``. At most ``max_obstacles`` are
 returned; the farthest from q (by their chords' rectangles) are dropped.
@@ -235,21 +241,32 @@ def beam_endpoints(ranges, angle_min, angle_increment, range_min, range_max, sen
     range_max = _finite_number(range_max, 'range_max')
     if range_min > range_max:
         raise ValueError(f'range_min {range_min} must not exceed range_max {range_max}')
-    sensor_x, sensor_y, sensor_yaw = _finite_vector(sensor_pose, 3, 'sensor_pose')
-    x, y, yaw = _finite_vector(robot_pose, 3, 'robot_pose')
-    cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
-    cos_heading, sin_heading = math.cos(yaw + sensor_yaw), math.sin(yaw + sensor_yaw)
+    sensor_pose = _finite_vector(sensor_pose, 3, 'sensor_pose')
+    robot_pose = _finite_vector(robot_pose, 3, 'robot_pose')
+    origin_x, origin_y = sensor_origin(sensor_pose, robot_pose)
+    heading = robot_pose[2] + sensor_pose[2]
+    cos_heading, sin_heading = math.cos(heading), math.sin(heading)
     cos_bearing, sin_bearing = _bearing_units(len(ranges), angle_min, angle_increment)
     # r >= range_min and r > 0 (math.ulp(0.0): the smallest positive float); False for NaN.
     kept = (ranges >= max(range_min, math.ulp(0.0))) & (ranges <= range_max)
     lengths = np.where(kept, ranges, np.nan)
     forward, left = lengths * cos_bearing, lengths * sin_bearing  # in the sensor frame
     endpoints = np.empty((len(ranges), 2))
-    endpoints[:, 0] = (forward * cos_heading - left * sin_heading
-                       + (x + cos_yaw * sensor_x - sin_yaw * sensor_y))
-    endpoints[:, 1] = (forward * sin_heading + left * cos_heading
-                       + (y + sin_yaw * sensor_x + cos_yaw * sensor_y))
+    endpoints[:, 0] = forward * cos_heading - left * sin_heading + origin_x
+    endpoints[:, 1] = forward * sin_heading + left * cos_heading + origin_y
     return endpoints
+
+
+def sensor_origin(sensor_pose, robot_pose):
+    """Return o = q + R(yaw) (s_x, s_y), the sensor's (x, y) in the odometry frame.
+
+    Poses as ``beam_endpoints``'s: the sensor (x, y, yaw) in the base frame, the base in the
+    odometry frame.
+    """
+    sensor_x, sensor_y, _ = sensor_pose
+    x, y, yaw = robot_pose
+    cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+    return x + cos_yaw * sensor_x - sin_yaw * sensor_y, y + sin_yaw * sensor_x + cos_yaw * sensor_y
 
 
 def scan_points(ranges, angle_min, angle_increment, range_min, range_max, sensor_pose,
@@ -370,6 +387,47 @@ def _rectangles(ax, ay, bx, by, base, thickness, depth):
     return corners
 
 
+def _rectangles_behind(ax, ay, bx, by, sensor, base, settings):
+    """Return step 5's rectangles, reaching away from the sensor (near the base: from it).
+
+    The beams crossed the sensor's side of each chord, so the body lies on the other.  With
+    the laser off the base, a chord in line with both (a surface lit at grazing incidence)
+    may have the base on that other side; a rectangle that then comes within
+    ``footprint_radius`` of the base reaches away from the base instead, as before the
+    laser's offset was known, so that no polygon comes near the base.  (Measured: built away
+    from the base, a post beside a Jackal's front corner, lit by the laser 5.5 cm ahead of
+    the base, became a rectangle reaching 8 cm into the space the beams had crossed, towards
+    the box's path, on every few scans; the barrier's h jumped from +0.02 to -0.16 and the
+    robot stalled; BARN world 200 from the laser, go-to-goal.)
+    """
+    thickness, depth = settings.segment_thickness, settings.depth
+    polygons = _rectangles(ax, ay, bx, by, sensor, thickness, depth)
+    if sensor[0] == base[0] and sensor[1] == base[1]:
+        return polygons
+    near = _reach_within(polygons, base, settings.footprint_radius)
+    if near.any():
+        polygons[near] = _rectangles(ax[near], ay[near], bx[near], by[near], base, thickness,
+                                     depth)
+    return polygons
+
+
+def _reach_within(rectangles, point, radius):
+    """Return (M,) whether each (M, 4, 2) rectangle of ``_rectangles`` comes within ``radius``.
+
+    In the rectangle's frame (corner 0; sides along corners 0-1 and 0-3, scaled to [0, 1]),
+    the distance is that of the point's offsets beyond each side's span.
+    """
+    corner = rectangles[:, 0]
+    along, across = rectangles[:, 1] - corner, rectangles[:, 3] - corner
+    rel = point - corner
+    gaps = []
+    for side in (along, across):
+        square = (side * side).sum(axis=1)
+        t = (rel * side).sum(axis=1) / square
+        gaps.append(np.maximum(np.maximum(-t, t - 1.0), 0.0) ** 2 * square)
+    return gaps[0] + gaps[1] <= radius * radius
+
+
 def _front(polygons, px, py, first, last, base, footprint_radius):
     """Return the piece polygons with their near sides brought to their points (step 6).
 
@@ -401,7 +459,9 @@ def _front(polygons, px, py, first, last, base, footprint_radius):
 def _nearest(polygons, base, count):
     """Return the sorted indices of the ``count`` polygons nearest the base.
 
-    A polygon extends away from the base, so its distance is that of its near edge.
+    Ranked by their near edges' distances: a polygon's own, but for one that reaches
+    towards the base (step 5: lit at grazing incidence by a laser off the base), at most
+    ``depth`` nearer.
     """
     ax, ay = polygons[:, 0, 0], polygons[:, 0, 1]
     ex, ey = polygons[:, 1, 0] - ax, polygons[:, 1, 1] - ay
@@ -411,12 +471,13 @@ def _nearest(polygons, base, count):
 
 
 def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=False,
-                   with_clusters=False):
+                   with_clusters=False, sensor_position=None):
     """Return the obstacles (``Obstacle``, keys ``scan/<i>``) outlined by beam endpoints.
 
     ``endpoints`` (N, 2): one row per beam in beam order, non-finite rows for beams without a
     return (``beam_endpoints``); ``robot_position``: the base origin (x, y) in the same frame;
-    ``wraps``: the last beam neighbours the first (``scan_wraps``).  Obstacles share one
+    ``wraps``: the last beam neighbours the first (``scan_wraps``); ``sensor_position``:
+    the laser's origin (x, y) in that frame, None: at the base.  Obstacles share one
     read-only zero velocity.  Module docstring: method, guarantees and limits.
 
     ``with_clusters``: return ``(obstacles, owner, clusters)`` instead, where ``clusters`` is
@@ -430,6 +491,8 @@ def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=F
     if endpoints.ndim != 2 or endpoints.shape[1] != 2:
         raise ValueError(f'endpoints must have shape (N, 2), got {endpoints.shape}')
     base = _finite_vector(robot_position, 2, 'robot_position')
+    sensor = base if sensor_position is None else _finite_vector(sensor_position, 2,
+                                                                 'sensor_position')
     x, y = endpoints[:, 0], endpoints[:, 1]
     reach_sq = (x - base[0]) ** 2 + (y - base[1]) ** 2  # NaN or inf for beams without return
     beams = ((reach_sq > settings.footprint_radius ** 2) & (reach_sq < np.inf)).nonzero()[0]
@@ -455,8 +518,8 @@ def scan_obstacles(endpoints, robot_position, settings=DEFAULT_SETTINGS, wraps=F
     first, last = first[keep], last[keep]
     order = first.argsort()
     first, last = first[order], last[order]
-    polygons = _rectangles(px[first], py[first], px[last], py[last], base,
-                           settings.segment_thickness, settings.depth)
+    polygons = _rectangles_behind(px[first], py[first], px[last], py[last], sensor, base,
+                                  settings)
     nearest = None
     if len(polygons) > settings.max_obstacles:
         nearest = _nearest(polygons, base, settings.max_obstacles)
@@ -500,7 +563,8 @@ def scan_to_obstacles(ranges, angle_min, angle_increment, range_min, range_max, 
     endpoints = beam_endpoints(ranges, angle_min, angle_increment, range_min, range_max,
                                sensor_pose, robot_pose)
     return scan_obstacles(endpoints, _finite_vector(robot_pose, 3, 'robot_pose')[:2], settings,
-                          scan_wraps(len(endpoints), angle_increment), with_clusters)
+                          scan_wraps(len(endpoints), angle_increment), with_clusters,
+                          sensor_origin(sensor_pose, robot_pose))
 
 
 def pose_at(odometry, stamp):

@@ -57,7 +57,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from polyc2bf_ros.core.obstacles.scan_conversion import FULL_TURN, scan_obstacles
+from polyc2bf_ros.core.obstacles.scan_conversion import FULL_TURN, scan_obstacles, sensor_origin
 
 
 class ScanView(NamedTuple):
@@ -89,13 +89,10 @@ class ScanView(NamedTuple):
         Taken by a sensor at ``sensor_pose`` (x, y, yaw in the base frame) on a base at
         ``robot_pose`` (odometry frame); a negative increment is turned round.
         """
-        x, y, yaw = robot_pose
-        sx, sy, syaw = sensor_pose
         last = angle_min + (len(ranges) - 1) * increment
-        return cls(x + math.cos(yaw) * sx - math.sin(yaw) * sy,
-                   y + math.sin(yaw) * sx + math.cos(yaw) * sy, yaw + syaw,
+        return cls(*sensor_origin(sensor_pose, robot_pose), robot_pose[2] + sensor_pose[2],
                    min(angle_min, last), max(angle_min, last), abs(increment), range_min,
-                   range_max, (x, y), ranges if increment > 0 else ranges[::-1])
+                   range_max, tuple(robot_pose[:2]), ranges if increment > 0 else ranges[::-1])
 
     def blind(self):
         """Return True when the beams leave a sector unseen (less than a full turn)."""
@@ -202,7 +199,8 @@ class ScanMemory:
         bins = np.floor(after / view.step).astype(np.int64)
         order = np.lexsort((ranges, bins))
         nearest = order[np.concatenate(([True], bins[order][1:] != bins[order][:-1]))]
-        return scan_obstacles(points[nearest], view.base, settings)
+        return scan_obstacles(points[nearest], view.base, settings,
+                              sensor_position=(view.x, view.y))
 
 
 def _with_backs(points, view, depth):
