@@ -359,18 +359,21 @@ def _split(px, py, ends, base, settings):
         ends.sort()
 
 
-def _rectangles(ax, ay, bx, by, base, thickness, depth):
-    """Return the (M, 4, 2) CCW polygons of chords [a, b] (step 5); corners 0, 1: near edge."""
+def _rectangles(ax, ay, bx, by, viewpoint, thickness, depth):
+    """Return the (M, 4, 2) CCW polygons of chords [a, b], away from ``viewpoint`` (step 5).
+
+    Corners 0, 1: the near edge.
+    """
     length = np.sqrt((bx - ax) ** 2 + (by - ay) ** 2)
     short = length < thickness
-    swap = ~short & ((bx - ax) * (base[1] - ay) > (by - ay) * (base[0] - ax))
+    swap = ~short & ((bx - ax) * (viewpoint[1] - ay) > (by - ay) * (viewpoint[0] - ax))
     ax, bx = np.where(swap, bx, ax), np.where(swap, ax, bx)
     ay, by = np.where(swap, by, ay), np.where(swap, ay, by)
     if short.any():
         cx, cy = (ax + bx) / 2, (ay + by) / 2
-        ux, uy = cx - base[0], cy - base[1]
+        ux, uy = cx - viewpoint[0], cy - viewpoint[1]
         reach = np.sqrt(ux * ux + uy * uy)
-        away = reach > 0  # False only for a midpoint on the base itself (footprint_radius 0)
+        away = reach > 0  # False only for a midpoint on the viewpoint (footprint_radius 0)
         scale = 0.5 * thickness / np.where(away, reach, 1.0)
         ux = np.where(away, ux * scale, 0.5 * thickness)  # half the side, towards the far edge
         uy = np.where(away, uy * scale, 0.0)
@@ -393,8 +396,8 @@ def _rectangles_behind(ax, ay, bx, by, sensor, base, settings):
     The beams crossed the sensor's side of each chord, so the body lies on the other.  With
     the laser off the base, a chord in line with both (a surface lit at grazing incidence)
     may have the base on that other side; a rectangle that then comes within
-    ``footprint_radius`` of the base reaches away from the base instead, as before the
-    laser's offset was known, so that no polygon comes near the base.  (Measured: built away
+    ``footprint_radius`` of the base reaches away from the base instead, as from a laser
+    at the base, so that no polygon comes near the base.  (Measured: built away
     from the base, a post beside a Jackal's front corner, lit by the laser 5.5 cm ahead of
     the base, became a rectangle reaching 8 cm into the space the beams had crossed, towards
     the box's path, on every few scans; the barrier's h jumped from +0.02 to -0.16 and the
