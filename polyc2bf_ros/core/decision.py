@@ -231,6 +231,9 @@ class ControlDecision:
         command, circulation, position = self.command_vector, self.circulation, None
         if circulation is not None and circulation.active:
             position = self._position()
+            if circulation.mode == 'route':   # a standing part now on the route: plan again
+                circulation.revise(now, position, self.yaw, self.command_vector,
+                                   snapshot.obstacles, snapshot.views)
             circulation.release_if_done(
                 now, position,
                 lambda: self._passes(circulation.probe(command), snapshot, age))

@@ -14,6 +14,8 @@ from polyc2bf_ros.core.liveness.escape_route import (
     MAX_WIDEN,
     PATIENCE,
     plan_route,
+    REPLAN_LOSS,
+    route_clearances,
     RouteEscape,
     SEEN_AROUND,
     unseen_cells,
@@ -260,6 +262,50 @@ def test_a_route_ends_after_its_time_limit_and_a_second_report_replans():
     assert escape.routes == 2
     escape.release_if_done(6.0 * length, (1.45, 0.2), lambda: True)
     assert not escape.active
+
+
+def test_a_standing_part_lit_on_the_route_ahead_plans_it_again_round_the_part():
+    """A post found on the route ahead: a new route from where the robot is, clear of it.
+
+    The same parts in a new set, a part that moves, or a post beside the route (nearer
+    than before by less than ``REPLAN_LOSS``, or farther than c_min) leave the route as it
+    is; with no route round the post the old one is kept.
+    """
+    wall = box(2.0, -1.5, 2.3, 1.5)
+    escape = RouteEscape(FREE, lookahead=0.25)
+    escape.engage(0.0, (1.45, 0.2), 0.0, (0.7, 0.0), obstacle_set(wall))
+    first = escape._route.copy()
+    middle = len(first) // 2
+    here = first[middle // 2]
+    escape.release_if_done(1.0, here, lambda: True)
+    assert not escape.revise(1.0, here, 0.0, (0.7, 0.0), obstacle_set(wall))
+    ahead = first[middle + 3]
+    post = box(*(ahead - 0.1), *(ahead + 0.1))
+    moving = ObstacleSet.from_obstacles([
+        Obstacle(polygon=wall, key='wall'),
+        Obstacle(polygon=post, velocity=np.array([0.5, 0.0, 0.0]), key='post')])
+    assert not escape.revise(1.0, here, 0.0, (0.7, 0.0), moving)
+    aside = escape._allowed[middle + 3] - REPLAN_LOSS + 0.02   # a post off the route
+    beside = box(ahead[0] - 0.1, ahead[1] + aside, ahead[0] + 0.1, ahead[1] + aside + 0.2)
+    assert not escape.revise(1.0, here, 0.0, (0.7, 0.0), obstacle_set(wall, beside))
+    np.testing.assert_array_equal(escape._route, first)
+    lit = obstacle_set(wall, post)
+    assert escape.revise(1.5, here, 0.0, (0.7, 0.0), lit)
+    assert escape.replans == 1 and escape.routes == 1 and escape.active
+    route = escape._route
+    np.testing.assert_allclose(route[0], here)
+    far = np.hypot(*(route - here).T) > 0.35   # past the start band
+    assert clearance_along(route[far], [wall, post]).min() >= FREE - 1e-9
+    assert not escape.revise(1.6, here, 0.0, (0.7, 0.0), lit)   # checked: no new plan
+    boxed = RouteEscape(FREE, lookahead=0.25)
+    boxed.engage(0.0, (1.45, 0.2), 0.0, (0.7, 0.0), obstacle_set(wall))
+    cage = [box(-0.5, -0.5, 3.5, -0.4), box(-0.5, 0.8, 3.5, 0.9), box(-0.5, -0.5, -0.4, 0.9)]
+    kept = boxed._route.copy()
+    caged = obstacle_set(wall, *cage)
+    assert np.any(route_clearances(caged, kept, FREE) < boxed._allowed - REPLAN_LOSS)
+    assert not boxed.revise(1.0, (1.45, 0.2), 0.0, (0.7, 0.0), caged)
+    np.testing.assert_array_equal(boxed._route, kept)
+    assert boxed.replans == 0
 
 
 def test_a_holonomic_base_follows_the_route_with_a_body_frame_velocity():

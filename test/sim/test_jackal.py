@@ -140,3 +140,20 @@ def test_from_its_laser_a_jackal_routes_through_what_the_laser_saw():
                              robot='jackal', speed=2.0)
     assert record['success'] and not record['collision'], record
     assert record['time_s'] < 30.0 and record['deadlock_detections'] <= 2, record
+
+
+@pytest.mark.slow
+def test_from_its_laser_a_jackal_plans_again_when_a_post_is_lit_on_its_route():
+    """BARN world 160, go-to-goal from the laser: one report, the route revised on the way.
+
+    The first route ran 0.13 m from posts no beam had lit when it was planned; followed on,
+    it led the box into them and a second report came there (16.6 s).  Planned again as
+    soon as the laser lit them (``RouteEscape.revise``), it arrives after the one report.
+    """
+    world, = [w for w in barn.load_worlds(barn.WORLDS_FILE) if w.world == 160]
+    (record, _), = run_world(world, [(default_barrier('jackal'), 'goal')],
+                             obstacle_source='scan',
+                             lidar=lidar_settings((), **ROBOT_TYPES['jackal'].lidar),
+                             robot='jackal', speed=2.0)
+    assert record['success'] and not record['collision'], record
+    assert record['deadlock_detections'] == 1 and record['time_s'] < 14.0, record
