@@ -75,7 +75,8 @@ route point ahead than the plan allowed, min(c at the plan, c_min), the route is
 again from where the robot is, the way the nominal points then, without backing (the robot
 is moving, not nose-in).  When no new route is found the old one is kept: if the robot is
 held on it, the next report plans as usual.  From markers every post is known at the
-first plan and nothing changes.
+first plan and nothing changes.  (With it, that go-to-goal metric from the laser rose
+0.4165 -> 0.4369 and its reports 266 -> 223; bench/README.md.)
 
 Release.  The nominal takes over again at the route's end (within ``lookahead`` of it) or
 after max(``max_time``, 3 L / v_n) s for a route of length L.  A route the filter holds the
