@@ -104,6 +104,16 @@ def test_the_cruise_speed_reaches_the_nominal():
     assert 'filter.robot_radius' not in plan['safety_filter'].parameters
 
 
+def _from_the_laser(number):
+    """Return BARN world ``number``'s record: go-to-goal, 2 m/s, the laser alone, as shipped."""
+    world, = [w for w in barn.load_worlds(barn.WORLDS_FILE) if w.world == number]
+    (record, _), = run_world(world, [(default_barrier('jackal'), 'goal')],
+                             obstacle_source='scan',
+                             lidar=lidar_settings((), **ROBOT_TYPES['jackal'].lidar),
+                             robot='jackal', speed=2.0)
+    return record
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize('number', [5, 8, 290])
 def test_a_jackal_at_2_m_s_crosses_a_barn_world_from_its_laser_without_contact(number):
@@ -113,11 +123,7 @@ def test_a_jackal_at_2_m_s_crosses_a_barn_world_from_its_laser_without_contact(n
     turns round a post that passed behind the laser (it grazed it while the scan memory
     drew such a post on its lit side only).
     """
-    world, = [w for w in barn.load_worlds(barn.WORLDS_FILE) if w.world == number]
-    (record, _), = run_world(world, [(default_barrier('jackal'), 'goal')],
-                             obstacle_source='scan',
-                             lidar=lidar_settings((), **ROBOT_TYPES['jackal'].lidar),
-                             robot='jackal', speed=2.0)
+    record = _from_the_laser(number)
     assert record['robot'] == 'jackal' and record['speed'] == 2.0
     assert not record['collision'] and record['success'], record
     assert record['min_clearance_m'] is None or record['min_clearance_m'] > 0.0
@@ -133,11 +139,7 @@ def test_from_its_laser_a_jackal_routes_through_what_the_laser_saw():
     arrival in 100 s); a route that keeps to what the laser saw leads through in one or two
     (10-22 s as the scans' placement changed).
     """
-    world, = [w for w in barn.load_worlds(barn.WORLDS_FILE) if w.world == 181]
-    (record, _), = run_world(world, [(default_barrier('jackal'), 'goal')],
-                             obstacle_source='scan',
-                             lidar=lidar_settings((), **ROBOT_TYPES['jackal'].lidar),
-                             robot='jackal', speed=2.0)
+    record = _from_the_laser(181)
     assert record['success'] and not record['collision'], record
     assert record['time_s'] < 30.0 and record['deadlock_detections'] <= 2, record
 
@@ -150,10 +152,6 @@ def test_from_its_laser_a_jackal_plans_again_when_a_post_is_lit_on_its_route():
     it led the box into them and a second report came there (16.6 s).  Planned again as
     soon as the laser lit them (``RouteEscape.revise``), it arrives after the one report.
     """
-    world, = [w for w in barn.load_worlds(barn.WORLDS_FILE) if w.world == 160]
-    (record, _), = run_world(world, [(default_barrier('jackal'), 'goal')],
-                             obstacle_source='scan',
-                             lidar=lidar_settings((), **ROBOT_TYPES['jackal'].lidar),
-                             robot='jackal', speed=2.0)
+    record = _from_the_laser(160)
     assert record['success'] and not record['collision'], record
     assert record['deadlock_detections'] == 1 and record['time_s'] < 14.0, record
